@@ -1,0 +1,121 @@
+//! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
+
+use anyhow::{Context, Result};
+use bimtiles::convert::{convert, ConvertOptions};
+use bimtiles::inspect::{human_bytes, inspect};
+use bimtiles::partition::OctreeOptions;
+use bimtiles::tileset::georef::GeoOrigin;
+use clap::{Args, Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "bimtiles",
+    version,
+    about = "Building models (glTF/GLB) to OGC 3D Tiles 1.1"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Convert models into a 3D Tiles 1.1 tileset.
+    Convert(ConvertArgs),
+    /// Summarise a tileset per level (tiles, triangles, bytes, geometric error).
+    Inspect {
+        /// The tileset folder (holding tileset.json).
+        dir: PathBuf,
+        /// Print JSON for scripts.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args)]
+struct ConvertArgs {
+    /// Input models (.glb, .gltf).
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output folder (must not exist, unless --force).
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Replace an existing output folder that holds a tileset.
+    #[arg(long)]
+    force: bool,
+    /// Geographic place of the model's anchor: LON,LAT[,HEIGHT] (degrees, degrees, metres on WGS84).
+    #[arg(long, value_parser = GeoOrigin::parse, allow_hyphen_values = true)]
+    origin: Option<GeoOrigin>,
+    /// Split an octree cell while its content has more triangles than this.
+    #[arg(long, default_value_t = OctreeOptions::default().max_tile_triangles)]
+    max_tile_triangles: usize,
+    /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
+    #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
+    max_tile_bytes: usize,
+    /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No progress bars and no summary (report.json is still written).
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+pub fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Convert(a) => run_convert(a),
+        Command::Inspect { dir, json } => {
+            let s = inspect(&dir)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&s)?);
+            } else {
+                print!("{s}");
+            }
+            Ok(())
+        }
+    }
+}
+
+fn run_convert(a: ConvertArgs) -> Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n.max(1))
+            .build_global()
+            .context("cannot set up worker threads")?;
+    }
+    let opts = ConvertOptions {
+        out_dir: a.out.clone(),
+        force: a.force,
+        origin: a.origin,
+        octree: OctreeOptions {
+            max_tile_triangles: a.max_tile_triangles.max(1),
+            max_tile_bytes: a.max_tile_bytes.max(1),
+            ..OctreeOptions::default()
+        },
+        progress: !a.quiet,
+    };
+    let r = convert(&a.inputs, &opts)?;
+    if !a.quiet {
+        println!(
+            "{} -> {}\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles, {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
+            r.input.files.join(", "),
+            a.out.display(),
+            r.input.triangles,
+            r.input.vertices,
+            r.input.components,
+            human_bytes(r.input.bytes),
+            r.output.tiles,
+            r.output.tiles_with_content,
+            r.output.max_depth,
+            r.output.triangles,
+            human_bytes(r.output.bytes),
+            r.timings_s.total,
+            r.timings_s.ingest,
+            r.timings_s.partition,
+            r.timings_s.encode_write,
+            human_bytes(r.peak_memory_bytes),
+        );
+    }
+    Ok(())
+}

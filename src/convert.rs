@@ -1,0 +1,421 @@
+//! The end-to-end conversion: ingest → place → partition → encode → tileset → report.
+//!
+//! Output is built in a temporary folder beside the target and renamed into place at the end, so an
+//! interrupted or failed run never leaves a tileset that looks complete. Tiles are encoded in
+//! parallel, each written and freed at once; file names and contents depend only on the input and
+//! the options, never on the thread count.
+
+use crate::encode::encode_tile;
+use crate::error::{Error, Result};
+use crate::partition::{plan_octree, OctreeOptions, TilePlan};
+use crate::scene::{Aabb, Scene};
+use crate::tileset::georef::GeoOrigin;
+use crate::tileset::{tileset_json, TileFacts};
+use glam::{DMat4, DVec3};
+use rayon::prelude::*;
+use serde::Serialize;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Models whose bounding-box centre is farther than this from their own origin are taken to be in
+/// projected (map) coordinates: they are re-anchored at their footprint centre.
+pub const PROJECTED_COORDINATES_THRESHOLD_M: f64 = 10_000.0;
+
+#[derive(Debug, Clone)]
+pub struct ConvertOptions {
+    pub out_dir: PathBuf,
+    /// Replace an existing output folder (only one that holds a tileset, or an empty one).
+    pub force: bool,
+    /// Where the model's anchor goes on Earth; `None` = [`GeoOrigin::DEFAULT`].
+    pub origin: Option<GeoOrigin>,
+    pub octree: OctreeOptions,
+    /// Show progress bars on stderr.
+    pub progress: bool,
+}
+
+impl ConvertOptions {
+    pub fn new(out_dir: impl Into<PathBuf>) -> Self {
+        ConvertOptions {
+            out_dir: out_dir.into(),
+            force: false,
+            origin: None,
+            octree: OctreeOptions::default(),
+            progress: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InputReport {
+    pub files: Vec<String>,
+    pub bytes: u64,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub components: usize,
+    pub meshes: usize,
+    pub materials: usize,
+    pub images: usize,
+    pub skipped_primitives: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct OutputReport {
+    pub bytes: u64,
+    pub tiles: usize,
+    pub tiles_with_content: usize,
+    pub max_depth: u32,
+    pub triangles: usize,
+    pub vertices: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LevelReport {
+    pub depth: u32,
+    pub tiles: usize,
+    pub triangles: usize,
+    pub bytes: u64,
+    pub geometric_error_min_m: f64,
+    pub geometric_error_max_m: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct GeoReport {
+    pub origin: GeoOrigin,
+    /// "option" (from --origin) or "default".
+    pub origin_source: String,
+    /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
+    pub anchor_m: [f64; 3],
+    pub anchor_rule: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Timings {
+    pub ingest: f64,
+    pub partition: f64,
+    pub encode_write: f64,
+    pub tileset: f64,
+    pub total: f64,
+}
+
+/// What `report.json` holds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub tool: String,
+    pub input: InputReport,
+    pub output: OutputReport,
+    pub levels: Vec<LevelReport>,
+    pub georeference: GeoReport,
+    /// Which metric produced the tiles' geometricError.
+    pub geometric_error_metric: String,
+    pub options: serde_json::Value,
+    pub timings_s: Timings,
+    pub peak_memory_bytes: u64,
+}
+
+/// Peak resident memory of this process so far (Linux `VmHWM`), 0 where unknown.
+pub fn peak_memory_bytes() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<u64>().ok())
+        })
+        .map_or(0, |kb| kb * 1024)
+}
+
+/// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
+/// model lies far from it (projected coordinates), then its footprint centre at ground level.
+pub fn choose_anchor(bounds: &Aabb) -> (DVec3, String) {
+    let c = bounds.center();
+    if c.length() <= PROJECTED_COORDINATES_THRESHOLD_M {
+        (DVec3::ZERO, "model origin (coordinates are local)".into())
+    } else {
+        (
+            DVec3::new(c.x, c.y, bounds.min.z),
+            format!(
+                "footprint centre at the lowest point (the model lies {:.0} m from its origin: projected coordinates)",
+                c.length()
+            ),
+        )
+    }
+}
+
+fn progress_bar(show: bool, len: usize, what: &'static str) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {elapsed}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb.set_prefix(what);
+    pb
+}
+
+/// Checks that `out` may be written: absent, or replaceable with `force`.
+fn check_output(out: &Path, force: bool) -> Result<()> {
+    if !out.exists() {
+        return Ok(());
+    }
+    if !force {
+        return Err(Error::output(
+            out,
+            "output folder exists (use --force to replace it)",
+        ));
+    }
+    if !out.is_dir() {
+        return Err(Error::output(out, "output path exists and is not a folder"));
+    }
+    let empty = std::fs::read_dir(out)
+        .map_err(|e| Error::output(out, e))?
+        .next()
+        .is_none();
+    if !empty && !out.join("tileset.json").exists() {
+        return Err(Error::output(
+            out,
+            "refusing to replace a folder that does not hold a tileset (no tileset.json)",
+        ));
+    }
+    Ok(())
+}
+
+/// Reads `inputs`, converts them and writes the tileset to `opts.out_dir`.
+pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
+    let t0 = Instant::now();
+    if inputs.is_empty() {
+        return Err(Error::Options("no input file given".into()));
+    }
+    check_output(&opts.out_dir, opts.force)?;
+    let mut scene = crate::ingest::read_inputs(inputs)?;
+    if scene.triangle_count() == 0 {
+        return Err(Error::input(
+            &inputs[0],
+            "the input has no triangles to tile",
+        ));
+    }
+    let t_ingest = t0.elapsed().as_secs_f64();
+    convert_scene(&mut scene, opts, t0, t_ingest)
+}
+
+/// Converts an already-read scene (used by `convert` and by tests that build scenes in memory).
+pub fn convert_scene(
+    scene: &mut Scene,
+    opts: &ConvertOptions,
+    t0: Instant,
+    t_ingest: f64,
+) -> Result<Report> {
+    check_output(&opts.out_dir, opts.force)?;
+    let input = InputReport {
+        files: scene
+            .sources
+            .iter()
+            .map(|s| s.path.display().to_string())
+            .collect(),
+        bytes: scene.sources.iter().map(|s| s.bytes).sum(),
+        triangles: scene.triangle_count(),
+        vertices: scene.vertex_count(),
+        components: scene.components.len(),
+        meshes: scene.meshes.len(),
+        materials: scene.materials.len(),
+        images: scene.images.len(),
+        skipped_primitives: scene.skipped_primitives,
+    };
+
+    // Place: the anchor goes to the scene frame's origin, in f64, before anything is rounded.
+    let (anchor, anchor_rule) = choose_anchor(&scene.bounds());
+    if anchor != DVec3::ZERO {
+        scene.apply_transform(&DMat4::from_translation(-anchor));
+    }
+    let origin = opts.origin.unwrap_or(GeoOrigin::DEFAULT);
+
+    let t1 = Instant::now();
+    let plan = plan_octree(scene, &opts.octree);
+    let t_partition = t1.elapsed().as_secs_f64();
+
+    // Temporary folder beside the target, renamed at the end.
+    let out = &opts.out_dir;
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = out
+        .file_name()
+        .ok_or_else(|| Error::output(out, "output path has no folder name"))?
+        .to_string_lossy()
+        .to_string();
+    std::fs::create_dir_all(parent).map_err(|e| Error::output(parent, e))?;
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
+    }
+    let result = write_tileset(scene, &plan, opts, &tmp, origin, anchor);
+    let (facts_bytes, t_encode, t_tileset) = match result {
+        Ok(x) => x,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+    };
+
+    let mut levels: Vec<LevelReport> = Vec::new();
+    let mut out_tris = 0;
+    let mut out_verts = 0;
+    let mut out_bytes = 0u64;
+    for (t, (ge, bytes, tris, verts)) in plan.tiles.iter().zip(&facts_bytes) {
+        out_tris += tris;
+        out_verts += verts;
+        out_bytes += bytes;
+        let d = t.depth as usize;
+        while levels.len() <= d {
+            levels.push(LevelReport {
+                depth: levels.len() as u32,
+                tiles: 0,
+                triangles: 0,
+                bytes: 0,
+                geometric_error_min_m: f64::INFINITY,
+                geometric_error_max_m: 0.0,
+            });
+        }
+        let l = &mut levels[d];
+        l.tiles += 1;
+        l.triangles += tris;
+        l.bytes += bytes;
+        l.geometric_error_min_m = l.geometric_error_min_m.min(*ge);
+        l.geometric_error_max_m = l.geometric_error_max_m.max(*ge);
+    }
+    let tileset_bytes = std::fs::metadata(tmp.join("tileset.json")).map_or(0, |m| m.len());
+    let mut report = Report {
+        tool: concat!("bimtiles ", env!("CARGO_PKG_VERSION")).into(),
+        input,
+        output: OutputReport {
+            bytes: out_bytes + tileset_bytes,
+            tiles: plan.tiles.len(),
+            tiles_with_content: plan.tiles.iter().filter(|t| !t.content.is_empty()).count(),
+            max_depth: plan.max_depth(),
+            triangles: out_tris,
+            vertices: out_verts,
+        },
+        levels,
+        georeference: GeoReport {
+            origin,
+            origin_source: if opts.origin.is_some() {
+                "option"
+            } else {
+                "default"
+            }
+            .into(),
+            anchor_m: anchor.to_array(),
+            anchor_rule,
+        },
+        geometric_error_metric: GEOMETRIC_ERROR_METRIC.into(),
+        options: json!({
+            "max_tile_triangles": opts.octree.max_tile_triangles,
+            "max_tile_bytes": opts.octree.max_tile_bytes,
+            "max_depth": opts.octree.max_depth,
+        }),
+        timings_s: Timings {
+            ingest: t_ingest,
+            partition: t_partition,
+            encode_write: t_encode,
+            tileset: t_tileset,
+            total: 0.0,
+        },
+        peak_memory_bytes: 0,
+    };
+    report.timings_s.total = t0.elapsed().as_secs_f64();
+    report.peak_memory_bytes = peak_memory_bytes();
+    let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
+    let finish = || -> std::io::Result<()> {
+        std::fs::write(tmp.join("report.json"), &report_json)?;
+        if out.exists() {
+            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+            std::fs::rename(out, &old)?;
+            std::fs::rename(&tmp, out)?;
+            std::fs::remove_dir_all(&old)?;
+        } else {
+            std::fs::rename(&tmp, out)?;
+        }
+        Ok(())
+    };
+    if let Err(e) = finish() {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(Error::output(out, e));
+    }
+    Ok(report)
+}
+
+/// The description of the geometric error written in the report.
+pub const GEOMETRIC_ERROR_METRIC: &str = "size-bound: a tile's geometricError is the largest bounding-box diagonal \
+among the components of its descendants (what is missing from the view when the tile is drawn without its children, \
+additive refinement); leaves have 0";
+
+/// Per tile: (geometric error, content bytes, triangles, vertices).
+type TileStats = (f64, u64, usize, usize);
+
+fn write_tileset(
+    scene: &Scene,
+    plan: &TilePlan,
+    opts: &ConvertOptions,
+    tmp: &Path,
+    origin: GeoOrigin,
+    anchor: DVec3,
+) -> Result<(Vec<TileStats>, f64, f64)> {
+    let tiles_dir = tmp.join("tiles");
+    std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
+    let t = Instant::now();
+    let pb = progress_bar(opts.progress, plan.tiles.len(), "tiles");
+    let generator = concat!("bimtiles ", env!("CARGO_PKG_VERSION"));
+    let stats: Vec<Result<(Option<String>, TileStats)>> = plan
+        .tiles
+        .par_iter()
+        .map(|tile| {
+            let ge = tile.omitted_size_m;
+            if tile.content.is_empty() {
+                pb.inc(1);
+                return Ok((None, (ge, 0, 0, 0)));
+            }
+            let enc = encode_tile(
+                scene,
+                &tile.content,
+                tile.content_bounds.center(),
+                generator,
+            )?;
+            let uri = format!("tiles/{}.glb", tile.path);
+            let path = tmp.join(&uri);
+            std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
+            pb.inc(1);
+            Ok((
+                Some(uri),
+                (ge, enc.glb.len() as u64, enc.triangles, enc.vertices),
+            ))
+        })
+        .collect();
+    pb.finish_and_clear();
+    let mut facts = Vec::with_capacity(stats.len());
+    let mut tile_stats = Vec::with_capacity(stats.len());
+    for s in stats {
+        let (uri, st) = s?;
+        facts.push(TileFacts {
+            content_uri: uri,
+            geometric_error_m: st.0,
+        });
+        tile_stats.push(st);
+    }
+    let t_encode = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let extras = json!({"bimtiles": {
+        "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
+        "anchor_m": anchor.to_array(),
+        "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
+    }});
+    let ts = tileset_json(plan, &facts, &origin.enu_to_ecef(), extras);
+    let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
+    let ts_path = tmp.join("tileset.json");
+    std::fs::write(&ts_path, bytes).map_err(|e| Error::output(&ts_path, e))?;
+    Ok((tile_stats, t_encode, t.elapsed().as_secs_f64()))
+}

@@ -1,0 +1,720 @@
+//! glTF 2.0 reader (`.gltf` with external or embedded buffers and images, and `.glb`).
+//!
+//! Every node that has a mesh becomes a [`Component`], keeping its name, `extras` and parent
+//! chain. Node transforms are read from the raw JSON as f64 (the `gltf` crate keeps them as f32,
+//! which loses millimetres on projected coordinates); the y-up → z-up change is applied once
+//! here, through [`Y_UP_TO_Z_UP`].
+//!
+//! The `gltf` crate parses the container and the JSON; we run its validator only for broken
+//! references (it rejects extensions 3D Tiles content needs), then read every accessor ourselves
+//! with explicit bounds checks, so malformed input gives an error and never a panic.
+
+use crate::error::{Error, Result};
+use crate::scene::*;
+use base64::Engine;
+use glam::{DMat4, DQuat, DVec3};
+use gltf::json::validation::Validate;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::{Component as PathPart, Path, PathBuf};
+use std::sync::Arc;
+
+/// Extensions we read correctly (or can ignore without changing the geometry) when a file
+/// declares them required.
+const SUPPORTED_REQUIRED: &[&str] = &[
+    "KHR_mesh_quantization",
+    "KHR_materials_unlit",
+    "KHR_materials_emissive_strength",
+];
+
+/// Reads one glTF/GLB file into a new scene.
+pub fn read_gltf(path: &Path) -> Result<Scene> {
+    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    read_gltf_bytes(path, &bytes)
+}
+
+/// Reads glTF/GLB bytes; `path` names the file in errors and anchors relative URIs.
+pub fn read_gltf_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
+    let err = |m: String| Error::input(path, m);
+    let is_glb = bytes.starts_with(b"glTF");
+    if !is_glb {
+        let first = bytes.iter().find(|b| !b.is_ascii_whitespace());
+        if first != Some(&b'{') {
+            return Err(err(
+                "not a glTF file (no GLB header and no JSON object)".into()
+            ));
+        }
+    }
+    let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| {
+        err(if is_glb {
+            format!("invalid or truncated GLB: {e}")
+        } else {
+            format!("invalid glTF JSON: {e}")
+        })
+    })?;
+    // The raw JSON again, for f64 node transforms.
+    let raw_json: Value = if is_glb {
+        let glb =
+            gltf::binary::Glb::from_slice(bytes).map_err(|e| err(format!("invalid GLB: {e}")))?;
+        serde_json::from_slice(&glb.json)
+            .map_err(|e| err(format!("invalid GLB JSON chunk: {e}")))?
+    } else {
+        serde_json::from_slice(bytes).map_err(|e| err(format!("invalid glTF JSON: {e}")))?
+    };
+
+    check_references(&gltf.document, &err)?;
+    for ext in gltf.document.extensions_required() {
+        if !SUPPORTED_REQUIRED.contains(&ext) {
+            return Err(err(format!(
+                "requires extension {ext}, which bimtiles does not read yet"
+            )));
+        }
+    }
+
+    let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let buffers = load_buffers(&gltf, &base_dir, path)?;
+    let mut reader = Reader {
+        path,
+        buffers: &buffers,
+        scene: Scene::default(),
+        mesh_map: HashMap::new(),
+    };
+    reader.scene.sources.push(SourceFile {
+        path: path.to_path_buf(),
+        bytes: bytes.len() as u64,
+    });
+    reader.read_images(&gltf.document, &base_dir)?;
+    reader.read_materials(&gltf.document);
+    reader.read_nodes(&gltf.document, &raw_json)?;
+    let mut scene = reader.scene;
+    scene.finish();
+    Ok(scene)
+}
+
+/// Broken indices (an accessor naming a missing bufferView, a node naming a missing mesh...) are
+/// fatal; "unsupported extension" and "missing data" reports are not (3D Tiles content relies on
+/// both), since the accessor reader checks data on its own.
+fn check_references(doc: &gltf::Document, err: &dyn Fn(String) -> Error) -> Result<()> {
+    let root = doc.as_json();
+    let mut first: Option<String> = None;
+    root.validate(root, gltf::json::Path::new, &mut |path, e| {
+        use gltf::json::validation::Error as E;
+        if matches!(e, E::IndexOutOfBounds | E::Invalid | E::Oversize) && first.is_none() {
+            first = Some(format!("{}: {e}", path()));
+        }
+    });
+    match first {
+        Some(m) => Err(err(format!("invalid glTF: {m}"))),
+        None => Ok(()),
+    }
+}
+
+/// Resolves a relative URI inside `base_dir`, refusing anything that could escape it (absolute
+/// paths, `..`, schemes, and their percent-encoded forms): a tileset service must never be made to
+/// read arbitrary files.
+pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<PathBuf, String> {
+    let decoded =
+        percent_decode(uri).ok_or_else(|| format!("URI '{uri}' is not valid percent-encoding"))?;
+    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
+        return Err(format!("URI '{uri}' is absolute or has a scheme (refused)"));
+    }
+    let rel = Path::new(&decoded);
+    if rel
+        .components()
+        .any(|c| !matches!(c, PathPart::Normal(_) | PathPart::CurDir))
+    {
+        return Err(format!("URI '{uri}' escapes the input folder (refused)"));
+    }
+    let full = base_dir.join(rel);
+    // A symlink inside the folder could still point out of it.
+    if let (Ok(canon), Ok(base)) = (full.canonicalize(), base_dir.canonicalize()) {
+        if !canon.starts_with(&base) {
+            return Err(format!(
+                "URI '{uri}' leads outside the input folder (refused)"
+            ));
+        }
+    }
+    Ok(full)
+}
+
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let h = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(h, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+fn decode_data_uri(uri: &str) -> Option<std::result::Result<Vec<u8>, String>> {
+    let rest = uri.strip_prefix("data:")?;
+    let (_, data) = match rest.split_once(";base64,") {
+        Some(x) => x,
+        None => return Some(Err("data URI is not base64".into())),
+    };
+    Some(
+        base64::engine::general_purpose::STANDARD
+            .decode(data)
+            .map_err(|e| format!("bad base64 in data URI: {e}")),
+    )
+}
+
+fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, String> {
+    if let Some(data) = decode_data_uri(uri) {
+        return data;
+    }
+    let p = resolve_relative_uri(base_dir, uri)?;
+    std::fs::read(&p).map_err(|e| format!("cannot read '{}': {e}", p.display()))
+}
+
+fn load_buffers(gltf: &gltf::Gltf, base_dir: &Path, path: &Path) -> Result<Vec<Vec<u8>>> {
+    let mut out = Vec::new();
+    for b in gltf.document.buffers() {
+        let data = match b.source() {
+            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
+                Error::input(
+                    path,
+                    format!("buffer {} refers to a missing GLB BIN chunk", b.index()),
+                )
+            })?,
+            gltf::buffer::Source::Uri(uri) => load_uri(base_dir, uri)
+                .map_err(|m| Error::input(path, format!("buffer {}: {m}", b.index())))?,
+        };
+        if data.len() < b.length() {
+            return Err(Error::input(
+                path,
+                format!(
+                    "buffer {} is truncated: {} bytes, byteLength says {}",
+                    b.index(),
+                    data.len(),
+                    b.length()
+                ),
+            ));
+        }
+        out.push(data);
+    }
+    Ok(out)
+}
+
+struct Reader<'a> {
+    path: &'a Path,
+    buffers: &'a [Vec<u8>],
+    scene: Scene,
+    mesh_map: HashMap<usize, MeshId>,
+}
+
+/// Raw node transform as f64 (matrix, or T·R·S).
+fn node_local_matrix(raw: Option<&Value>) -> DMat4 {
+    let nums = |key: &str, n: usize| -> Option<Vec<f64>> {
+        let arr = raw?.get(key)?.as_array()?;
+        let v: Vec<f64> = arr.iter().filter_map(Value::as_f64).collect();
+        (v.len() == n).then_some(v)
+    };
+    if let Some(m) = nums("matrix", 16) {
+        return DMat4::from_cols_slice(&m);
+    }
+    let t = nums("translation", 3).map_or(DVec3::ZERO, |v| DVec3::new(v[0], v[1], v[2]));
+    let r = nums("rotation", 4).map_or(DQuat::IDENTITY, |v| {
+        DQuat::from_xyzw(v[0], v[1], v[2], v[3]).normalize()
+    });
+    let s = nums("scale", 3).map_or(DVec3::ONE, |v| DVec3::new(v[0], v[1], v[2]));
+    DMat4::from_scale_rotation_translation(s, r, t)
+}
+
+impl Reader<'_> {
+    fn err(&self, m: impl Into<String>) -> Error {
+        Error::input(self.path, m)
+    }
+
+    fn view_bytes(&self, view: &gltf::buffer::View) -> Result<&[u8]> {
+        let buf = self.buffers.get(view.buffer().index()).ok_or_else(|| {
+            self.err(format!(
+                "bufferView {} names a missing buffer",
+                view.index()
+            ))
+        })?;
+        let end = view.offset().checked_add(view.length());
+        match end {
+            Some(end) if end <= buf.len() => Ok(&buf[view.offset()..end]),
+            _ => Err(self.err(format!(
+                "bufferView {} (offset {}, length {}) points past the end of buffer {} ({} bytes)",
+                view.index(),
+                view.offset(),
+                view.length(),
+                view.buffer().index(),
+                buf.len()
+            ))),
+        }
+    }
+
+    fn read_images(&mut self, doc: &gltf::Document, base_dir: &Path) -> Result<()> {
+        for img in doc.images() {
+            let (bytes, declared) = match img.source() {
+                gltf::image::Source::View { view, mime_type } => {
+                    (self.view_bytes(&view)?.to_vec(), Some(mime_type))
+                }
+                gltf::image::Source::Uri { uri, mime_type } => (
+                    load_uri(base_dir, uri)
+                        .map_err(|m| self.err(format!("image {}: {m}", img.index())))?,
+                    mime_type,
+                ),
+            };
+            let mime = sniff_image_mime(&bytes)
+                .map(str::to_string)
+                .or(declared.map(str::to_string))
+                .ok_or_else(|| {
+                    self.err(format!("image {} is not PNG, JPEG or WebP", img.index()))
+                })?;
+            self.scene.images.push(Image {
+                name: img.name().map(str::to_string),
+                mime_type: mime,
+                bytes: Arc::new(bytes),
+            });
+        }
+        Ok(())
+    }
+
+    fn read_materials(&mut self, doc: &gltf::Document) {
+        for m in doc.materials() {
+            let pbr = m.pbr_metallic_roughness();
+            let tex = pbr.base_color_texture().map(|info| {
+                let s = info.texture().sampler();
+                TextureRef {
+                    image: ImageId(info.texture().source().index() as u32),
+                    sampler: Sampler {
+                        mag_filter: s.mag_filter().map_or(0, |f| f.as_gl_enum()),
+                        min_filter: s.min_filter().map_or(0, |f| f.as_gl_enum()),
+                        wrap_s: s.wrap_s().as_gl_enum(),
+                        wrap_t: s.wrap_t().as_gl_enum(),
+                    },
+                    tex_coord: info.tex_coord(),
+                }
+            });
+            self.scene.materials.push(Material {
+                name: m.name().map(str::to_string),
+                base_color: pbr.base_color_factor(),
+                metallic: pbr.metallic_factor(),
+                roughness: pbr.roughness_factor(),
+                emissive: m.emissive_factor(),
+                base_color_texture: tex,
+                alpha_mode: match m.alpha_mode() {
+                    gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+                    gltf::material::AlphaMode::Mask => AlphaMode::Mask,
+                    gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+                },
+                alpha_cutoff: m.alpha_cutoff().unwrap_or(0.5),
+                double_sided: m.double_sided(),
+            });
+        }
+    }
+
+    fn read_nodes(&mut self, doc: &gltf::Document, raw: &Value) -> Result<()> {
+        let raw_nodes = raw.get("nodes").and_then(Value::as_array);
+        // Hierarchy: every glTF node becomes a scene node with the same index.
+        let mut parent = vec![None; doc.nodes().len()];
+        for n in doc.nodes() {
+            for c in n.children() {
+                if parent[c.index()].is_some() || c.index() == n.index() {
+                    return Err(self.err(format!("node {} has more than one parent", c.index())));
+                }
+                parent[c.index()] = Some(NodeId(n.index() as u32));
+            }
+        }
+        for n in doc.nodes() {
+            let extras = n
+                .extras()
+                .as_ref()
+                .and_then(|r| serde_json::from_str::<Value>(r.get()).ok());
+            self.scene.nodes.push(Node {
+                name: n.name().map(str::to_string),
+                parent: parent[n.index()],
+                extras,
+            });
+        }
+        // Roots: the default scene, else the first, else every parentless node.
+        let roots: Vec<usize> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+            Some(s) => s.nodes().map(|n| n.index()).collect(),
+            None => (0..parent.len()).filter(|&i| parent[i].is_none()).collect(),
+        };
+        let mut visited = vec![false; parent.len()];
+        let mut stack: Vec<(usize, DMat4)> =
+            roots.iter().rev().map(|&i| (i, Y_UP_TO_Z_UP)).collect();
+        while let Some((idx, parent_world)) = stack.pop() {
+            if std::mem::replace(&mut visited[idx], true) {
+                return Err(self.err(format!(
+                    "node {idx} is reached twice (a cycle or a shared child)"
+                )));
+            }
+            let node = doc.nodes().nth(idx).expect("index from the document");
+            let world = parent_world * node_local_matrix(raw_nodes.and_then(|a| a.get(idx)));
+            if !world.is_finite() {
+                return Err(self.err(format!("node {idx} has a non-finite transform")));
+            }
+            if let Some(mesh) = node.mesh() {
+                let mesh_id = self.mesh_id(&mesh)?;
+                let id = ComponentId(self.scene.components.len() as u32);
+                let key = self.scene.node_path(NodeId(idx as u32));
+                self.scene.components.push(Component {
+                    id,
+                    key,
+                    name: node.name().map(str::to_string),
+                    node: Some(NodeId(idx as u32)),
+                    mesh: mesh_id,
+                    world,
+                    world_bounds: Aabb::EMPTY,
+                    source: 0,
+                });
+            }
+            for c in node.children().collect::<Vec<_>>().into_iter().rev() {
+                stack.push((c.index(), world));
+            }
+        }
+        Ok(())
+    }
+
+    fn mesh_id(&mut self, mesh: &gltf::Mesh) -> Result<MeshId> {
+        if let Some(&id) = self.mesh_map.get(&mesh.index()) {
+            return Ok(id);
+        }
+        let mut out = Mesh {
+            name: mesh.name().map(str::to_string),
+            ..Default::default()
+        };
+        for (pi, prim) in mesh.primitives().enumerate() {
+            let what = format!("mesh {} primitive {pi}", mesh.index());
+            match self.read_primitive(&prim, &what)? {
+                Some(p) => out.primitives.push(p),
+                None => self.scene.skipped_primitives += 1,
+            }
+        }
+        let id = MeshId(self.scene.meshes.len() as u32);
+        self.scene.meshes.push(out);
+        self.mesh_map.insert(mesh.index(), id);
+        Ok(id)
+    }
+
+    /// `Ok(None)` for primitives that are not surfaces (points, lines).
+    fn read_primitive(&self, prim: &gltf::Primitive, what: &str) -> Result<Option<Primitive>> {
+        use gltf::mesh::Mode;
+        if prim.extension_value("KHR_draco_mesh_compression").is_some() {
+            return Err(self.err(format!("{what}: Draco-compressed input is not read yet")));
+        }
+        let mode = prim.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            return Ok(None);
+        }
+        let pos_acc = prim
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
+        let positions: Vec<[f32; 3]> = self.read_vec::<3>(&pos_acc, &format!("{what} POSITION"))?;
+        let n = positions.len();
+        if let Some(i) = positions
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(self.err(format!(
+                "{what}: POSITION {i} is not finite (NaN or infinity)"
+            )));
+        }
+        let attr = |sem: gltf::Semantic, name: &str| -> Result<Option<gltf::Accessor>> {
+            match prim.get(&sem) {
+                Some(a) if a.count() != n => Err(self.err(format!(
+                    "{what}: {name} has {} elements, POSITION has {n}",
+                    a.count()
+                ))),
+                other => Ok(other),
+            }
+        };
+        let normals = match attr(gltf::Semantic::Normals, "NORMAL")? {
+            Some(a) => {
+                let v = self.read_vec::<3>(&a, &format!("{what} NORMAL"))?;
+                Some(v.into_iter().map(sanitize_normal).collect())
+            }
+            None => None,
+        };
+        let uvs = match attr(gltf::Semantic::TexCoords(0), "TEXCOORD_0")? {
+            Some(a) => {
+                let v = self.read_vec::<2>(&a, &format!("{what} TEXCOORD_0"))?;
+                if v.iter().any(|t| !t[0].is_finite() || !t[1].is_finite()) {
+                    return Err(self.err(format!("{what}: TEXCOORD_0 has non-finite values")));
+                }
+                Some(v)
+            }
+            None => None,
+        };
+        let colors = match attr(gltf::Semantic::Colors(0), "COLOR_0")? {
+            Some(a) if a.dimensions() == gltf::accessor::Dimensions::Vec3 => Some(
+                self.read_vec::<3>(&a, &format!("{what} COLOR_0"))?
+                    .into_iter()
+                    .map(|c| [c[0], c[1], c[2], 1.0])
+                    .collect(),
+            ),
+            Some(a) => Some(self.read_vec::<4>(&a, &format!("{what} COLOR_0"))?),
+            None => None,
+        };
+        let raw_indices: Vec<u32> = match prim.indices() {
+            Some(a) => self.read_indices(&a, what)?,
+            None => (0..n as u32).collect(),
+        };
+        if let Some(bad) = raw_indices.iter().find(|&&i| i as usize >= n) {
+            return Err(self.err(format!(
+                "{what}: index {bad} is out of range ({n} vertices)"
+            )));
+        }
+        let indices = match mode {
+            Mode::Triangles => {
+                let mut v = raw_indices;
+                v.truncate(v.len() / 3 * 3);
+                v
+            }
+            Mode::TriangleStrip => (2..raw_indices.len())
+                .flat_map(|i| {
+                    let (a, b, c) = (raw_indices[i - 2], raw_indices[i - 1], raw_indices[i]);
+                    if i % 2 == 0 {
+                        [a, b, c]
+                    } else {
+                        [b, a, c]
+                    }
+                })
+                .collect(),
+            _ => (2..raw_indices.len())
+                .flat_map(|i| [raw_indices[0], raw_indices[i - 1], raw_indices[i]])
+                .collect(),
+        };
+        Ok(Some(Primitive {
+            material: prim.material().index().map(|i| MaterialId(i as u32)),
+            positions,
+            normals,
+            uvs,
+            colors,
+            indices,
+        }))
+    }
+
+    fn read_indices(&self, acc: &gltf::Accessor, what: &str) -> Result<Vec<u32>> {
+        use gltf::accessor::DataType as D;
+        if acc.dimensions() != gltf::accessor::Dimensions::Scalar {
+            return Err(self.err(format!("{what}: indices accessor is not SCALAR")));
+        }
+        let (raw, _) = self.accessor_elements(acc, &format!("{what} indices"))?;
+        Ok(match acc.data_type() {
+            D::U8 => raw.iter().map(|&e| e as u32).collect(),
+            D::U16 => raw
+                .chunks_exact(2)
+                .map(|e| u16::from_le_bytes([e[0], e[1]]) as u32)
+                .collect(),
+            D::U32 => raw
+                .chunks_exact(4)
+                .map(|e| u32::from_le_bytes([e[0], e[1], e[2], e[3]]))
+                .collect(),
+            other => return Err(self.err(format!("{what}: indices have component type {other:?}"))),
+        })
+    }
+
+    /// Reads a float (or quantized integer) vector accessor into f32 arrays, applying
+    /// `normalized` as glTF defines it and sparse substitution.
+    fn read_vec<const N: usize>(&self, acc: &gltf::Accessor, what: &str) -> Result<Vec<[f32; N]>> {
+        let dims = acc.dimensions().multiplicity();
+        if dims < N {
+            return Err(self.err(format!(
+                "{what}: expected {N} components, accessor has {dims}"
+            )));
+        }
+        let (packed, elem) = self.accessor_elements(acc, what)?;
+        let comp = acc.data_type().size();
+        let dt = acc.data_type();
+        let norm = acc.normalized();
+        let mut out = Vec::with_capacity(acc.count());
+        for e in packed.chunks_exact(elem.max(1)) {
+            let mut v = [0f32; N];
+            for (k, x) in v.iter_mut().enumerate() {
+                *x = decode_component(&e[k * comp..(k + 1) * comp], dt, norm);
+            }
+            out.push(v);
+        }
+        Ok(out)
+    }
+
+    /// The accessor's elements packed tightly (`count * element_size` bytes, sparse values
+    /// applied), after checking that every byte lies inside its bufferView and buffer.
+    fn accessor_elements(&self, acc: &gltf::Accessor, what: &str) -> Result<(Vec<u8>, usize)> {
+        let comp = acc.data_type().size();
+        let elem = comp * acc.dimensions().multiplicity();
+        let count = acc.count();
+        let total = count
+            .checked_mul(elem)
+            .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?;
+        let mut out = match acc.view() {
+            None => vec![0u8; total],
+            Some(view) => {
+                let data = self.view_bytes(&view)?;
+                let stride = view.stride().unwrap_or(elem).max(elem);
+                let need = if count == 0 {
+                    0
+                } else {
+                    (count - 1)
+                        .checked_mul(stride)
+                        .and_then(|x| x.checked_add(elem))
+                        .and_then(|x| x.checked_add(acc.offset()))
+                        .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?
+                };
+                if need > data.len() {
+                    return Err(self.err(format!(
+                        "{what}: accessor {} ({count} elements) points past the end of its bufferView ({need} > {} bytes)",
+                        acc.index(),
+                        data.len()
+                    )));
+                }
+                if stride == elem {
+                    data[acc.offset()..acc.offset() + total].to_vec()
+                } else {
+                    let mut v = Vec::with_capacity(total);
+                    for i in 0..count {
+                        let s = acc.offset() + i * stride;
+                        v.extend_from_slice(&data[s..s + elem]);
+                    }
+                    v
+                }
+            }
+        };
+        if let Some(sparse) = acc.sparse() {
+            let n = sparse.count();
+            let iv = sparse.indices();
+            let idata = self.view_bytes(&iv.view())?;
+            let isize = match iv.index_type() {
+                gltf::accessor::sparse::IndexType::U8 => 1,
+                gltf::accessor::sparse::IndexType::U16 => 2,
+                gltf::accessor::sparse::IndexType::U32 => 4,
+            };
+            let vv = sparse.values();
+            let vdata = self.view_bytes(&vv.view())?;
+            if iv.offset() + n * isize > idata.len() || vv.offset() + n * elem > vdata.len() {
+                return Err(self.err(format!("{what}: sparse data points past its bufferView")));
+            }
+            for k in 0..n {
+                let s = iv.offset() + k * isize;
+                let idx = match isize {
+                    1 => idata[s] as usize,
+                    2 => u16::from_le_bytes([idata[s], idata[s + 1]]) as usize,
+                    _ => u32::from_le_bytes([idata[s], idata[s + 1], idata[s + 2], idata[s + 3]])
+                        as usize,
+                };
+                if idx >= count {
+                    return Err(self.err(format!("{what}: sparse index {idx} out of range")));
+                }
+                let vs = vv.offset() + k * elem;
+                out[idx * elem..(idx + 1) * elem].copy_from_slice(&vdata[vs..vs + elem]);
+            }
+        }
+        Ok((out, elem))
+    }
+}
+
+fn decode_component(b: &[u8], dt: gltf::accessor::DataType, normalized: bool) -> f32 {
+    use gltf::accessor::DataType as D;
+    match dt {
+        D::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        D::U8 if normalized => b[0] as f32 / 255.0,
+        D::U8 => b[0] as f32,
+        D::I8 if normalized => (b[0] as i8 as f32 / 127.0).max(-1.0),
+        D::I8 => b[0] as i8 as f32,
+        D::U16 if normalized => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
+        D::U16 => u16::from_le_bytes([b[0], b[1]]) as f32,
+        D::I16 if normalized => (i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0),
+        D::I16 => i16::from_le_bytes([b[0], b[1]]) as f32,
+        D::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+    }
+}
+
+/// Exporters sometimes write zero or non-finite normals; a unit up-vector is harmless where a NaN
+/// would poison shading and simplification.
+fn sanitize_normal(n: [f32; 3]) -> [f32; 3] {
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if l.is_finite() && l > 1e-12 {
+        [n[0] / l, n[1] / l, n[2] / l]
+    } else {
+        [0.0, 1.0, 0.0]
+    }
+}
+
+/// The MIME type from an image's magic bytes.
+pub fn sniff_image_mime(b: &[u8]) -> Option<&'static str> {
+    if b.starts_with(&[0x89, b'P', b'N', b'G']) {
+        Some("image/png")
+    } else if b.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        Some("image/jpeg")
+    } else if b.len() >= 12 && &b[0..4] == b"RIFF" && &b[8..12] == b"WEBP" {
+        Some("image/webp")
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uri_escapes_are_refused() {
+        let base = Path::new("/tmp");
+        for bad in [
+            "../secret.bin",
+            "a/../../x",
+            "%2e%2e/x",
+            "/etc/passwd",
+            "file:///etc/passwd",
+            "http://host/x",
+            "..%2Fx",
+        ] {
+            assert!(
+                resolve_relative_uri(base, bad).is_err(),
+                "{bad} must be refused"
+            );
+        }
+        assert!(resolve_relative_uri(base, "textures/a%20b.png").is_ok());
+        assert!(resolve_relative_uri(base, "./buf.bin").is_ok());
+    }
+
+    #[test]
+    fn node_matrix_from_raw_json_keeps_f64() {
+        let v: Value = serde_json::json!({"translation": [512345.678, 0.0, -5412345.123]});
+        let m = node_local_matrix(Some(&v));
+        assert_eq!(m.w_axis.x, 512345.678);
+        assert_eq!(m.w_axis.z, -5412345.123);
+        let v: Value = serde_json::json!({"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 5,6,7,1]});
+        assert_eq!(
+            node_local_matrix(Some(&v)).w_axis.truncate(),
+            DVec3::new(5.0, 6.0, 7.0)
+        );
+    }
+
+    #[test]
+    fn normalized_components_decode() {
+        use gltf::accessor::DataType as D;
+        assert_eq!(decode_component(&[255], D::U8, true), 1.0);
+        assert_eq!(decode_component(&[0x81], D::I8, true), -1.0);
+        assert_eq!(decode_component(&[0xff, 0xff], D::U16, true), 1.0);
+        assert_eq!(decode_component(&[7, 0], D::U16, false), 7.0);
+    }
+
+    #[test]
+    fn sniff_mime() {
+        assert_eq!(
+            sniff_image_mime(&[0x89, b'P', b'N', b'G', 0]),
+            Some("image/png")
+        );
+        assert_eq!(sniff_image_mime(&[0xff, 0xd8, 0xff, 0]), Some("image/jpeg"));
+        assert_eq!(sniff_image_mime(b"hello"), None);
+    }
+}

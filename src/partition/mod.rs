@@ -1,0 +1,6 @@
+//! Spatial partition of the scene into tiles (paper IV.A). The partition is a plan made from bounds
+//! and counts only, before any heavy work, so later stages can run per tile.
+
+pub mod octree;
+
+pub use octree::{plan_octree, OctreeOptions, PlannedTile, TilePlan};

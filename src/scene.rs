@@ -1,0 +1,468 @@
+//! The in-memory building model that every stage shares.
+//!
+//! Readers (`ingest`) produce a [`Scene`]; dedup, partition, simplification, textures and the
+//! encoders read it. Everything is held in `Vec`s addressed by small typed ids in input order, so
+//! the pipeline is deterministic and a component's identity ([`ComponentId`]) survives from input to
+//! the feature IDs written in the tiles.
+//!
+//! Coordinate convention: mesh data stays in its source's local frame (f32, as read); each
+//! component carries a `world` transform (f64) that maps it into the *scene frame*: metres,
+//! right-handed, **z-up**, x east, y north once georeferenced. The glTF y-up → z-up change lives in
+//! the glTF reader's transform ([`Y_UP_TO_Z_UP`]), and back again in the encoder ([`Z_UP_TO_Y_UP`]):
+//! both are defined here, once.
+
+use glam::{DMat4, DVec3};
+use serde_json::Value;
+use std::sync::Arc;
+
+/// glTF (y-up) → scene frame (z-up): (x, y, z) ↦ (x, -z, y), a +90° turn about x. This is the
+/// same rotation 3D Tiles clients apply to glTF content (3D Tiles 1.1, "glTF transforms").
+pub const Y_UP_TO_Z_UP: DMat4 = DMat4::from_cols_array(&[
+    1.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 1.0, 0.0, //
+    0.0, -1.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 1.0,
+]);
+/// Scene frame (z-up) → glTF (y-up): the inverse of [`Y_UP_TO_Z_UP`], (x, y, z) ↦ (x, z, -y).
+pub const Z_UP_TO_Y_UP: DMat4 = DMat4::from_cols_array(&[
+    1.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, -1.0, 0.0, //
+    0.0, 1.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 1.0,
+]);
+
+macro_rules! typed_id {
+    ($name:ident, $what:literal) => {
+        #[doc = concat!("Index of a ", $what, " in its `Scene` vector.")]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+        pub struct $name(pub u32);
+        impl $name {
+            pub fn index(self) -> usize {
+                self.0 as usize
+            }
+        }
+    };
+}
+typed_id!(ComponentId, "component");
+typed_id!(MeshId, "mesh");
+typed_id!(MaterialId, "material");
+typed_id!(ImageId, "image");
+typed_id!(NodeId, "hierarchy node");
+
+/// Axis-aligned box in f64 (scene frame unless said otherwise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aabb {
+    pub min: DVec3,
+    pub max: DVec3,
+}
+
+impl Aabb {
+    pub const EMPTY: Aabb = Aabb {
+        min: DVec3::splat(f64::INFINITY),
+        max: DVec3::splat(f64::NEG_INFINITY),
+    };
+    pub fn is_empty(&self) -> bool {
+        self.min.x > self.max.x || self.min.y > self.max.y || self.min.z > self.max.z
+    }
+    pub fn extend(&mut self, p: DVec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+    pub fn union(&self, o: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+    pub fn center(&self) -> DVec3 {
+        (self.min + self.max) * 0.5
+    }
+    pub fn size(&self) -> DVec3 {
+        if self.is_empty() {
+            DVec3::ZERO
+        } else {
+            self.max - self.min
+        }
+    }
+    pub fn diagonal(&self) -> f64 {
+        self.size().length()
+    }
+    pub fn contains_box(&self, o: &Aabb, tol: f64) -> bool {
+        o.min.cmpge(self.min - DVec3::splat(tol)).all()
+            && o.max.cmple(self.max + DVec3::splat(tol)).all()
+    }
+    /// The box of this box's 8 corners after an affine transform.
+    pub fn transformed(&self, m: &DMat4) -> Aabb {
+        let mut out = Aabb::EMPTY;
+        if self.is_empty() {
+            return out;
+        }
+        for i in 0..8 {
+            let c = DVec3::new(
+                if i & 1 == 0 { self.min.x } else { self.max.x },
+                if i & 2 == 0 { self.min.y } else { self.max.y },
+                if i & 4 == 0 { self.min.z } else { self.max.z },
+            );
+            out.extend(m.transform_point3(c));
+        }
+        out
+    }
+}
+
+/// One triangle list with one material, in its mesh's local frame.
+#[derive(Debug, Clone, Default)]
+pub struct Primitive {
+    pub material: Option<MaterialId>,
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// TEXCOORD_0; may leave [0,1] (tiling textures).
+    pub uvs: Option<Vec<[f32; 2]>>,
+    /// COLOR_0 as linear RGBA.
+    pub colors: Option<Vec<[f32; 4]>>,
+    /// Triangle list, every index < positions.len() (checked by the readers).
+    pub indices: Vec<u32>,
+}
+
+impl Primitive {
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len() / 3
+    }
+    /// Bytes this primitive takes as uncompressed glTF attributes + u32 indices: the unit of the
+    /// partitioner's byte budget.
+    pub fn estimated_bytes(&self) -> usize {
+        let per_vertex = 12
+            + self.normals.as_ref().map_or(0, |_| 12)
+            + self.uvs.as_ref().map_or(0, |_| 8)
+            + self.colors.as_ref().map_or(0, |_| 16)
+            + 4; // feature id
+        self.positions.len() * per_vertex + self.indices.len() * 4
+    }
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Mesh {
+    pub name: Option<String>,
+    pub primitives: Vec<Primitive>,
+    /// Box of all positions in the mesh's local frame (filled by [`Scene::finish`]).
+    pub local_bounds: Option<Aabb>,
+}
+
+impl Mesh {
+    pub fn triangle_count(&self) -> usize {
+        self.primitives.iter().map(Primitive::triangle_count).sum()
+    }
+    pub fn vertex_count(&self) -> usize {
+        self.primitives.iter().map(|p| p.positions.len()).sum()
+    }
+    pub fn estimated_bytes(&self) -> usize {
+        self.primitives.iter().map(Primitive::estimated_bytes).sum()
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum AlphaMode {
+    Opaque,
+    Mask,
+    Blend,
+}
+
+/// glTF sampler settings, kept as the raw glTF enums (0 = unset).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct Sampler {
+    pub mag_filter: u32,
+    pub min_filter: u32,
+    pub wrap_s: u32,
+    pub wrap_t: u32,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextureRef {
+    pub image: ImageId,
+    pub sampler: Sampler,
+    pub tex_coord: u32,
+}
+
+/// A metallic-roughness material (the subset building models use).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Material {
+    pub name: Option<String>,
+    pub base_color: [f32; 4],
+    pub metallic: f32,
+    pub roughness: f32,
+    pub emissive: [f32; 3],
+    pub base_color_texture: Option<TextureRef>,
+    pub alpha_mode: AlphaMode,
+    pub alpha_cutoff: f32,
+    pub double_sided: bool,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            name: None,
+            base_color: [1.0; 4],
+            metallic: 1.0,
+            roughness: 1.0,
+            emissive: [0.0; 3],
+            base_color_texture: None,
+            alpha_mode: AlphaMode::Opaque,
+            alpha_cutoff: 0.5,
+            double_sided: false,
+        }
+    }
+}
+
+/// An encoded image as it came in (PNG/JPEG/WebP bytes); shared, never copied per tile.
+#[derive(Debug, Clone)]
+pub struct Image {
+    pub name: Option<String>,
+    pub mime_type: String,
+    pub bytes: Arc<Vec<u8>>,
+}
+
+/// A node of the source hierarchy (building → storey → element, or a glTF node tree).
+#[derive(Debug, Clone, Default)]
+pub struct Node {
+    pub name: Option<String>,
+    pub parent: Option<NodeId>,
+    pub extras: Option<Value>,
+}
+
+/// One BIM element or one glTF node with a mesh.
+#[derive(Debug, Clone)]
+pub struct Component {
+    pub id: ComponentId,
+    /// Stable identity: IFC GlobalId, or the glTF node path.
+    pub key: String,
+    pub name: Option<String>,
+    /// Where it sits in the hierarchy (`nodes`), when the source has one.
+    pub node: Option<NodeId>,
+    pub mesh: MeshId,
+    /// Mesh-local → scene frame (metres, z-up).
+    pub world: DMat4,
+    /// Box of the mesh's vertices in the scene frame (filled by [`Scene::finish`]).
+    pub world_bounds: Aabb,
+    /// Which input file it came from (index into `Scene::sources`).
+    pub source: u32,
+}
+
+/// A source file that was read into the scene.
+#[derive(Debug, Clone)]
+pub struct SourceFile {
+    pub path: std::path::PathBuf,
+    pub bytes: u64,
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Scene {
+    pub sources: Vec<SourceFile>,
+    pub nodes: Vec<Node>,
+    pub components: Vec<Component>,
+    pub meshes: Vec<Mesh>,
+    pub materials: Vec<Material>,
+    pub images: Vec<Image>,
+    /// Primitives the readers could not use (points, lines), counted for the report.
+    pub skipped_primitives: usize,
+}
+
+impl Scene {
+    pub fn component(&self, id: ComponentId) -> &Component {
+        &self.components[id.index()]
+    }
+    pub fn mesh(&self, id: MeshId) -> &Mesh {
+        &self.meshes[id.index()]
+    }
+
+    /// Total triangles drawn (a mesh used by several components counts once per use).
+    pub fn triangle_count(&self) -> usize {
+        self.components
+            .iter()
+            .map(|c| self.meshes[c.mesh.index()].triangle_count())
+            .sum()
+    }
+    pub fn vertex_count(&self) -> usize {
+        self.components
+            .iter()
+            .map(|c| self.meshes[c.mesh.index()].vertex_count())
+            .sum()
+    }
+
+    pub fn bounds(&self) -> Aabb {
+        self.components
+            .iter()
+            .fold(Aabb::EMPTY, |b, c| b.union(&c.world_bounds))
+    }
+
+    /// Path of names from the hierarchy root to `node` ("Building/Level 1/Window-07").
+    pub fn node_path(&self, node: NodeId) -> String {
+        let mut parts = Vec::new();
+        let mut cur = Some(node);
+        while let Some(n) = cur {
+            let nd = &self.nodes[n.index()];
+            parts.push(nd.name.clone().unwrap_or_else(|| format!("node{}", n.0)));
+            cur = nd.parent;
+        }
+        parts.reverse();
+        parts.join("/")
+    }
+
+    /// Appends another scene (a second input file), renumbering its ids.
+    pub fn append(&mut self, other: Scene) {
+        let (n0, m0, mat0, img0, c0, s0) = (
+            self.nodes.len() as u32,
+            self.meshes.len() as u32,
+            self.materials.len() as u32,
+            self.images.len() as u32,
+            self.components.len() as u32,
+            self.sources.len() as u32,
+        );
+        self.sources.extend(other.sources);
+        self.nodes.extend(other.nodes.into_iter().map(|mut n| {
+            n.parent = n.parent.map(|p| NodeId(p.0 + n0));
+            n
+        }));
+        self.images.extend(other.images);
+        self.materials
+            .extend(other.materials.into_iter().map(|mut m| {
+                if let Some(t) = m.base_color_texture.as_mut() {
+                    t.image = ImageId(t.image.0 + img0);
+                }
+                m
+            }));
+        self.meshes.extend(other.meshes.into_iter().map(|mut m| {
+            for p in &mut m.primitives {
+                p.material = p.material.map(|x| MaterialId(x.0 + mat0));
+            }
+            m
+        }));
+        self.components
+            .extend(other.components.into_iter().map(|mut c| {
+                c.id = ComponentId(c.id.0 + c0);
+                c.node = c.node.map(|x| NodeId(x.0 + n0));
+                c.mesh = MeshId(c.mesh.0 + m0);
+                c.source += s0;
+                c
+            }));
+        self.skipped_primitives += other.skipped_primitives;
+    }
+
+    /// Pre-multiplies every component's world transform (e.g. to move the anchor to the origin).
+    pub fn apply_transform(&mut self, m: &DMat4) {
+        for c in &mut self.components {
+            c.world = *m * c.world;
+        }
+        self.compute_bounds();
+    }
+
+    /// Fills the derived fields (mesh local bounds, component world bounds). Called by readers
+    /// once a scene is complete and after any transform change.
+    pub fn finish(&mut self) {
+        for mesh in &mut self.meshes {
+            let mut b = Aabb::EMPTY;
+            for p in &mesh.primitives {
+                for v in &p.positions {
+                    b.extend(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+                }
+            }
+            mesh.local_bounds = Some(b);
+        }
+        self.compute_bounds();
+    }
+
+    /// Exact world boxes: every vertex transformed in f64 (a box of transformed local-box
+    /// corners would be loose for rotated components, and tile volumes must be tight).
+    fn compute_bounds(&mut self) {
+        use rayon::prelude::*;
+        let meshes = &self.meshes;
+        self.components.par_iter_mut().for_each(|c| {
+            let mut b = Aabb::EMPTY;
+            for p in &meshes[c.mesh.index()].primitives {
+                for v in &p.positions {
+                    b.extend(c.world.transform_point3(DVec3::new(
+                        v[0] as f64,
+                        v[1] as f64,
+                        v[2] as f64,
+                    )));
+                }
+            }
+            c.world_bounds = b;
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axis_change_round_trips_and_maps_up() {
+        let up_gltf = DVec3::new(0.0, 1.0, 0.0);
+        assert_eq!(Y_UP_TO_Z_UP.transform_point3(up_gltf), DVec3::Z);
+        // glTF +z (towards the viewer) is south: -y in the scene frame.
+        assert_eq!(Y_UP_TO_Z_UP.transform_point3(DVec3::Z), -DVec3::Y);
+        assert_eq!(Z_UP_TO_Y_UP * Y_UP_TO_Z_UP, DMat4::IDENTITY);
+    }
+
+    #[test]
+    fn aabb_union_contains_and_transform() {
+        let mut a = Aabb::EMPTY;
+        assert!(a.is_empty());
+        a.extend(DVec3::new(0.0, 0.0, 0.0));
+        a.extend(DVec3::new(1.0, 2.0, 3.0));
+        let b = Aabb {
+            min: DVec3::splat(0.5),
+            max: DVec3::splat(0.9),
+        };
+        assert!(a.contains_box(&b, 0.0));
+        assert!(!b.contains_box(&a, 0.0));
+        let t = DMat4::from_translation(DVec3::new(10.0, 0.0, 0.0));
+        let m = a.transformed(&t);
+        assert_eq!(m.min, DVec3::new(10.0, 0.0, 0.0));
+        assert_eq!(m.max, DVec3::new(11.0, 2.0, 3.0));
+        assert!((a.diagonal() - 14f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn append_renumbers_ids() {
+        let mk = || {
+            let mut s = Scene::default();
+            s.sources.push(SourceFile {
+                path: "a".into(),
+                bytes: 1,
+            });
+            s.nodes.push(Node::default());
+            s.materials.push(Material::default());
+            s.meshes.push(Mesh {
+                name: None,
+                primitives: vec![Primitive {
+                    material: Some(MaterialId(0)),
+                    positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                    indices: vec![0, 1, 2],
+                    ..Default::default()
+                }],
+                local_bounds: None,
+            });
+            s.components.push(Component {
+                id: ComponentId(0),
+                key: "k".into(),
+                name: None,
+                node: Some(NodeId(0)),
+                mesh: MeshId(0),
+                world: DMat4::IDENTITY,
+                world_bounds: Aabb::EMPTY,
+                source: 0,
+            });
+            s
+        };
+        let mut a = mk();
+        a.append(mk());
+        a.finish();
+        assert_eq!(a.components[1].id, ComponentId(1));
+        assert_eq!(a.components[1].mesh, MeshId(1));
+        assert_eq!(a.components[1].node, Some(NodeId(1)));
+        assert_eq!(a.components[1].source, 1);
+        assert_eq!(a.meshes[1].primitives[0].material, Some(MaterialId(1)));
+        assert_eq!(a.triangle_count(), 2);
+        assert_eq!(a.bounds().max, DVec3::new(1.0, 1.0, 0.0));
+    }
+}

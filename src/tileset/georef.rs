@@ -1,0 +1,132 @@
+//! Georeferencing: places the scene frame (metres, x east, y north, z up) on the WGS84 ellipsoid
+//! as a local east-north-up frame at a given longitude, latitude and height. This is the root
+//! `transform` of the tileset (3D Tiles 1.1, "Coordinate reference system": tileset coordinates
+//! are ECEF, and a transform maps local frames into it).
+
+use glam::{DMat4, DVec3, DVec4};
+
+const WGS84_A: f64 = 6_378_137.0;
+const WGS84_F: f64 = 1.0 / 298.257_223_563;
+
+/// A place on WGS84: degrees, degrees, metres above the ellipsoid.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GeoOrigin {
+    pub longitude_deg: f64,
+    pub latitude_deg: f64,
+    pub height_m: f64,
+}
+
+impl GeoOrigin {
+    /// Where a tileset goes when the user gives no `--origin` and the input carries no
+    /// georeference: the KIT campus in Karlsruhe, Germany (documented in the README), so that
+    /// viewers show the model on land, in a known place, rather than in the ocean at 0°,0°.
+    pub const DEFAULT: GeoOrigin = GeoOrigin {
+        longitude_deg: 8.4116,
+        latitude_deg: 49.0124,
+        height_m: 115.0,
+    };
+
+    /// Parses "LON,LAT,HEIGHT" (height optional, 0).
+    pub fn parse(s: &str) -> Result<GeoOrigin, String> {
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        if !(2..=3).contains(&parts.len()) {
+            return Err(format!("origin '{s}' must be LON,LAT[,HEIGHT]"));
+        }
+        let num = |p: &str, what: &str| {
+            p.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("origin '{s}': {what} '{p}' is not a number"))
+        };
+        let o = GeoOrigin {
+            longitude_deg: num(parts[0], "longitude")?,
+            latitude_deg: num(parts[1], "latitude")?,
+            height_m: if parts.len() == 3 {
+                num(parts[2], "height")?
+            } else {
+                0.0
+            },
+        };
+        if !(-180.0..=180.0).contains(&o.longitude_deg) || !(-90.0..=90.0).contains(&o.latitude_deg)
+        {
+            return Err(format!(
+                "origin '{s}': longitude must be in [-180,180] and latitude in [-90,90]"
+            ));
+        }
+        Ok(o)
+    }
+
+    /// Earth-centred, earth-fixed coordinates of this place.
+    pub fn to_ecef(&self) -> DVec3 {
+        geodetic_to_ecef(self.longitude_deg, self.latitude_deg, self.height_m)
+    }
+
+    /// The east-north-up frame here, as a matrix from local metres to ECEF.
+    pub fn enu_to_ecef(&self) -> DMat4 {
+        let (lon, lat) = (
+            self.longitude_deg.to_radians(),
+            self.latitude_deg.to_radians(),
+        );
+        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
+        let up = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
+        let north = up.cross(east);
+        DMat4::from_cols(
+            east.extend(0.0),
+            north.extend(0.0),
+            up.extend(0.0),
+            DVec4::from((self.to_ecef(), 1.0)),
+        )
+    }
+}
+
+/// WGS84 geodetic (degrees, metres) → ECEF (metres).
+pub fn geodetic_to_ecef(lon_deg: f64, lat_deg: f64, h: f64) -> DVec3 {
+    let (lon, lat) = (lon_deg.to_radians(), lat_deg.to_radians());
+    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let n = WGS84_A / (1.0 - e2 * lat.sin().powi(2)).sqrt();
+    DVec3::new(
+        (n + h) * lat.cos() * lon.cos(),
+        (n + h) * lat.cos() * lon.sin(),
+        (n * (1.0 - e2) + h) * lat.sin(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ecef_of_known_places() {
+        let p = geodetic_to_ecef(0.0, 0.0, 0.0);
+        assert!((p - DVec3::new(WGS84_A, 0.0, 0.0)).length() < 1e-9);
+        let pole = geodetic_to_ecef(0.0, 90.0, 0.0);
+        let b = WGS84_A * (1.0 - WGS84_F);
+        assert!((pole.z - b).abs() < 1e-6 && pole.x.abs() < 1e-6);
+    }
+
+    #[test]
+    fn enu_axes_point_the_right_way() {
+        let o = GeoOrigin::parse("8.4116,49.0124,115").unwrap();
+        let m = o.enu_to_ecef();
+        // 100 m up the local z axis is 100 m higher on the ellipsoid normal.
+        let up = m.transform_point3(DVec3::new(0.0, 0.0, 100.0));
+        assert!((up - geodetic_to_ecef(8.4116, 49.0124, 215.0)).length() < 1e-3);
+        // A small step east increases longitude, north increases latitude.
+        let east = m.transform_point3(DVec3::new(1.0, 0.0, 0.0));
+        let north = m.transform_point3(DVec3::new(0.0, 1.0, 0.0));
+        let lon_east = east.y.atan2(east.x).to_degrees();
+        assert!(lon_east > 8.4116);
+        assert!(north.z > m.w_axis.z);
+        // Orthonormal rotation.
+        let r = glam::DMat3::from_mat4(m);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn parse_rejects_garbage() {
+        assert!(GeoOrigin::parse("a,b").is_err());
+        assert!(GeoOrigin::parse("1").is_err());
+        assert!(GeoOrigin::parse("200,0,0").is_err());
+        assert_eq!(GeoOrigin::parse("1,2").unwrap().height_m, 0.0);
+    }
+}

@@ -1,0 +1,74 @@
+//! Writes `tileset.json` (3D Tiles 1.1): the tile tree with tight bounding boxes, geometric errors,
+//! refinement and content URIs, and the root transform that georeferences it.
+
+pub mod georef;
+
+use crate::partition::octree::TilePlan;
+use crate::scene::Aabb;
+use glam::DMat4;
+use serde_json::{json, Value};
+
+/// Per-tile facts the tileset needs besides the plan.
+#[derive(Debug, Clone)]
+pub struct TileFacts {
+    /// Content URI relative to tileset.json, if the tile has content.
+    pub content_uri: Option<String>,
+    /// The tile's geometric error in metres.
+    pub geometric_error_m: f64,
+}
+
+/// Grows a box just enough to absorb the f32 rounding of vertices written relative to a tile
+/// centre (a few ulps of the tile size) and to never be degenerate.
+pub fn padded(b: &Aabb) -> Aabb {
+    let pad = 1e-4 + b.size().max_element() * 1e-6;
+    Aabb {
+        min: b.min - glam::DVec3::splat(pad),
+        max: b.max + glam::DVec3::splat(pad),
+    }
+}
+
+/// `boundingVolume.box`: centre and three half-axes, in the tileset's local frame.
+pub fn box_volume(b: &Aabb) -> Value {
+    let b = padded(b);
+    let c = b.center();
+    let h = b.size() * 0.5;
+    json!([c.x, c.y, c.z, h.x, 0.0, 0.0, 0.0, h.y, 0.0, 0.0, 0.0, h.z])
+}
+
+/// Builds the tileset JSON. `facts[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
+/// frame to ECEF; `extras` is stored under `asset.extras`.
+pub fn tileset_json(
+    plan: &TilePlan,
+    facts: &[TileFacts],
+    root_transform: &DMat4,
+    extras: Value,
+) -> Value {
+    fn tile(plan: &TilePlan, facts: &[TileFacts], i: usize) -> Value {
+        let t = &plan.tiles[i];
+        let mut v = json!({
+            "boundingVolume": {"box": box_volume(&t.bounds)},
+            "geometricError": facts[i].geometric_error_m,
+        });
+        if let Some(uri) = &facts[i].content_uri {
+            v["content"] = json!({"uri": uri});
+        }
+        if !t.children.is_empty() {
+            v["children"] =
+                Value::Array(t.children.iter().map(|&c| tile(plan, facts, c)).collect());
+        }
+        v
+    }
+    let mut root = tile(plan, facts, 0);
+    root["refine"] = json!("ADD");
+    root["transform"] = json!(root_transform.to_cols_array());
+    // The whole model is what goes missing when the root is not drawn.
+    let top_error = plan.tiles[0]
+        .bounds
+        .diagonal()
+        .max(facts[0].geometric_error_m);
+    json!({
+        "asset": {"version": "1.1", "generator": concat!("bimtiles ", env!("CARGO_PKG_VERSION")), "extras": extras},
+        "geometricError": top_error,
+        "root": root,
+    })
+}

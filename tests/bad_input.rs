@@ -1,0 +1,232 @@
+//! Bad input: every case gives a clear one-line error naming the file, a non-zero exit, no panic,
+//! and leaves no output (not even a temporary folder).
+
+mod common;
+use common::*;
+use std::path::{Path, PathBuf};
+
+/// Runs convert on `input` and checks the failure contract; returns stderr.
+fn expect_failure(input: &Path, case: &str, must_mention: &[&str]) -> String {
+    let dir = input.parent().unwrap();
+    let out = dir.join(format!("out-{case}"));
+    let o = run(&[
+        "convert",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success(), "{case}: must fail");
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{case}: exit code 1, not a crash: {err}"
+    );
+    assert!(!err.contains("panicked"), "{case}: panic: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{case}: one line: {err}");
+    let name = input.file_name().unwrap().to_string_lossy();
+    assert!(err.contains(name.as_ref()), "{case}: names the file: {err}");
+    for m in must_mention {
+        assert!(err.contains(m), "{case}: mentions '{m}': {err}");
+    }
+    assert!(!out.exists(), "{case}: no output written");
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(leftovers.is_empty(), "{case}: temporary folder left behind");
+    err
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+fn tri() -> [[f32; 3]; 3] {
+    [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+}
+
+/// Edits the JSON chunk of a GLB.
+fn edit_glb(glb_bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
+    let jlen = u32::from_le_bytes(glb_bytes[12..16].try_into().unwrap()) as usize;
+    let mut json: serde_json::Value = serde_json::from_slice(&glb_bytes[20..20 + jlen]).unwrap();
+    edit(&mut json);
+    let bin_start = 20 + jlen + 8;
+    glb(&serde_json::to_vec(&json).unwrap(), &glb_bytes[bin_start..])
+}
+
+#[test]
+fn missing_file() {
+    let d = tmpdir("bad-missing");
+    expect_failure(&d.join("nope.glb"), "missing", &["no such file"]);
+}
+
+#[test]
+fn not_gltf() {
+    let d = tmpdir("bad-notgltf");
+    let p = write(&d, "notes.glb", b"this is a text file, not a model");
+    expect_failure(&p, "not-gltf", &["not a glTF"]);
+}
+
+#[test]
+fn truncated_glb() {
+    let d = tmpdir("bad-truncated");
+    let full = std::fs::read(sample()).unwrap();
+    let p = write(&d, "half.glb", &full[..full.len() / 2]);
+    expect_failure(&p, "truncated", &["truncated"]);
+}
+
+#[test]
+fn accessor_past_its_buffer() {
+    let d = tmpdir("bad-accessor");
+    let g = edit_glb(&triangle_glb(tri(), None), |j| {
+        j["accessors"][0]["count"] = 3000.into()
+    });
+    let p = write(&d, "long_accessor.glb", &g);
+    expect_failure(&p, "accessor", &["past the end"]);
+}
+
+#[test]
+fn index_out_of_range() {
+    let d = tmpdir("bad-index");
+    // Indices [0, 1, 7] stored after the positions.
+    let mut bin = Vec::new();
+    for v in tri() {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in [0u32, 1, 7] {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 12}],
+        "buffers": [{"byteLength": 48}]
+    });
+    let p = write(
+        &d,
+        "bad_index.glb",
+        &glb(&serde_json::to_vec(&json).unwrap(), &bin),
+    );
+    expect_failure(&p, "index", &["index 7 is out of range"]);
+}
+
+#[test]
+fn nan_and_infinite_positions() {
+    let d = tmpdir("bad-nan");
+    let p = write(
+        &d,
+        "nan.glb",
+        &triangle_glb(
+            [[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            None,
+        ),
+    );
+    expect_failure(&p, "nan", &["not finite"]);
+    let p = write(
+        &d,
+        "inf.glb",
+        &triangle_glb(
+            [[0.0, 0.0, 0.0], [f32::INFINITY, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            None,
+        ),
+    );
+    expect_failure(&p, "inf", &["POSITION"]);
+}
+
+/// A .gltf whose buffer lives at `uri`.
+fn gltf_with_buffer_uri(uri: &str) -> Vec<u8> {
+    serde_json::to_vec(&serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": uri}]
+    }))
+    .unwrap()
+}
+
+#[test]
+fn uris_that_escape_the_input_folder_are_refused() {
+    let d = tmpdir("bad-uri");
+    let inner = d.join("model");
+    std::fs::create_dir_all(&inner).unwrap();
+    // The file exists outside the folder: refusing it is a policy, not a missing file.
+    let mut bin = Vec::new();
+    for v in tri() {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    std::fs::write(d.join("secret.bin"), &bin).unwrap();
+    let secret = d.join("secret.bin").canonicalize().unwrap();
+    for (case, uri) in [
+        ("dotdot", "../secret.bin".to_string()),
+        ("encoded", "%2e%2e/secret.bin".to_string()),
+        ("absolute", secret.display().to_string()),
+        ("file-scheme", format!("file://{}", secret.display())),
+    ] {
+        let p = write(&inner, &format!("{case}.gltf"), &gltf_with_buffer_uri(&uri));
+        expect_failure(&p, case, &["refused"]);
+    }
+    // The same file inside the folder is read.
+    std::fs::write(inner.join("ok.bin"), &bin).unwrap();
+    let p = write(&inner, "ok.gltf", &gltf_with_buffer_uri("ok.bin"));
+    let out = inner.join("out-ok");
+    convert(&p, &out, &[]);
+    assert!(out.join("tileset.json").exists());
+}
+
+#[test]
+fn existing_output_needs_force() {
+    let d = tmpdir("bad-exists");
+    let p = write(&d, "tri.glb", &triangle_glb(tri(), None));
+    let out = d.join("out-exists");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("tileset.json"), b"{}").unwrap();
+    let o = run(&[
+        "convert",
+        p.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(err.contains("exists") && err.contains("--force"), "{err}");
+    assert_eq!(
+        std::fs::read(out.join("tileset.json")).unwrap(),
+        b"{}",
+        "untouched"
+    );
+    // --force replaces a folder that holds a tileset...
+    convert(&p, &out, &["--force"]);
+    assert!(std::fs::read(out.join("tileset.json")).unwrap().len() > 2);
+    // ...but never a folder of something else.
+    let other = d.join("my-documents");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("thesis.txt"), b"precious").unwrap();
+    let o = run(&[
+        "convert",
+        p.to_str().unwrap(),
+        "--out",
+        other.to_str().unwrap(),
+        "--quiet",
+        "--force",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("does not hold a tileset"));
+    assert_eq!(
+        std::fs::read(other.join("thesis.txt")).unwrap(),
+        b"precious"
+    );
+}

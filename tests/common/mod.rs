@@ -1,0 +1,396 @@
+//! Helpers shared by the end-to-end tests: run the real binary, find the reference data, and read
+//! the output back with tools that are not our writer (the `gltf` crate, gltf-validator, the
+//! official 3D Tiles JSON schemas).
+#![allow(dead_code)]
+
+use glam::{DMat4, DVec3};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_bimtiles"))
+}
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+pub fn sample() -> PathBuf {
+    repo().join("samples/sample_building.glb")
+}
+
+/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists.
+pub fn shared() -> Option<PathBuf> {
+    let p = std::env::var_os("BIMTILES_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo().join("../shared"));
+    p.is_dir().then_some(p)
+}
+
+/// The GLB models listed in ../shared/data/MANIFEST.md; prints why when there are none.
+pub fn shared_models() -> Vec<PathBuf> {
+    let Some(sh) = shared() else {
+        eprintln!("SKIPPED: ../shared/data not found; only the bundled sample is tested");
+        return Vec::new();
+    };
+    let data = sh.join("data");
+    let manifest = std::fs::read_to_string(data.join("MANIFEST.md")).unwrap_or_default();
+    let mut out: Vec<PathBuf> = Vec::new();
+    for line in manifest.lines().filter(|l| l.starts_with('|')) {
+        if let Some(name) = line.split('|').nth(1).map(str::trim) {
+            if name.ends_with(".glb")
+                && data.join(name).is_file()
+                && !out.contains(&data.join(name))
+            {
+                out.push(data.join(name));
+            }
+        }
+    }
+    out
+}
+
+/// Whether tests must fail (not skip) when an external tool is missing: `make test` sets it.
+pub fn tools_required() -> bool {
+    std::env::var_os("BIMTILES_REQUIRE_TOOLS").is_some()
+}
+
+pub fn run(args: &[&str]) -> Output {
+    Command::new(bin())
+        .args(args)
+        .output()
+        .expect("run bimtiles")
+}
+
+pub fn tmpdir(name: &str) -> PathBuf {
+    let d = repo().join("target/test-out").join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Converts `input` into `out` with extra args; panics with the tool's stderr on failure.
+pub fn convert(input: &Path, out: &Path, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "convert",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    assert!(
+        o.status.success(),
+        "convert {} failed: {}",
+        input.display(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// Runs the Khronos glTF validator (npm) over a folder; returns (files, errors, warnings), or None
+/// when Node or the package is not installed (and tools are not required).
+pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
+    let script = repo().join("tools/validate_gltf.mjs");
+    let installed = repo().join("tools/node_modules/gltf-validator").is_dir();
+    if !installed {
+        assert!(
+            !tools_required(),
+            "gltf-validator is not installed (run `make test`)"
+        );
+        eprintln!("SKIPPED gltf-validator: tools/node_modules missing (run `make test`)");
+        return None;
+    }
+    let o = Command::new("node")
+        .arg(script)
+        .arg(dir)
+        .output()
+        .expect("run node");
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "validator output: {e}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
+    if v["errors"].as_u64() != Some(0) {
+        panic!(
+            "gltf-validator errors: {}",
+            serde_json::to_string_pretty(&v["results"]).unwrap()
+        );
+    }
+    Some((
+        v["files"].as_u64().unwrap(),
+        v["errors"].as_u64().unwrap(),
+        v["warnings"].as_u64().unwrap(),
+    ))
+}
+
+struct SchemaFiles(PathBuf);
+
+impl jsonschema::Retrieve for SchemaFiles {
+    fn retrieve(
+        &self,
+        uri: &jsonschema::Uri<String>,
+    ) -> Result<Value, Box<dyn std::error::Error + Send + Sync>> {
+        let path = PathBuf::from(uri.path().as_str());
+        // Only files inside the schema folder.
+        if !path.starts_with(&self.0) {
+            return Err(format!("schema ref outside the schema folder: {uri}").into());
+        }
+        Ok(serde_json::from_slice(&std::fs::read(&path)?)?)
+    }
+}
+
+/// Validates tileset.json against the official 3D Tiles 1.1 schemas in ../shared; returns the
+/// error messages, or None when the schemas are not there.
+pub fn tileset_schema_errors(tileset: &Value) -> Option<Vec<String>> {
+    let dir = shared()?.join("specs/3d-tiles/specification/schema");
+    if !dir.is_dir() {
+        return None;
+    }
+    let dir = dir.canonicalize().unwrap();
+    let main = dir.join("tileset.schema.json");
+    let schema: Value = serde_json::from_slice(&std::fs::read(&main).unwrap()).unwrap();
+    let validator = jsonschema::options()
+        .with_draft(jsonschema::Draft::Draft202012)
+        .with_base_uri(format!("file://{}", main.display()))
+        .with_retriever(SchemaFiles(dir))
+        .build(&schema)
+        .expect("3D Tiles schema compiles");
+    Some(
+        validator
+            .iter_errors(tileset)
+            .map(|e| format!("{} at {}", e, e.instance_path()))
+            .collect(),
+    )
+}
+
+/// A tile read back: its box (centre, half-axes) in the tileset's root frame, and its content.
+pub struct DecodedTile {
+    pub uri: Option<String>,
+    pub box_min: DVec3,
+    pub box_max: DVec3,
+    pub geometric_error: f64,
+    pub depth: u32,
+    pub parent: Option<usize>,
+    /// Content vertex positions in the root frame (z-up), and triangles.
+    pub positions: Vec<DVec3>,
+    pub triangles: usize,
+    pub area: f64,
+}
+
+/// glTF y-up → 3D Tiles z-up, as the 3D Tiles spec asks clients to apply to glTF content.
+pub const Y_UP_TO_Z_UP: DMat4 = DMat4::from_cols_array(&[
+    1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+]);
+
+/// Reads every tile of a tileset back with the `gltf` crate (no code of ours).
+pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
+    let ts: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
+    let mut out = Vec::new();
+    let mut stack = vec![(&ts["root"], 0u32, None::<usize>)];
+    while let Some((t, depth, parent)) = stack.pop() {
+        assert!(
+            t.get("transform").is_none() || depth == 0,
+            "only the root has a transform"
+        );
+        let b: Vec<f64> = t["boundingVolume"]["box"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        let c = DVec3::new(b[0], b[1], b[2]);
+        let h = DVec3::new(
+            DVec3::new(b[3], b[4], b[5]).abs().element_sum(),
+            DVec3::new(b[6], b[7], b[8]).abs().element_sum(),
+            DVec3::new(b[9], b[10], b[11]).abs().element_sum(),
+        );
+        let uri = t
+            .pointer("/content/uri")
+            .and_then(Value::as_str)
+            .map(str::to_string);
+        let (mut positions, mut triangles, mut area) = (Vec::new(), 0, 0.0);
+        if let Some(u) = &uri {
+            let bytes = std::fs::read(dir.join(u)).unwrap();
+            let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
+            let blob = g.blob.as_deref().unwrap();
+            for node in g.document.nodes() {
+                let Some(mesh) = node.mesh() else { continue };
+                let m = Y_UP_TO_Z_UP
+                    * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
+                for p in mesh.primitives() {
+                    let r = p.reader(|_| Some(blob));
+                    let base = positions.len();
+                    positions.extend(r.read_positions().unwrap().map(|v| {
+                        m.transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))
+                    }));
+                    let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
+                    for t in idx.chunks_exact(3) {
+                        let v = |i: u32| positions[base + i as usize];
+                        area += (v(t[1]) - v(t[0])).cross(v(t[2]) - v(t[0])).length() * 0.5;
+                    }
+                    triangles += idx.len() / 3;
+                }
+            }
+        }
+        let me = out.len();
+        out.push(DecodedTile {
+            uri,
+            box_min: c - h,
+            box_max: c + h,
+            geometric_error: t["geometricError"].as_f64().unwrap(),
+            depth,
+            parent,
+            positions,
+            triangles,
+            area,
+        });
+        if let Some(ch) = t.get("children").and_then(Value::as_array) {
+            for c in ch.iter().rev() {
+                stack.push((c, depth + 1, Some(me)));
+            }
+        }
+    }
+    (ts, out)
+}
+
+trait AsDMat4 {
+    fn as_dmat4(&self) -> DMat4;
+}
+impl AsDMat4 for glam::Mat4 {
+    fn as_dmat4(&self) -> DMat4 {
+        DMat4::from_cols_array(&self.to_cols_array().map(|x| x as f64))
+    }
+}
+
+/// Checks the structural promises of a written tileset; returns the decoded tiles.
+pub fn check_tileset(dir: &Path, input_triangles: usize) -> Vec<DecodedTile> {
+    let (ts, tiles) = decode_tileset(dir);
+    assert_eq!(ts["asset"]["version"], "1.1");
+    if let Some(errors) = tileset_schema_errors(&ts) {
+        assert!(
+            errors.is_empty(),
+            "{}: schema errors: {errors:#?}",
+            dir.display()
+        );
+    } else {
+        assert!(
+            !tools_required() || shared().is_none(),
+            "3D Tiles schemas missing"
+        );
+        eprintln!("SKIPPED schema check: ../shared/specs not found");
+    }
+    let total: usize = tiles.iter().map(|t| t.triangles).sum();
+    assert_eq!(
+        total,
+        input_triangles,
+        "{}: every input triangle is written once",
+        dir.display()
+    );
+    let top = ts["geometricError"].as_f64().unwrap();
+    assert!(top > 0.0);
+    let mut has_child = vec![false; tiles.len()];
+    for t in &tiles {
+        if let Some(p) = t.parent {
+            has_child[p] = true;
+        }
+    }
+    for (i, t) in tiles.iter().enumerate() {
+        // Content inside its box (f32 rounding allowance of 0.1 mm).
+        for p in &t.positions {
+            assert!(
+                p.cmpge(t.box_min - DVec3::splat(1e-4)).all()
+                    && p.cmple(t.box_max + DVec3::splat(1e-4)).all(),
+                "{}: {:?} vertex {p} outside its box {}..{}",
+                dir.display(),
+                t.uri,
+                t.box_min,
+                t.box_max
+            );
+        }
+        match t.parent {
+            Some(pi) => {
+                let p = &tiles[pi];
+                assert!(
+                    t.box_min.cmpge(p.box_min - DVec3::splat(1e-9)).all()
+                        && t.box_max.cmple(p.box_max + DVec3::splat(1e-9)).all(),
+                    "child box inside parent"
+                );
+                assert!(
+                    t.geometric_error <= p.geometric_error,
+                    "geometric error does not grow downwards"
+                );
+            }
+            None => assert!(t.geometric_error <= top),
+        }
+        // Tight: the box is the content's box (plus a hair) for tiles with content and no children.
+        if !t.positions.is_empty() && !has_child[i] {
+            let mut lo = DVec3::splat(f64::INFINITY);
+            let mut hi = DVec3::splat(f64::NEG_INFINITY);
+            for p in &t.positions {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+            let slack = ((t.box_max - t.box_min) - (hi - lo)).max_element();
+            assert!(
+                slack < 0.01 + (hi - lo).max_element() * 1e-4,
+                "leaf box is tight (slack {slack} m)"
+            );
+        }
+    }
+    tiles
+}
+
+/// A one-triangle GLB with vertices given in glTF (y-up) coordinates and an optional node translation.
+pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<u8> {
+    let mut bin = Vec::new();
+    for v in verts {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    let mut node = serde_json::json!({"mesh": 0});
+    if let Some(t) = translation {
+        node["translation"] = serde_json::json!(t);
+    }
+    let lo: Vec<f32> = (0..3)
+        .map(|k| verts.iter().map(|v| v[k]).fold(f32::MAX, f32::min))
+        .collect();
+    let hi: Vec<f32> = (0..3)
+        .map(|k| verts.iter().map(|v| v[k]).fold(f32::MIN, f32::max))
+        .collect();
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": lo, "max": hi}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36}]
+    });
+    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+}
+
+pub fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let mut j = json.to_vec();
+    while j.len() % 4 != 0 {
+        j.push(b' ');
+    }
+    let mut b = bin.to_vec();
+    while b.len() % 4 != 0 {
+        b.push(0);
+    }
+    let total = 12 + 8 + j.len() + 8 + b.len();
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(j.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&j);
+    out.extend_from_slice(&(b.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&b);
+    out
+}

@@ -1,0 +1,212 @@
+//! End-to-end: the real binary on the bundled sample and on every model of ../shared/data, checked
+//! with independent readers (gltf crate, gltf-validator, the official 3D Tiles schemas).
+
+mod common;
+use common::*;
+use glam::DVec3;
+
+#[test]
+fn sample_converts_to_a_valid_tileset() {
+    let out = tmpdir("sample").join("tiles");
+    let expect: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(repo().join("samples/sample_building.expect.json")).unwrap(),
+    )
+    .unwrap();
+    // A small budget so that the sample makes a real tree.
+    let report = convert(&sample(), &out, &["--max-tile-triangles", "2000"]);
+    let tris = expect["triangles"].as_u64().unwrap() as usize;
+    assert_eq!(
+        report["input"]["triangles"].as_u64().unwrap() as usize,
+        tris
+    );
+    assert_eq!(report["input"]["components"], expect["components"]);
+    assert_eq!(
+        report["output"]["triangles"].as_u64().unwrap() as usize,
+        tris
+    );
+    assert!(
+        report["output"]["tiles"].as_u64().unwrap() > 4,
+        "a tree, not one tile"
+    );
+    assert!(report["output"]["max_depth"].as_u64().unwrap() >= 1);
+    for key in ["ingest", "partition", "encode_write", "total"] {
+        assert!(report["timings_s"][key].as_f64().is_some(), "timing {key}");
+    }
+    assert!(report["peak_memory_bytes"].as_u64().unwrap() > 0);
+    assert!(report["geometric_error_metric"]
+        .as_str()
+        .unwrap()
+        .starts_with("size-bound"));
+    let tiles = check_tileset(&out, tris);
+    // Geometric error is meaningful: not one constant, and 0 exactly at the leaves.
+    let mut errors: Vec<f64> = tiles.iter().map(|t| t.geometric_error).collect();
+    errors.dedup();
+    assert!(errors.len() > 1);
+    if let Some((files, _, _)) = gltf_validator(&out) {
+        assert_eq!(
+            files as usize,
+            tiles.iter().filter(|t| t.uri.is_some()).count()
+        );
+    }
+}
+
+#[test]
+fn every_shared_model_converts_to_a_valid_tileset() {
+    for model in shared_models() {
+        let name = model.file_stem().unwrap().to_string_lossy().to_string();
+        let out = tmpdir(&format!("shared-{name}")).join("tiles");
+        let report = convert(&model, &out, &["--max-tile-triangles", "5000"]);
+        let tris = report["input"]["triangles"].as_u64().unwrap() as usize;
+        assert!(tris > 0, "{name}");
+        let tiles = check_tileset(&out, tris);
+        eprintln!("{name}: {tris} triangles, {} tiles", tiles.len());
+        gltf_validator(&out);
+    }
+}
+
+#[test]
+fn schema_check_catches_a_broken_tileset() {
+    let bad = serde_json::json!({"geometricError": 1.0, "root": {"boundingVolume": {"box": [0]}, "geometricError": "x"}});
+    match tileset_schema_errors(&bad) {
+        Some(errors) => assert!(errors.len() >= 2, "{errors:?}"),
+        None => assert!(!tools_required(), "schemas missing"),
+    }
+}
+
+#[test]
+fn output_is_byte_identical_whatever_the_thread_count() {
+    let d = tmpdir("determinism");
+    let a = d.join("a");
+    let b = d.join("b");
+    convert(
+        &sample(),
+        &a,
+        &["--max-tile-triangles", "1500", "--threads", "1"],
+    );
+    convert(
+        &sample(),
+        &b,
+        &["--max-tile-triangles", "1500", "--threads", "2"],
+    );
+    let list = |p: &std::path::Path| {
+        let mut v: Vec<_> = std::fs::read_dir(p.join("tiles"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(list(&a), list(&b));
+    assert!(list(&a).len() > 3);
+    assert_eq!(
+        std::fs::read(a.join("tileset.json")).unwrap(),
+        std::fs::read(b.join("tileset.json")).unwrap()
+    );
+    for f in list(&a) {
+        assert_eq!(
+            std::fs::read(a.join("tiles").join(&f)).unwrap(),
+            std::fs::read(b.join("tiles").join(&f)).unwrap(),
+            "{f:?}"
+        );
+    }
+}
+
+/// WGS84 → ECEF, written again here so the test does not trust the code it checks.
+fn ecef(lon: f64, lat: f64, h: f64) -> DVec3 {
+    let a = 6378137.0;
+    let f = 1.0 / 298.257223563;
+    let e2 = f * (2.0 - f);
+    let (lo, la) = (lon.to_radians(), lat.to_radians());
+    let n = a / (1.0 - e2 * la.sin() * la.sin()).sqrt();
+    DVec3::new(
+        (n + h) * la.cos() * lo.cos(),
+        (n + h) * la.cos() * lo.sin(),
+        (n * (1.0 - e2) + h) * la.sin(),
+    )
+}
+
+fn content_points_ecef(dir: &std::path::Path) -> Vec<DVec3> {
+    let (ts, tiles) = decode_tileset(dir);
+    let m: Vec<f64> = ts["root"]["transform"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let root = glam::DMat4::from_cols_slice(&m);
+    tiles
+        .iter()
+        .flat_map(|t| t.positions.iter().map(|p| root.transform_point3(*p)))
+        .collect()
+}
+
+#[test]
+fn a_known_point_lands_at_the_right_ecef_coordinate() {
+    let d = tmpdir("georef");
+    // glTF y-up: (5, 10, -3) is 5 m east, 10 m up, 3 m north of the model origin.
+    let input = d.join("tri.glb");
+    std::fs::write(
+        &input,
+        triangle_glb([[0.0, 0.0, 0.0], [5.0, 10.0, -3.0], [1.0, 0.0, 0.0]], None),
+    )
+    .unwrap();
+    let out = d.join("out");
+    convert(&input, &out, &["--origin", "-122.4194,37.7749,12.5"]);
+    let pts = content_points_ecef(&out);
+    let (lon, lat, h) = (-122.4194f64, 37.7749f64, 12.5);
+    // Expected: ENU offsets (e, n, u) = (5, 3, 10) from the origin, built from first principles.
+    let (lo, la) = (lon.to_radians(), lat.to_radians());
+    let east = DVec3::new(-lo.sin(), lo.cos(), 0.0);
+    let north = DVec3::new(-la.sin() * lo.cos(), -la.sin() * lo.sin(), la.cos());
+    let up = DVec3::new(la.cos() * lo.cos(), la.cos() * lo.sin(), la.sin());
+    let expected = ecef(lon, lat, h) + east * 5.0 + north * 3.0 + up * 10.0;
+    let best = pts
+        .iter()
+        .map(|p| (*p - expected).length())
+        .fold(f64::MAX, f64::min);
+    assert!(best < 1e-3, "known point is {best} m off (must be < 1 mm)");
+    // And the model origin sits exactly at the origin given.
+    let o = pts
+        .iter()
+        .map(|p| (*p - ecef(lon, lat, h)).length())
+        .fold(f64::MAX, f64::min);
+    assert!(o < 1e-3, "origin is {o} m off");
+}
+
+#[test]
+fn projected_coordinates_keep_millimetres() {
+    let d = tmpdir("projected");
+    // A model 5.4 million metres north (a UTM northing): node translation in f64, triangle of 1 mm edges.
+    let input = d.join("far.glb");
+    std::fs::write(
+        &input,
+        triangle_glb(
+            [[0.0, 0.0, 0.0], [0.001, 0.0, 0.0], [0.0, 0.0, -0.001]],
+            Some([512_345.678, 40.0, -5_412_345.123]),
+        ),
+    )
+    .unwrap();
+    let out = d.join("out");
+    let report = convert(&input, &out, &[]);
+    assert!(report["georeference"]["anchor_rule"]
+        .as_str()
+        .unwrap()
+        .contains("projected"));
+    let anchor: Vec<f64> = report["georeference"]["anchor_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert!((anchor[0] - 512_345.678).abs() < 0.01 && (anchor[1] - 5_412_345.123).abs() < 0.01);
+    let (_, tiles) = decode_tileset(&out);
+    let p: Vec<DVec3> = tiles.iter().flat_map(|t| t.positions.clone()).collect();
+    assert_eq!(p.len(), 3);
+    // The 1 mm edges survive (f32 at 5.4e6 m would round them to 0.5 m steps).
+    let e1 = (p[1] - p[0]).length();
+    let e2 = (p[2] - p[0]).length();
+    assert!(
+        (e1 - 0.001).abs() < 1e-5 && (e2 - 0.001).abs() < 1e-5,
+        "edges {e1} {e2}"
+    );
+}
