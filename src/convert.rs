@@ -184,19 +184,23 @@ fn check_output(out: &Path, force: bool) -> Result<()> {
     Ok(())
 }
 
-/// Reads `inputs`, converts them and writes the tileset to `opts.out_dir`.
+/// Reads `inputs` (none: the embedded sample building), converts them and writes the tileset to
+/// `opts.out_dir`.
 pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
-    if inputs.is_empty() {
-        return Err(Error::Options("no input file given".into()));
-    }
     check_output(&opts.out_dir, opts.force)?;
-    let mut scene = crate::ingest::read_inputs(inputs)?;
+    let mut scene = if inputs.is_empty() {
+        crate::ingest::read_embedded_sample()?
+    } else {
+        crate::ingest::read_inputs(inputs)?
+    };
     if scene.triangle_count() == 0 {
-        return Err(Error::input(
-            &inputs[0],
-            "the input has no triangles to tile",
-        ));
+        let name = scene
+            .sources
+            .first()
+            .map(|s| s.path.clone())
+            .unwrap_or_default();
+        return Err(Error::input(name, "the input has no triangles to tile"));
     }
     let t_ingest = t0.elapsed().as_secs_f64();
     convert_scene(&mut scene, opts, t0, t_ingest)

@@ -35,8 +35,7 @@ enum Command {
 
 #[derive(Args)]
 struct ConvertArgs {
-    /// Input models (.glb, .gltf).
-    #[arg(required = true)]
+    /// Input models (.glb, .gltf). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
     /// Output folder (must not exist, unless --force).
     #[arg(long, short)]

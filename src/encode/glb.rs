@@ -275,7 +275,9 @@ fn write_glb(
             "POSITION".into(),
             json!(b.float_accessor(&m.positions, true)),
         );
-        attributes.insert("NORMAL".into(), json!(b.float_accessor(&m.normals, false)));
+        if !m.normals.is_empty() {
+            attributes.insert("NORMAL".into(), json!(b.float_accessor(&m.normals, false)));
+        }
         if *with_uv {
             attributes.insert("TEXCOORD_0".into(), json!(b.float_accessor(&m.uvs, false)));
         }

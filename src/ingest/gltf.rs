@@ -30,11 +30,17 @@ const SUPPORTED_REQUIRED: &[&str] = &[
 /// Reads one glTF/GLB file into a new scene.
 pub fn read_gltf(path: &Path) -> Result<Scene> {
     let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
-    read_gltf_bytes(path, &bytes)
+    read_gltf_owned(path, bytes)
 }
 
 /// Reads glTF/GLB bytes; `path` names the file in errors and anchors relative URIs.
 pub fn read_gltf_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
+    read_gltf_owned(path, bytes.to_vec())
+}
+
+/// Like [`read_gltf_bytes`], owning the file's bytes: a GLB's BIN chunk is read in place, never
+/// copied, so peak memory holds the binary data once.
+fn read_gltf_owned(path: &Path, bytes: Vec<u8>) -> Result<Scene> {
     let err = |m: String| Error::input(path, m);
     let is_glb = bytes.starts_with(b"glTF");
     if !is_glb {
@@ -45,22 +51,42 @@ pub fn read_gltf_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
             ));
         }
     }
-    let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| {
+    // (JSON text, BIN chunk's byte range inside `bytes`).
+    let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
+        let glb = gltf::binary::Glb::from_slice(&bytes)
+            .map_err(|e| err(format!("invalid or truncated GLB: {e}")))?;
+        let json: &[u8] = match glb.json {
+            std::borrow::Cow::Borrowed(j) => j,
+            std::borrow::Cow::Owned(_) => return Err(err("invalid GLB JSON chunk".into())),
+        };
+        let bin = match glb.bin {
+            Some(std::borrow::Cow::Borrowed(b)) => {
+                let start = b.as_ptr() as usize - bytes.as_ptr() as usize;
+                Some(start..start + b.len())
+            }
+            _ => None,
+        };
+        (json, bin)
+    } else {
+        (&bytes[..], None)
+    };
+    let root: gltf::json::Root = gltf::json::deserialize::from_slice(json_text).map_err(|e| {
         err(if is_glb {
-            format!("invalid or truncated GLB: {e}")
+            format!("invalid GLB JSON chunk: {e}")
         } else {
             format!("invalid glTF JSON: {e}")
         })
     })?;
-    // The raw JSON again, for f64 node transforms.
-    let raw_json: Value = if is_glb {
-        let glb =
-            gltf::binary::Glb::from_slice(bytes).map_err(|e| err(format!("invalid GLB: {e}")))?;
-        serde_json::from_slice(&glb.json)
-            .map_err(|e| err(format!("invalid GLB JSON chunk: {e}")))?
-    } else {
-        serde_json::from_slice(bytes).map_err(|e| err(format!("invalid glTF JSON: {e}")))?
+    let gltf = gltf::Gltf {
+        document: gltf::Document::from_json_without_validation(root),
+        blob: None,
     };
+    // The JSON again, for f64 node transforms only (a typed skim: far lighter than a `Value` tree
+    // on exports with 100k nodes).
+    let raw_json: RawTransforms =
+        serde_json::from_slice(json_text).map_err(|e| err(format!("invalid glTF JSON: {e}")))?;
+    let file_bytes = bytes.len() as u64;
+    let bin: Option<&[u8]> = bin_range.map(|r| &bytes[r]);
 
     check_references(&gltf.document, &err)?;
     for ext in gltf.document.extensions_required() {
@@ -72,16 +98,22 @@ pub fn read_gltf_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
     }
 
     let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let buffers = load_buffers(&gltf, &base_dir, path)?;
+    let external = load_buffers(&gltf.document, bin, &base_dir, path)?;
+    let buffers: Vec<&[u8]> = external
+        .iter()
+        .map(|b| match b {
+            BufferData::Bin => bin.unwrap_or(&[]),
+            BufferData::Owned(v) => &v[..],
+        })
+        .collect();
     let mut reader = Reader {
         path,
         buffers: &buffers,
         scene: Scene::default(),
-        mesh_map: HashMap::new(),
     };
     reader.scene.sources.push(SourceFile {
         path: path.to_path_buf(),
-        bytes: bytes.len() as u64,
+        bytes: file_bytes,
     });
     reader.read_images(&gltf.document, &base_dir)?;
     reader.read_materials(&gltf.document);
@@ -175,26 +207,44 @@ fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, String> 
     std::fs::read(&p).map_err(|e| format!("cannot read '{}': {e}", p.display()))
 }
 
-fn load_buffers(gltf: &gltf::Gltf, base_dir: &Path, path: &Path) -> Result<Vec<Vec<u8>>> {
+/// A buffer's bytes: the GLB BIN chunk (borrowed from the file) or loaded from a URI.
+enum BufferData {
+    Bin,
+    Owned(Vec<u8>),
+}
+
+fn load_buffers(
+    doc: &gltf::Document,
+    bin: Option<&[u8]>,
+    base_dir: &Path,
+    path: &Path,
+) -> Result<Vec<BufferData>> {
     let mut out = Vec::new();
-    for b in gltf.document.buffers() {
-        let data = match b.source() {
-            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
-                Error::input(
-                    path,
-                    format!("buffer {} refers to a missing GLB BIN chunk", b.index()),
-                )
-            })?,
-            gltf::buffer::Source::Uri(uri) => load_uri(base_dir, uri)
-                .map_err(|m| Error::input(path, format!("buffer {}: {m}", b.index())))?,
+    for b in doc.buffers() {
+        let (data, len) = match b.source() {
+            gltf::buffer::Source::Bin => {
+                let bin = bin.ok_or_else(|| {
+                    Error::input(
+                        path,
+                        format!("buffer {} refers to a missing GLB BIN chunk", b.index()),
+                    )
+                })?;
+                (BufferData::Bin, bin.len())
+            }
+            gltf::buffer::Source::Uri(uri) => {
+                let v = load_uri(base_dir, uri)
+                    .map_err(|m| Error::input(path, format!("buffer {}: {m}", b.index())))?;
+                let n = v.len();
+                (BufferData::Owned(v), n)
+            }
         };
-        if data.len() < b.length() {
+        if len < b.length() {
             return Err(Error::input(
                 path,
                 format!(
                     "buffer {} is truncated: {} bytes, byteLength says {}",
                     b.index(),
-                    data.len(),
+                    len,
                     b.length()
                 ),
             ));
@@ -206,26 +256,38 @@ fn load_buffers(gltf: &gltf::Gltf, base_dir: &Path, path: &Path) -> Result<Vec<V
 
 struct Reader<'a> {
     path: &'a Path,
-    buffers: &'a [Vec<u8>],
+    buffers: &'a [&'a [u8]],
     scene: Scene,
-    mesh_map: HashMap<usize, MeshId>,
+}
+
+/// The node transforms of a glTF JSON, read as f64.
+#[derive(serde::Deserialize, Default)]
+struct RawTransforms {
+    #[serde(default)]
+    nodes: Vec<RawNode>,
+}
+
+#[derive(serde::Deserialize, Default)]
+struct RawNode {
+    matrix: Option<[f64; 16]>,
+    translation: Option<[f64; 3]>,
+    rotation: Option<[f64; 4]>,
+    scale: Option<[f64; 3]>,
 }
 
 /// Raw node transform as f64 (matrix, or T·R·S).
-fn node_local_matrix(raw: Option<&Value>) -> DMat4 {
-    let nums = |key: &str, n: usize| -> Option<Vec<f64>> {
-        let arr = raw?.get(key)?.as_array()?;
-        let v: Vec<f64> = arr.iter().filter_map(Value::as_f64).collect();
-        (v.len() == n).then_some(v)
+fn node_local_matrix(raw: Option<&RawNode>) -> DMat4 {
+    let Some(raw) = raw else {
+        return DMat4::IDENTITY;
     };
-    if let Some(m) = nums("matrix", 16) {
-        return DMat4::from_cols_slice(&m);
+    if let Some(m) = raw.matrix {
+        return DMat4::from_cols_array(&m);
     }
-    let t = nums("translation", 3).map_or(DVec3::ZERO, |v| DVec3::new(v[0], v[1], v[2]));
-    let r = nums("rotation", 4).map_or(DQuat::IDENTITY, |v| {
+    let t = raw.translation.map_or(DVec3::ZERO, DVec3::from_array);
+    let r = raw.rotation.map_or(DQuat::IDENTITY, |v| {
         DQuat::from_xyzw(v[0], v[1], v[2], v[3]).normalize()
     });
-    let s = nums("scale", 3).map_or(DVec3::ONE, |v| DVec3::new(v[0], v[1], v[2]));
+    let s = raw.scale.map_or(DVec3::ONE, DVec3::from_array);
     DMat4::from_scale_rotation_translation(s, r, t)
 }
 
@@ -316,8 +378,7 @@ impl Reader<'_> {
         }
     }
 
-    fn read_nodes(&mut self, doc: &gltf::Document, raw: &Value) -> Result<()> {
-        let raw_nodes = raw.get("nodes").and_then(Value::as_array);
+    fn read_nodes(&mut self, doc: &gltf::Document, raw: &RawTransforms) -> Result<()> {
         // Hierarchy: every glTF node becomes a scene node with the same index.
         let mut parent = vec![None; doc.nodes().len()];
         for n in doc.nodes() {
@@ -344,6 +405,11 @@ impl Reader<'_> {
             Some(s) => s.nodes().map(|n| n.index()).collect(),
             None => (0..parent.len()).filter(|&i| parent[i].is_none()).collect(),
         };
+        let nodes: Vec<gltf::Node> = doc.nodes().collect();
+        // glTF mesh index → our MeshId, in order of first use; meshes are decoded afterwards, in
+        // parallel.
+        let mut mesh_ids: HashMap<usize, MeshId> = HashMap::new();
+        let mut mesh_order: Vec<usize> = Vec::new();
         let mut visited = vec![false; parent.len()];
         let mut stack: Vec<(usize, DMat4)> =
             roots.iter().rev().map(|&i| (i, Y_UP_TO_Z_UP)).collect();
@@ -353,13 +419,16 @@ impl Reader<'_> {
                     "node {idx} is reached twice (a cycle or a shared child)"
                 )));
             }
-            let node = doc.nodes().nth(idx).expect("index from the document");
-            let world = parent_world * node_local_matrix(raw_nodes.and_then(|a| a.get(idx)));
+            let node = &nodes[idx];
+            let world = parent_world * node_local_matrix(raw.nodes.get(idx));
             if !world.is_finite() {
                 return Err(self.err(format!("node {idx} has a non-finite transform")));
             }
             if let Some(mesh) = node.mesh() {
-                let mesh_id = self.mesh_id(&mesh)?;
+                let mesh_id = *mesh_ids.entry(mesh.index()).or_insert_with(|| {
+                    mesh_order.push(mesh.index());
+                    MeshId(mesh_order.len() as u32 - 1)
+                });
                 let id = ComponentId(self.scene.components.len() as u32);
                 let key = self.scene.node_path(NodeId(idx as u32));
                 self.scene.components.push(Component {
@@ -377,28 +446,38 @@ impl Reader<'_> {
                 stack.push((c.index(), world));
             }
         }
+        let meshes: Vec<gltf::Mesh> = doc.meshes().collect();
+        let decoded: Vec<Result<(Mesh, usize)>> = {
+            use rayon::prelude::*;
+            let this = &*self;
+            mesh_order
+                .par_iter()
+                .map(|&mi| this.read_mesh(&meshes[mi]))
+                .collect()
+        };
+        for d in decoded {
+            let (mesh, skipped) = d?;
+            self.scene.meshes.push(mesh);
+            self.scene.skipped_primitives += skipped;
+        }
         Ok(())
     }
 
-    fn mesh_id(&mut self, mesh: &gltf::Mesh) -> Result<MeshId> {
-        if let Some(&id) = self.mesh_map.get(&mesh.index()) {
-            return Ok(id);
-        }
+    /// Decodes one mesh; also returns how many primitives were not surfaces.
+    fn read_mesh(&self, mesh: &gltf::Mesh) -> Result<(Mesh, usize)> {
         let mut out = Mesh {
             name: mesh.name().map(str::to_string),
             ..Default::default()
         };
+        let mut skipped = 0;
         for (pi, prim) in mesh.primitives().enumerate() {
             let what = format!("mesh {} primitive {pi}", mesh.index());
             match self.read_primitive(&prim, &what)? {
                 Some(p) => out.primitives.push(p),
-                None => self.scene.skipped_primitives += 1,
+                None => skipped += 1,
             }
         }
-        let id = MeshId(self.scene.meshes.len() as u32);
-        self.scene.meshes.push(out);
-        self.mesh_map.insert(mesh.index(), id);
-        Ok(id)
+        Ok((out, skipped))
     }
 
     /// `Ok(None)` for primitives that are not surfaces (points, lines).
@@ -536,6 +615,17 @@ impl Reader<'_> {
         let dt = acc.data_type();
         let norm = acc.normalized();
         let mut out = Vec::with_capacity(acc.count());
+        if dt == gltf::accessor::DataType::F32 {
+            // The common case, without the per-component dispatch.
+            for e in packed.chunks_exact(elem.max(1)) {
+                let mut v = [0f32; N];
+                for (k, x) in v.iter_mut().enumerate() {
+                    *x = f32::from_le_bytes([e[4 * k], e[4 * k + 1], e[4 * k + 2], e[4 * k + 3]]);
+                }
+                out.push(v);
+            }
+            return Ok(out);
+        }
         for e in packed.chunks_exact(elem.max(1)) {
             let mut v = [0f32; N];
             for (k, x) in v.iter_mut().enumerate() {
@@ -688,11 +778,13 @@ mod tests {
 
     #[test]
     fn node_matrix_from_raw_json_keeps_f64() {
-        let v: Value = serde_json::json!({"translation": [512345.678, 0.0, -5412345.123]});
+        let v: RawNode =
+            serde_json::from_str(r#"{"translation": [512345.678, 0.0, -5412345.123]}"#).unwrap();
         let m = node_local_matrix(Some(&v));
         assert_eq!(m.w_axis.x, 512345.678);
         assert_eq!(m.w_axis.z, -5412345.123);
-        let v: Value = serde_json::json!({"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 5,6,7,1]});
+        let v: RawNode =
+            serde_json::from_str(r#"{"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 5,6,7,1]}"#).unwrap();
         assert_eq!(
             node_local_matrix(Some(&v)).w_axis.truncate(),
             DVec3::new(5.0, 6.0, 7.0)

@@ -30,6 +30,17 @@ pub fn read_input(path: &Path) -> Result<Scene> {
     }
 }
 
+/// The bundled sample building (`samples/sample_building.glb`), compiled into the binary so that
+/// `bimtiles convert --out DIR` works anywhere with no input at hand.
+pub const EMBEDDED_SAMPLE: &[u8] = include_bytes!("../../samples/sample_building.glb");
+/// The name the embedded sample goes by in reports and errors.
+pub const EMBEDDED_SAMPLE_NAME: &str = "samples/sample_building.glb (embedded)";
+
+/// Reads the embedded sample building.
+pub fn read_embedded_sample() -> Result<Scene> {
+    gltf::read_gltf_bytes(Path::new(EMBEDDED_SAMPLE_NAME), EMBEDDED_SAMPLE)
+}
+
 /// Reads several inputs into one scene, in the order given.
 pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
     let mut scene = Scene::default();

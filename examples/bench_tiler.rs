@@ -1,0 +1,143 @@
+//! `make bench`: conversion throughput and peak memory of the real binary, per model.
+//!
+//! Runs `target/release/bimtiles convert` on every GLB in the data folder given (default
+//! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
+//! process (so peak memory is that conversion's), and prints one row per model from its
+//! `report.json`. Also writes `target/bench/tiler.json`.
+//!
+//! Usage: cargo run --release --example bench_tiler -- [DATA_DIR] [--budgets 10000,40000]
+
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn convert(bin: &Path, input: &Path, out: &Path, budget: usize) -> Option<Value> {
+    let st = Command::new(bin)
+        .args([
+            "convert",
+            input.to_str()?,
+            "--out",
+            out.to_str()?,
+            "--force",
+            "--quiet",
+        ])
+        .args(["--max-tile-triangles", &budget.to_string()])
+        .status()
+        .ok()?;
+    if !st.success() {
+        eprintln!("conversion of {} failed", input.display());
+        return None;
+    }
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).ok()?).ok()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let data = args
+        .iter()
+        .find(|a| !a.starts_with("--"))
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo.join("../shared/data"));
+    let budgets: Vec<usize> = args
+        .iter()
+        .position(|a| a == "--budgets")
+        .and_then(|i| args.get(i + 1))
+        .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
+        .unwrap_or_else(|| vec![bimtiles::partition::OctreeOptions::default().max_tile_triangles]);
+    let bin = repo.join("target/release/bimtiles");
+    let work = repo.join("target/bench");
+    std::fs::create_dir_all(&work).unwrap();
+
+    let mut inputs: Vec<PathBuf> = vec![repo.join("samples/sample_building.glb")];
+    if data.is_dir() {
+        let mut glbs: Vec<PathBuf> = std::fs::read_dir(&data)
+            .unwrap()
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "glb"))
+            .collect();
+        glbs.sort();
+        inputs.extend(glbs);
+        // Paper-scale inputs: real components, synthetic layout (see MANIFEST.md).
+        let script = data.join("make_campus.py");
+        for (name, copies) in [("campus-1.9M", 8), ("campus-8.2M", 34)] {
+            let out = work.join(format!("{name}.glb"));
+            if !out.exists() {
+                let ok = Command::new("python3")
+                    .arg(&script)
+                    .arg(&out)
+                    .args(["--copies", &copies.to_string(), "--inputs"])
+                    .arg(data.join("ISSUE_021_Mini_Project.glb"))
+                    .args(["--bake", "--jitter-m", "0.002"])
+                    .status()
+                    .is_ok_and(|s| s.success());
+                if !ok {
+                    eprintln!("make_campus.py failed for {name}");
+                    continue;
+                }
+            }
+            inputs.push(out);
+        }
+    } else {
+        eprintln!(
+            "{} not found: benchmarking the bundled sample only",
+            data.display()
+        );
+    }
+
+    println!(
+        "{:<34} {:>8} {:>10} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>8}",
+        "model",
+        "budget",
+        "triangles",
+        "tiles",
+        "depth",
+        "out MB",
+        "secs",
+        "Mtri/s",
+        "peak MB",
+        "peak/in"
+    );
+    let mut rows = Vec::new();
+    for input in &inputs {
+        for &budget in &budgets {
+            let name = input.file_stem().unwrap().to_string_lossy().to_string();
+            let out = work.join(format!("out-{name}-{budget}"));
+            let Some(r) = convert(&bin, input, &out, budget) else {
+                continue;
+            };
+            let tris = r["input"]["triangles"].as_f64().unwrap_or(0.0);
+            let secs = r["timings_s"]["total"].as_f64().unwrap_or(0.0);
+            let in_bytes = r["input"]["bytes"].as_f64().unwrap_or(1.0);
+            let peak = r["peak_memory_bytes"].as_f64().unwrap_or(0.0);
+            let row = json!({
+                "model": name, "budget": budget, "input_bytes": in_bytes, "triangles": tris,
+                "tiles": r["output"]["tiles"], "max_depth": r["output"]["max_depth"],
+                "output_bytes": r["output"]["bytes"], "seconds": secs, "timings_s": r["timings_s"],
+                "mtri_per_s": tris / secs.max(1e-9) / 1e6, "peak_memory_bytes": peak,
+                "peak_over_input": peak / in_bytes,
+            });
+            println!(
+                "{:<34} {:>8} {:>10} {:>7} {:>6} {:>9.2} {:>8.3} {:>10.2} {:>9.1} {:>8.2}",
+                name,
+                budget,
+                tris,
+                r["output"]["tiles"],
+                r["output"]["max_depth"],
+                r["output"]["bytes"].as_f64().unwrap_or(0.0) / 1e6,
+                secs,
+                tris / secs.max(1e-9) / 1e6,
+                peak / 1e6,
+                peak / in_bytes
+            );
+            let _ = std::fs::remove_dir_all(&out);
+            rows.push(row);
+        }
+    }
+    std::fs::write(
+        work.join("tiler.json"),
+        serde_json::to_vec_pretty(&rows).unwrap(),
+    )
+    .unwrap();
+    println!("written {}", work.join("tiler.json").display());
+}
