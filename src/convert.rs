@@ -5,7 +5,7 @@
 //! parallel, each written and freed at once; file names and contents depend only on the input and
 //! the options, never on the thread count.
 
-use crate::encode::encode_tile;
+use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::partition::{plan_octree, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, Scene};
@@ -30,6 +30,8 @@ pub struct ConvertOptions {
     /// Where the model's anchor goes on Earth; `None` = [`GeoOrigin::DEFAULT`].
     pub origin: Option<GeoOrigin>,
     pub octree: OctreeOptions,
+    /// Geometry compression of the tiles.
+    pub compression: Compression,
     /// Show progress bars on stderr.
     pub progress: bool,
 }
@@ -41,6 +43,7 @@ impl ConvertOptions {
             force: false,
             origin: None,
             octree: OctreeOptions::default(),
+            compression: Compression::default(),
             progress: false,
         }
     }
@@ -321,6 +324,7 @@ pub fn convert_scene(
             "max_tile_triangles": opts.octree.max_tile_triangles,
             "max_tile_bytes": opts.octree.max_tile_bytes,
             "max_depth": opts.octree.max_depth,
+            "compression": format!("{:?}", opts.compression).to_lowercase(),
         }),
         timings_s: Timings {
             ingest: t_ingest,
@@ -373,28 +377,33 @@ fn write_tileset(
     std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
     let t = Instant::now();
     let pb = progress_bar(opts.progress, plan.tiles.len(), "tiles");
-    let generator = concat!("bimtiles ", env!("CARGO_PKG_VERSION"));
-    let stats: Vec<Result<(Option<String>, TileStats)>> = plan
+    let encoding = TileEncoding {
+        compression: opts.compression,
+        ..TileEncoding::default()
+    };
+    let stats: Vec<Result<(Option<String>, Aabb, TileStats)>> = plan
         .tiles
         .par_iter()
         .map(|tile| {
             let ge = tile.omitted_size_m;
             if tile.content.is_empty() {
                 pb.inc(1);
-                return Ok((None, (ge, 0, 0, 0)));
+                return Ok((None, Aabb::EMPTY, (ge, 0, 0, 0)));
             }
             let enc = encode_tile(
                 scene,
                 &tile.content,
                 tile.content_bounds.center(),
-                generator,
-            )?;
+                &encoding,
+            )
+            .map_err(|e| Error::output(tmp.join(format!("tiles/{}.glb", tile.path)), e))?;
             let uri = format!("tiles/{}.glb", tile.path);
             let path = tmp.join(&uri);
             std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
             pb.inc(1);
             Ok((
                 Some(uri),
+                enc.bounds,
                 (ge, enc.glb.len() as u64, enc.triangles, enc.vertices),
             ))
         })
@@ -403,9 +412,10 @@ fn write_tileset(
     let mut facts = Vec::with_capacity(stats.len());
     let mut tile_stats = Vec::with_capacity(stats.len());
     for s in stats {
-        let (uri, st) = s?;
+        let (uri, content_bounds, st) = s?;
         facts.push(TileFacts {
             content_uri: uri,
+            content_bounds,
             geometric_error_m: st.0,
         });
         tile_stats.push(st);

@@ -151,7 +151,17 @@ fn a_known_point_lands_at_the_right_ecef_coordinate() {
     )
     .unwrap();
     let out = d.join("out");
-    convert(&input, &out, &["--origin", "-122.4194,37.7749,12.5"]);
+    // Uncompressed: this checks placement, not quantization.
+    convert(
+        &input,
+        &out,
+        &[
+            "--origin",
+            "-122.4194,37.7749,12.5",
+            "--compression",
+            "none",
+        ],
+    );
     let pts = content_points_ecef(&out);
     let (lon, lat, h) = (-122.4194f64, 37.7749f64, 12.5);
     // Expected: ENU offsets (e, n, u) = (5, 3, 10) from the origin, built from first principles.
@@ -187,7 +197,7 @@ fn projected_coordinates_keep_millimetres() {
     )
     .unwrap();
     let out = d.join("out");
-    let report = convert(&input, &out, &[]);
+    let report = convert(&input, &out, &["--compression", "none"]);
     assert!(report["georeference"]["anchor_rule"]
         .as_str()
         .unwrap()
@@ -209,4 +219,66 @@ fn projected_coordinates_keep_millimetres() {
         (e1 - 0.001).abs() < 1e-5 && (e2 - 0.001).abs() < 1e-5,
         "edges {e1} {e2}"
     );
+}
+
+#[test]
+fn draco_tiles_stay_within_half_a_millimetre_of_the_uncompressed_ones() {
+    let d = tmpdir("draco-vs-none");
+    let (a, b) = (d.join("draco"), d.join("none"));
+    let ra = convert(&sample(), &a, &["--max-tile-triangles", "2000"]);
+    let rb = convert(
+        &sample(),
+        &b,
+        &["--max-tile-triangles", "2000", "--compression", "none"],
+    );
+    assert_eq!(ra["output"]["tiles"], rb["output"]["tiles"]);
+    let (_, ta) = decode_tileset(&a);
+    let (_, tb) = decode_tileset(&b);
+    let (mut worst, mut n) = (0.0f64, 0usize);
+    for (x, y) in ta.iter().zip(&tb) {
+        assert_eq!(x.uri, y.uri);
+        assert_eq!(x.triangles, y.triangles, "Draco keeps every triangle");
+        // Every decoded vertex is near an original one (grid of 1 cm cells).
+        let mut grid: std::collections::HashMap<(i64, i64, i64), Vec<DVec3>> = Default::default();
+        let cell = |p: DVec3| {
+            (
+                (p.x / 0.01).floor() as i64,
+                (p.y / 0.01).floor() as i64,
+                (p.z / 0.01).floor() as i64,
+            )
+        };
+        for p in &y.positions {
+            grid.entry(cell(*p)).or_default().push(*p);
+        }
+        for p in &x.positions {
+            let c = cell(*p);
+            let mut best = f64::MAX;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        for q in grid
+                            .get(&(c.0 + dx, c.1 + dy, c.2 + dz))
+                            .into_iter()
+                            .flatten()
+                        {
+                            best = best.min((*p - *q).length());
+                        }
+                    }
+                }
+            }
+            worst = worst.max(best);
+            n += 1;
+        }
+    }
+    assert!(n > 1000);
+    // 0.5 mm per axis at most: sqrt(3) * 0.5 mm in 3D.
+    assert!(
+        worst <= 0.0005 * 3f64.sqrt() + 1e-6,
+        "worst quantization error {worst} m"
+    );
+    let (sa, sb) = (
+        ra["output"]["bytes"].as_f64().unwrap(),
+        rb["output"]["bytes"].as_f64().unwrap(),
+    );
+    assert!(sa < sb * 0.5, "Draco output {sa} B vs uncompressed {sb} B");
 }

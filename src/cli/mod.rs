@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use bimtiles::convert::{convert, ConvertOptions};
+use bimtiles::encode::Compression;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::tileset::georef::GeoOrigin;
@@ -52,12 +53,30 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
     max_tile_bytes: usize,
+    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression) or none.
+    #[arg(long, value_enum, default_value = "draco")]
+    compression: CompressionArg,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
     /// No progress bars and no summary (report.json is still written).
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum CompressionArg {
+    Draco,
+    None,
+}
+
+/// Prints to stdout; a closed pipe (`| head`) ends the output quietly instead of failing.
+fn emit(text: &str) -> Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
 }
 
 pub fn main() -> Result<()> {
@@ -67,11 +86,10 @@ pub fn main() -> Result<()> {
         Command::Inspect { dir, json } => {
             let s = inspect(&dir)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&s)?);
+                emit(&format!("{}\n", serde_json::to_string_pretty(&s)?))
             } else {
-                print!("{s}");
+                emit(&s.to_string())
             }
-            Ok(())
         }
     }
 }
@@ -92,12 +110,16 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             max_tile_bytes: a.max_tile_bytes.max(1),
             ..OctreeOptions::default()
         },
+        compression: match a.compression {
+            CompressionArg::Draco => Compression::Draco,
+            CompressionArg::None => Compression::None,
+        },
         progress: !a.quiet,
     };
     let r = convert(&a.inputs, &opts)?;
     if !a.quiet {
-        println!(
-            "{} -> {}\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles, {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
+        emit(&format!(
+            "{} -> {}\n\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles, {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
             r.input.files.join(", "),
             a.out.display(),
             r.input.triangles,
@@ -114,7 +136,7 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             r.timings_s.partition,
             r.timings_s.encode_write,
             human_bytes(r.peak_memory_bytes),
-        );
+        ))?;
     }
     Ok(())
 }

@@ -32,6 +32,58 @@ pub struct EncodedTile {
     pub bounds: Aabb,
 }
 
+/// Geometry compression of tile content.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Compression {
+    /// Plain float attributes and integer indices.
+    None,
+    /// `KHR_draco_mesh_compression` on every primitive (every attribute inside Draco).
+    #[default]
+    Draco,
+}
+
+/// How a tile is written.
+#[derive(Debug, Clone)]
+pub struct TileEncoding {
+    pub compression: Compression,
+    /// Largest position error quantization may add (metres): Draco's position bits are derived
+    /// from it and the primitive's extent.
+    pub max_position_error_m: f64,
+    pub generator: String,
+}
+
+impl Default for TileEncoding {
+    fn default() -> Self {
+        TileEncoding {
+            compression: Compression::Draco,
+            max_position_error_m: DEFAULT_MAX_POSITION_ERROR_M,
+            generator: concat!("bimtiles ", env!("CARGO_PKG_VERSION")).into(),
+        }
+    }
+}
+
+/// Quantization error allowed on full-detail content: well under what anyone sees, and the
+/// issue's promise of at most 1 mm at leaves.
+pub const DEFAULT_MAX_POSITION_ERROR_M: f64 = 0.0005;
+/// Draco bits for normals (octahedral): 10 bits is below visible shading error.
+const NORMAL_BITS: u8 = 10;
+/// Draco bits for colours: 8 bits per channel, as images have.
+const COLOR_BITS: u8 = 8;
+
+/// Draco bits for texture coordinates: a step of at most 1/2048 of one texture repeat over the
+/// primitive's UV range (tiling UVs span many repeats), at least 12 bits.
+fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
+    let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+    for t in uvs {
+        for k in 0..2 {
+            lo[k] = lo[k].min(t[k]);
+            hi[k] = hi[k].max(t[k]);
+        }
+    }
+    let range = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) as f64;
+    ((range * 2048.0).log2().ceil() as u8).clamp(12, 20)
+}
+
 /// A vertex stream being assembled for one material.
 #[derive(Default)]
 struct MergedPrimitive {
@@ -48,7 +100,7 @@ pub fn encode_tile(
     scene: &Scene,
     components: &[ComponentId],
     center: DVec3,
-    generator: &str,
+    enc: &TileEncoding,
 ) -> Result<EncodedTile> {
     // Group every (component, primitive) by material; BTreeMap keeps the order fixed.
     let mut groups: BTreeMap<u32, Vec<(usize, &Component, &Primitive)>> = BTreeMap::new();
@@ -87,7 +139,7 @@ pub fn encode_tile(
     }
     let triangles = merged.iter().map(|m| m.1.indices.len() / 3).sum();
     let vertices = merged.iter().map(|m| m.1.positions.len()).sum();
-    let glb = write_glb(scene, &merged, center, components.len(), generator)
+    let glb = write_glb(scene, &merged, center, components.len(), enc, &mut bounds)
         .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
@@ -250,13 +302,16 @@ impl GltfBuilder {
     }
 }
 
+/// Writes the GLB. With Draco, `bounds` grows to hold the *decoded* (quantized) positions too, so
+/// the tile's bounding volume contains what clients draw.
 fn write_glb(
     scene: &Scene,
     merged: &[(Option<MaterialId>, MergedPrimitive, bool, bool)],
     center: DVec3,
     feature_count: usize,
-    generator: &str,
-) -> std::io::Result<Vec<u8>> {
+    enc: &TileEncoding,
+    bounds: &mut Aabb,
+) -> std::result::Result<Vec<u8>, String> {
     let mut b = GltfBuilder {
         bin: Vec::new(),
         buffer_views: Vec::new(),
@@ -270,32 +325,22 @@ fn write_glb(
     let mut textures: Vec<(usize, usize)> = Vec::new();
     let mut primitives = Vec::new();
     for (material, m, with_uv, with_color) in merged {
-        let mut attributes = Map::new();
-        attributes.insert(
-            "POSITION".into(),
-            json!(b.float_accessor(&m.positions, true)),
-        );
-        if !m.normals.is_empty() {
-            attributes.insert("NORMAL".into(), json!(b.float_accessor(&m.normals, false)));
-        }
-        if *with_uv {
-            attributes.insert("TEXCOORD_0".into(), json!(b.float_accessor(&m.uvs, false)));
-        }
-        if *with_color {
-            attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
-        }
-        let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f]).collect();
-        attributes.insert(
-            "_FEATURE_ID_0".into(),
-            json!(b.float_accessor(&fids, false)),
-        );
-        let indices = b.index_accessor(&m.indices, m.positions.len());
-        let mut prim = json!({
-            "attributes": attributes,
-            "indices": indices,
-            "mode": 4,
-            "extensions": {"EXT_mesh_features": {"featureIds": [{"featureCount": feature_count, "attribute": 0}]}}
-        });
+        let mut prim = match enc.compression {
+            Compression::None => plain_primitive(&mut b, m, *with_uv, *with_color),
+            Compression::Draco => draco_primitive(
+                &mut b,
+                m,
+                *with_uv,
+                *with_color,
+                feature_count,
+                enc,
+                center,
+                bounds,
+            )?,
+        };
+        prim["mode"] = json!(4);
+        prim["extensions"]["EXT_mesh_features"] =
+            json!({"featureIds": [{"featureCount": feature_count, "attribute": 0}]});
         if let Some(mid) = material {
             let next = materials.len();
             let idx = *material_map.entry(mid.0).or_insert(next);
@@ -329,8 +374,14 @@ fn write_glb(
         }
         primitives.push(prim);
     }
+    let mut used = vec!["EXT_mesh_features"];
+    let mut required = Vec::new();
+    if enc.compression == Compression::Draco {
+        used.push("KHR_draco_mesh_compression");
+        required.push("KHR_draco_mesh_compression");
+    }
     let mut root = json!({
-        "asset": {"version": "2.0", "generator": generator},
+        "asset": {"version": "2.0", "generator": enc.generator},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "translation": [center.x, center.z, -center.y]}],
@@ -338,8 +389,11 @@ fn write_glb(
         "accessors": b.accessors,
         "bufferViews": b.buffer_views,
         "buffers": [{"byteLength": b.bin.len()}],
-        "extensionsUsed": ["EXT_mesh_features"],
+        "extensionsUsed": used,
     });
+    if !required.is_empty() {
+        root["extensionsRequired"] = json!(required);
+    }
     if !materials.is_empty() {
         root["materials"] = json!(materials);
     }
@@ -351,8 +405,132 @@ fn write_glb(
             .collect::<Vec<_>>());
         root["samplers"] = json!(samplers.iter().map(sampler_json).collect::<Vec<_>>());
     }
-    let json_bytes = serde_json::to_vec(&root).map_err(std::io::Error::other)?;
+    let json_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?;
     Ok(glb_container(&json_bytes, &b.bin))
+}
+
+/// Attributes and indices as plain accessors.
+fn plain_primitive(
+    b: &mut GltfBuilder,
+    m: &MergedPrimitive,
+    with_uv: bool,
+    with_color: bool,
+) -> Value {
+    let mut attributes = Map::new();
+    attributes.insert(
+        "POSITION".into(),
+        json!(b.float_accessor(&m.positions, true)),
+    );
+    if !m.normals.is_empty() {
+        attributes.insert("NORMAL".into(), json!(b.float_accessor(&m.normals, false)));
+    }
+    if with_uv {
+        attributes.insert("TEXCOORD_0".into(), json!(b.float_accessor(&m.uvs, false)));
+    }
+    if with_color {
+        attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
+    }
+    let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f]).collect();
+    attributes.insert(
+        "_FEATURE_ID_0".into(),
+        json!(b.float_accessor(&fids, false)),
+    );
+    let indices = b.index_accessor(&m.indices, m.positions.len());
+    json!({"attributes": attributes, "indices": indices})
+}
+
+/// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
+/// decoded data, as KHR_draco_mesh_compression requires.
+#[allow(clippy::too_many_arguments)]
+fn draco_primitive(
+    b: &mut GltfBuilder,
+    m: &MergedPrimitive,
+    with_uv: bool,
+    with_color: bool,
+    feature_count: usize,
+    enc: &TileEncoding,
+    center: DVec3,
+    bounds: &mut Aabb,
+) -> std::result::Result<Value, String> {
+    use super::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
+    let positions = m.positions.as_flattened();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in &m.positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    let mut attrs = vec![EncodeAttribute::position(
+        positions,
+        position_bits_for(extent, enc.max_position_error_m),
+    )];
+    let mut names = vec![("POSITION", FLOAT, "VEC3")];
+    if !m.normals.is_empty() {
+        attrs.push(EncodeAttribute::normal(
+            m.normals.as_flattened(),
+            NORMAL_BITS,
+        ));
+        names.push(("NORMAL", FLOAT, "VEC3"));
+    }
+    if with_uv {
+        attrs.push(EncodeAttribute::tex_coord(
+            m.uvs.as_flattened(),
+            uv_bits(&m.uvs),
+        ));
+        names.push(("TEXCOORD_0", FLOAT, "VEC2"));
+    }
+    if with_color {
+        attrs.push(EncodeAttribute::color_f32(
+            m.colors.as_flattened(),
+            COLOR_BITS,
+        ));
+        names.push(("COLOR_0", FLOAT, "VEC4"));
+    }
+    // Feature IDs are exact integers: u16 while they fit (lossless in Draco), f32 beyond.
+    let fid_u16: Vec<u16>;
+    if feature_count <= u16::MAX as usize {
+        fid_u16 = m.feature_ids.iter().map(|&f| f as u16).collect();
+        attrs.push(EncodeAttribute::feature_id_u16(&fid_u16));
+        names.push(("_FEATURE_ID_0", UNSIGNED_SHORT, "SCALAR"));
+    } else {
+        attrs.push(EncodeAttribute::feature_id_f32(&m.feature_ids));
+        names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
+    }
+    let encoded =
+        encode_mesh(&attrs, &m.indices, &EncodeOptions::default()).map_err(|e| e.to_string())?;
+    let view = b.view(&encoded.bytes, None);
+    let mut attributes = Map::new();
+    let mut draco_ids = Map::new();
+    for (k, &(name, ct, ty)) in names.iter().enumerate() {
+        let mut a = json!({"componentType": ct, "count": encoded.point_count, "type": ty});
+        if name == "POSITION" {
+            let (min, max) = &encoded.attribute_min_max[k];
+            a["min"] = json!(min);
+            a["max"] = json!(max);
+            // Decoded glTF (y-up, relative to the centre) back to the scene frame.
+            bounds.extend(center + DVec3::new(min[0], -max[2], min[1]));
+            bounds.extend(center + DVec3::new(max[0], -min[2], max[1]));
+        }
+        b.accessors.push(a);
+        attributes.insert(name.into(), json!(b.accessors.len() - 1));
+        draco_ids.insert(name.into(), json!(encoded.attribute_ids[k]));
+    }
+    let index_type = if encoded.indices_fit_u16() {
+        UNSIGNED_SHORT
+    } else {
+        UNSIGNED_INT
+    };
+    b.accessors.push(
+        json!({"componentType": index_type, "count": encoded.face_count * 3, "type": "SCALAR"}),
+    );
+    let indices = b.accessors.len() - 1;
+    Ok(json!({
+        "attributes": attributes,
+        "indices": indices,
+        "extensions": {"KHR_draco_mesh_compression": {"bufferView": view, "attributes": draco_ids}}
+    }))
 }
 
 fn material_json(m: &Material, texture: Option<usize>) -> Value {
@@ -430,6 +608,13 @@ mod tests {
     use super::*;
     use glam::DMat4;
 
+    fn plain() -> TileEncoding {
+        TileEncoding {
+            compression: Compression::None,
+            ..Default::default()
+        }
+    }
+
     fn one_triangle_scene(world: DMat4) -> Scene {
         let mut s = Scene::default();
         s.materials.push(Material::default());
@@ -463,7 +648,7 @@ mod tests {
         let far = DVec3::new(500_000.25, 5_400_000.5, 100.0);
         let s = one_triangle_scene(DMat4::from_translation(far) * Y_UP_TO_Z_UP);
         let center = s.components[0].world_bounds.center();
-        let t = encode_tile(&s, &[ComponentId(0)], center, "test").unwrap();
+        let t = encode_tile(&s, &[ComponentId(0)], center, &plain()).unwrap();
         assert_eq!(t.triangles, 1);
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let node = g.document.nodes().next().unwrap();
@@ -490,7 +675,7 @@ mod tests {
     #[test]
     fn mirrored_transforms_keep_front_faces() {
         let s = one_triangle_scene(DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0)));
-        let t = encode_tile(&s, &[ComponentId(0)], DVec3::ZERO, "test").unwrap();
+        let t = encode_tile(&s, &[ComponentId(0)], DVec3::ZERO, &plain()).unwrap();
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let blob = g.blob.as_deref().unwrap();
         let prim = g

@@ -1,5 +1,6 @@
-//! Encoders: tile content as glTF binary (GLB).
+//! Encoders: tile content as glTF binary (GLB), geometry compressed with Draco.
 
+pub mod draco;
 pub mod glb;
 
-pub use glb::{encode_tile, EncodedTile};
+pub use glb::{encode_tile, Compression, EncodedTile, TileEncoding};

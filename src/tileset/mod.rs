@@ -13,6 +13,8 @@ use serde_json::{json, Value};
 pub struct TileFacts {
     /// Content URI relative to tileset.json, if the tile has content.
     pub content_uri: Option<String>,
+    /// Box of what the content really holds once decoded (quantization included), scene frame.
+    pub content_bounds: Aabb,
     /// The tile's geometric error in metres.
     pub geometric_error_m: f64,
 }
@@ -43,29 +45,38 @@ pub fn tileset_json(
     root_transform: &DMat4,
     extras: Value,
 ) -> Value {
-    fn tile(plan: &TilePlan, facts: &[TileFacts], i: usize) -> Value {
+    // Bounding volumes from the written content, children first (tiles are in pre-order), so
+    // every child's volume lies inside its parent's.
+    let mut bounds: Vec<Aabb> = facts.iter().map(|f| f.content_bounds).collect();
+    for i in (0..plan.tiles.len()).rev() {
+        for &c in &plan.tiles[i].children {
+            bounds[i] = bounds[i].union(&bounds[c]);
+        }
+    }
+    fn tile(plan: &TilePlan, facts: &[TileFacts], bounds: &[Aabb], i: usize) -> Value {
         let t = &plan.tiles[i];
         let mut v = json!({
-            "boundingVolume": {"box": box_volume(&t.bounds)},
+            "boundingVolume": {"box": box_volume(&bounds[i])},
             "geometricError": facts[i].geometric_error_m,
         });
         if let Some(uri) = &facts[i].content_uri {
             v["content"] = json!({"uri": uri});
         }
         if !t.children.is_empty() {
-            v["children"] =
-                Value::Array(t.children.iter().map(|&c| tile(plan, facts, c)).collect());
+            v["children"] = Value::Array(
+                t.children
+                    .iter()
+                    .map(|&c| tile(plan, facts, bounds, c))
+                    .collect(),
+            );
         }
         v
     }
-    let mut root = tile(plan, facts, 0);
+    let mut root = tile(plan, facts, &bounds, 0);
     root["refine"] = json!("ADD");
     root["transform"] = json!(root_transform.to_cols_array());
     // The whole model is what goes missing when the root is not drawn.
-    let top_error = plan.tiles[0]
-        .bounds
-        .diagonal()
-        .max(facts[0].geometric_error_m);
+    let top_error = bounds[0].diagonal().max(facts[0].geometric_error_m);
     json!({
         "asset": {"version": "1.1", "generator": concat!("bimtiles ", env!("CARGO_PKG_VERSION")), "extras": extras},
         "geometricError": top_error,

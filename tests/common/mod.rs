@@ -222,12 +222,11 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
                 let m = Y_UP_TO_Z_UP
                     * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
                 for p in mesh.primitives() {
-                    let r = p.reader(|_| Some(blob));
                     let base = positions.len();
-                    positions.extend(r.read_positions().unwrap().map(|v| {
+                    let (pos, idx) = primitive_geometry(&g, blob, &p);
+                    positions.extend(pos.iter().map(|v| {
                         m.transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))
                     }));
-                    let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
                     for t in idx.chunks_exact(3) {
                         let v = |i: u32| positions[base + i as usize];
                         area += (v(t[1]) - v(t[0])).cross(v(t[2]) - v(t[0])).length() * 0.5;
@@ -255,6 +254,46 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
         }
     }
     (ts, out)
+}
+
+/// Positions and triangle indices of a primitive, decoding Draco when it is compressed.
+pub fn primitive_geometry(
+    g: &gltf::Gltf,
+    blob: &[u8],
+    p: &gltf::Primitive,
+) -> (Vec<[f32; 3]>, Vec<u32>) {
+    if let Some(ext) = p.extension_value("KHR_draco_mesh_compression") {
+        let view = g
+            .document
+            .views()
+            .nth(ext["bufferView"].as_u64().unwrap() as usize)
+            .unwrap();
+        let bytes = &blob[view.offset()..view.offset() + view.length()];
+        let d = bimtiles::encode::draco::decode_mesh(bytes).expect("Draco stream decodes");
+        let id = ext["attributes"]["POSITION"].as_u64().unwrap() as u32;
+        let pos = d.attribute(id).unwrap().values.as_f32().unwrap().to_vec();
+        // The accessors must describe the decoded data.
+        let acc = p.get(&gltf::Semantic::Positions).unwrap();
+        assert_eq!(
+            acc.count() * 3,
+            pos.len(),
+            "POSITION count is the decoded count"
+        );
+        assert_eq!(
+            p.indices().unwrap().count(),
+            d.indices.len(),
+            "index count is the decoded count"
+        );
+        return (
+            pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            d.indices,
+        );
+    }
+    let r = p.reader(|_| Some(blob));
+    (
+        r.read_positions().unwrap().collect(),
+        r.read_indices().unwrap().into_u32().collect(),
+    )
 }
 
 trait AsDMat4 {

@@ -1,0 +1,84 @@
+//! Build script of bimtiles.
+//!
+//! Native parts are built here, one function each, so more can be added:
+//! - `draco()`: our C++ shim over Debian's libdraco (no C API ships with it),
+//!   found with pkg-config and linked dynamically.
+
+use std::env;
+use std::path::PathBuf;
+
+fn main() {
+    println!("cargo:rerun-if-changed=build.rs");
+    let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
+    draco(&manifest_dir);
+}
+
+/// Compiles `shim/draco_shim.cc` and links `libdraco` (dynamic).
+fn draco(manifest_dir: &std::path::Path) {
+    let shim_dir = manifest_dir.join("shim");
+    let source = shim_dir.join("draco_shim.cc");
+    let header = shim_dir.join("draco_shim.h");
+    println!("cargo:rerun-if-changed={}", source.display());
+    println!("cargo:rerun-if-changed={}", header.display());
+    for var in [
+        "PKG_CONFIG",
+        "PKG_CONFIG_PATH",
+        "PKG_CONFIG_LIBDIR",
+        "PKG_CONFIG_SYSROOT_DIR",
+    ] {
+        println!("cargo:rerun-if-env-changed={var}");
+    }
+
+    // Probe only; the link lines are printed after the shim is compiled so
+    // that the static shim comes before libdraco on the linker command line.
+    let lib = match pkg_config::Config::new()
+        .cargo_metadata(false)
+        .probe("draco")
+    {
+        Ok(lib) => lib,
+        Err(e) => fail(&format!(
+            "bimtiles needs the Draco C++ library (libdraco-dev >= 1.5), found with pkg-config, \
+             and a C++17 compiler.\nOn Debian/Ubuntu run:\n\n    apt-get install -y libdraco-dev pkg-config g++\n\n\
+             (`make` installs it too.) pkg-config said: {e}"
+        )),
+    };
+    if !source.exists() {
+        fail(&format!(
+            "Draco shim source not found at {}",
+            source.display()
+        ));
+    }
+
+    let mut build = cc::Build::new();
+    build
+        .cpp(true)
+        .std("c++17")
+        .file(&source)
+        .include(&shim_dir)
+        .warnings(false)
+        // The shim catches every exception at its C ABI boundary.
+        .flag_if_supported("-fexceptions");
+    for inc in &lib.include_paths {
+        build.include(inc);
+    }
+    for (name, value) in &lib.defines {
+        build.define(name, value.as_deref());
+    }
+    build.compile("bimtiles_draco_shim");
+
+    for dir in &lib.link_paths {
+        println!("cargo:rustc-link-search=native={}", dir.display());
+    }
+    for name in &lib.libs {
+        println!("cargo:rustc-link-lib=dylib={name}");
+    }
+    if lib.libs.is_empty() {
+        println!("cargo:rustc-link-lib=dylib=draco");
+    }
+}
+
+/// Stops the build with a readable message (no panic backtrace).
+fn fail(msg: &str) -> ! {
+    eprintln!("\nerror: {msg}\n");
+    std::process::exit(1);
+}
