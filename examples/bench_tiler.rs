@@ -7,6 +7,10 @@
 //!
 //! Usage: cargo run --release --example bench_tiler -- [DATA_DIR] [--budgets 10000,40000]
 
+#[path = "../tests/support/height_field.rs"]
+#[allow(dead_code)]
+mod height_field;
+
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -84,6 +88,12 @@ fn main() {
             data.display()
         );
     }
+    // One huge surface: a mesh far over the tile budget, cut across tiles.
+    let surface = work.join("surface-1M.glb");
+    if !surface.exists() {
+        std::fs::write(&surface, height_field::height_field_glb(708, 2000.0)).unwrap();
+    }
+    inputs.push(surface);
 
     println!(
         "{:<34} {:>8} {:>10} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>8}",

@@ -56,6 +56,12 @@ pub struct Aabb {
     pub max: DVec3,
 }
 
+impl Default for Aabb {
+    fn default() -> Self {
+        Aabb::EMPTY
+    }
+}
+
 impl Aabb {
     pub const EMPTY: Aabb = Aabb {
         min: DVec3::splat(f64::INFINITY),
@@ -246,6 +252,42 @@ pub struct Component {
     pub source: u32,
 }
 
+/// A typed property value (IFC property sets arrive as text; readers type what is clearly typed).
+#[derive(Debug, Clone, PartialEq)]
+pub enum PropertyValue {
+    Text(String),
+    Number(f64),
+    Integer(i64),
+    Bool(bool),
+}
+
+/// One named property of an element, in a named set (IFC property set or quantity set; "extras"
+/// for glTF node extras).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Property {
+    pub set: String,
+    pub name: String,
+    pub value: PropertyValue,
+}
+
+/// What a component *is*: its BIM semantics, kept beside the geometry (in [`Scene::info`], one per
+/// component) so geometry work never copies strings. Every field is optional: a plain glTF node
+/// has none of them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ElementInfo {
+    /// IFC GlobalId (22 characters), when known.
+    pub guid: Option<String>,
+    /// IFC class, e.g. "IfcWindow".
+    pub class: Option<String>,
+    /// Containing spatial structure, by name.
+    pub storey: Option<String>,
+    pub building: Option<String>,
+    pub site: Option<String>,
+    /// Material name, when the source names one.
+    pub material: Option<String>,
+    pub properties: Vec<Property>,
+}
+
 /// A source file that was read into the scene.
 #[derive(Debug, Clone)]
 pub struct SourceFile {
@@ -258,6 +300,8 @@ pub struct Scene {
     pub sources: Vec<SourceFile>,
     pub nodes: Vec<Node>,
     pub components: Vec<Component>,
+    /// `info[i]` describes `components[i]` (same length; see [`Scene::push_component`]).
+    pub info: Vec<ElementInfo>,
     pub meshes: Vec<Mesh>,
     pub materials: Vec<Material>,
     pub images: Vec<Image>,
@@ -266,6 +310,16 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// Adds a component and its semantics, keeping `components` and `info` aligned; the
+    /// component's id is set to its index.
+    pub fn push_component(&mut self, mut c: Component, info: ElementInfo) -> ComponentId {
+        let id = ComponentId(self.components.len() as u32);
+        c.id = id;
+        self.components.push(c);
+        self.info.push(info);
+        id
+    }
+
     pub fn component(&self, id: ComponentId) -> &Component {
         &self.components[id.index()]
     }
@@ -335,6 +389,7 @@ impl Scene {
             }
             m
         }));
+        self.info.extend(other.info);
         self.components
             .extend(other.components.into_iter().map(|mut c| {
                 c.id = ComponentId(c.id.0 + c0);
@@ -357,6 +412,8 @@ impl Scene {
     /// Fills the derived fields (mesh local bounds, component world bounds). Called by readers
     /// once a scene is complete and after any transform change.
     pub fn finish(&mut self) {
+        self.info
+            .resize(self.components.len(), ElementInfo::default());
         for mesh in &mut self.meshes {
             let mut b = Aabb::EMPTY;
             for p in &mesh.primitives {

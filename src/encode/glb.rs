@@ -10,6 +10,7 @@
 //! root node's translation. Precision is thus bounded by the tile's size, not the model's.
 
 use crate::error::{Error, Result};
+use crate::partition::ContentItem;
 use crate::scene::*;
 use byteorder::{WriteBytesExt, LE};
 use glam::{DMat3, DVec3};
@@ -30,6 +31,8 @@ pub struct EncodedTile {
     pub vertices: usize,
     /// Exact box of the written vertices, in the scene frame.
     pub bounds: Aabb,
+    /// The component of each feature ID (`_FEATURE_ID_0` value = index here).
+    pub features: Vec<ComponentId>,
 }
 
 /// Geometry compression of tile content.
@@ -98,17 +101,36 @@ struct MergedPrimitive {
 /// Encodes `components` of `scene` as one GLB whose origin is `center` (scene frame).
 pub fn encode_tile(
     scene: &Scene,
-    components: &[ComponentId],
+    content: &[ContentItem],
     center: DVec3,
     enc: &TileEncoding,
 ) -> Result<EncodedTile> {
-    // Group every (component, primitive) by material; BTreeMap keeps the order fixed.
-    let mut groups: BTreeMap<u32, Vec<(usize, &Component, &Primitive)>> = BTreeMap::new();
-    for (fid, &cid) in components.iter().enumerate() {
-        let comp = scene.component(cid);
-        for prim in &scene.mesh(comp.mesh).primitives {
+    // One feature per component, in content order (parts of a component share it).
+    let mut features: Vec<ComponentId> = Vec::new();
+    // Group every (feature, component, primitive, triangle subset) by material; BTreeMap keeps
+    // the order fixed.
+    type Part<'a> = (usize, &'a Component, &'a Primitive, Option<Vec<u32>>);
+    let mut groups: BTreeMap<u32, Vec<Part>> = BTreeMap::new();
+    for item in content {
+        if features.last() != Some(&item.component) {
+            features.push(item.component);
+        }
+        let fid = features.len() - 1;
+        let comp = scene.component(item.component);
+        for (pi, prim) in scene.mesh(comp.mesh).primitives.iter().enumerate() {
+            let subset: Option<Vec<u32>> = item.triangles.as_ref().map(|tris| {
+                let lo = tris.partition_point(|t| t.0 < pi as u32);
+                let hi = tris.partition_point(|t| t.0 <= pi as u32);
+                tris[lo..hi].iter().map(|t| t.1).collect()
+            });
+            if subset.as_ref().is_some_and(|s| s.is_empty()) {
+                continue;
+            }
             let key = prim.material.map_or(u32::MAX, |m| m.0);
-            groups.entry(key).or_default().push((fid, comp, prim));
+            groups
+                .entry(key)
+                .or_default()
+                .push((fid, comp, prim, subset));
         }
     }
     let mut bounds = Aabb::EMPTY;
@@ -118,15 +140,16 @@ pub fn encode_tile(
         let textured = material
             .map(|m| scene.materials[m.index()].base_color_texture.is_some())
             .unwrap_or(false);
-        let with_uv = textured || parts.iter().any(|(_, _, p)| p.uvs.is_some());
-        let with_color = parts.iter().any(|(_, _, p)| p.colors.is_some());
+        let with_uv = textured || parts.iter().any(|(_, _, p, _)| p.uvs.is_some());
+        let with_color = parts.iter().any(|(_, _, p, _)| p.colors.is_some());
         let mut out = MergedPrimitive::default();
-        for &(fid, comp, prim) in parts {
+        for (fid, comp, prim, subset) in parts {
             append_primitive(
                 &mut out,
                 comp,
                 prim,
-                fid,
+                subset.as_deref(),
+                *fid,
                 center,
                 with_uv,
                 with_color,
@@ -139,33 +162,66 @@ pub fn encode_tile(
     }
     let triangles = merged.iter().map(|m| m.1.indices.len() / 3).sum();
     let vertices = merged.iter().map(|m| m.1.positions.len()).sum();
-    let glb = write_glb(scene, &merged, center, components.len(), enc, &mut bounds)
+    let glb = write_glb(scene, &merged, center, features.len(), enc, &mut bounds)
         .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles,
         vertices,
         bounds,
+        features,
     })
 }
 
+/// Appends a primitive (or, for a part of a cut mesh, only the triangles `subset`, re-indexed
+/// compactly over the vertices they use) to a merged stream, transformed to the tile's frame.
 #[allow(clippy::too_many_arguments)]
 fn append_primitive(
     out: &mut MergedPrimitive,
     comp: &Component,
     prim: &Primitive,
+    subset: Option<&[u32]>,
     feature_id: usize,
     center: DVec3,
     with_uv: bool,
     with_color: bool,
     bounds: &mut Aabb,
 ) {
+    // `verts`: source vertex of each new vertex; `tris`: triangles in new indices.
+    let (verts, tris): (Vec<u32>, Vec<u32>) = match subset {
+        None => (
+            (0..prim.positions.len() as u32).collect(),
+            prim.indices.clone(),
+        ),
+        Some(sel) => {
+            let mut used: Vec<u32> = sel
+                .iter()
+                .flat_map(|&t| {
+                    prim.indices[t as usize * 3..t as usize * 3 + 3]
+                        .iter()
+                        .copied()
+                })
+                .collect();
+            used.sort_unstable();
+            used.dedup();
+            let tris = sel
+                .iter()
+                .flat_map(|&t| prim.indices[t as usize * 3..t as usize * 3 + 3].iter())
+                .map(|i| {
+                    used.binary_search(i)
+                        .expect("vertex of a selected triangle") as u32
+                })
+                .collect();
+            (used, tris)
+        }
+    };
     let base = out.positions.len() as u32;
     let m = comp.world;
     let linear = DMat3::from_mat4(m);
     let normal_matrix = linear.inverse().transpose();
     let mirrored = linear.determinant() < 0.0;
-    for p in &prim.positions {
+    for &v in &verts {
+        let p = prim.positions[v as usize];
         let w = m.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
         bounds.extend(w);
         let l = w - center;
@@ -174,7 +230,8 @@ fn append_primitive(
     }
     match &prim.normals {
         Some(ns) => {
-            for n in ns {
+            for &v in &verts {
+                let n = ns[v as usize];
                 let w = (normal_matrix * DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64))
                     .normalize_or(DVec3::Z);
                 out.normals.push([w.x as f32, w.z as f32, (-w.y) as f32]);
@@ -182,10 +239,8 @@ fn append_primitive(
         }
         None => {
             // Area-weighted vertex normals from the output triangles.
-            let start = out.normals.len();
-            out.normals.resize(start + prim.positions.len(), [0.0; 3]);
-            let mut acc = vec![DVec3::ZERO; prim.positions.len()];
-            for t in prim.indices.chunks_exact(3) {
+            let mut acc = vec![DVec3::ZERO; verts.len()];
+            for t in tris.chunks_exact(3) {
                 let v = |i: u32| {
                     let q = out.positions[(base + i) as usize];
                     DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64)
@@ -198,27 +253,27 @@ fn append_primitive(
                     acc[i as usize] += n;
                 }
             }
-            for (k, a) in acc.into_iter().enumerate() {
+            out.normals.extend(acc.into_iter().map(|a| {
                 let n = a.normalize_or(DVec3::Y);
-                out.normals[start + k] = [n.x as f32, n.y as f32, n.z as f32];
-            }
+                [n.x as f32, n.y as f32, n.z as f32]
+            }));
         }
     }
     if with_uv {
         match &prim.uvs {
-            Some(u) => out.uvs.extend_from_slice(u),
+            Some(u) => out.uvs.extend(verts.iter().map(|&v| u[v as usize])),
             None => out.uvs.resize(out.positions.len(), [0.0; 2]),
         }
     }
     if with_color {
         match &prim.colors {
-            Some(c) => out.colors.extend_from_slice(c),
+            Some(c) => out.colors.extend(verts.iter().map(|&v| c[v as usize])),
             None => out.colors.resize(out.positions.len(), [1.0; 4]),
         }
     }
     out.feature_ids
         .resize(out.positions.len(), feature_id as f32);
-    for t in prim.indices.chunks_exact(3) {
+    for t in tris.chunks_exact(3) {
         if mirrored {
             out.indices
                 .extend_from_slice(&[base + t[0], base + t[2], base + t[1]]);
@@ -608,6 +663,13 @@ mod tests {
     use super::*;
     use glam::DMat4;
 
+    fn whole(c: u32) -> Vec<ContentItem> {
+        vec![ContentItem {
+            component: ComponentId(c),
+            triangles: None,
+        }]
+    }
+
     fn plain() -> TileEncoding {
         TileEncoding {
             compression: Compression::None,
@@ -648,7 +710,7 @@ mod tests {
         let far = DVec3::new(500_000.25, 5_400_000.5, 100.0);
         let s = one_triangle_scene(DMat4::from_translation(far) * Y_UP_TO_Z_UP);
         let center = s.components[0].world_bounds.center();
-        let t = encode_tile(&s, &[ComponentId(0)], center, &plain()).unwrap();
+        let t = encode_tile(&s, &whole(0), center, &plain()).unwrap();
         assert_eq!(t.triangles, 1);
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let node = g.document.nodes().next().unwrap();
@@ -675,7 +737,7 @@ mod tests {
     #[test]
     fn mirrored_transforms_keep_front_faces() {
         let s = one_triangle_scene(DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0)));
-        let t = encode_tile(&s, &[ComponentId(0)], DVec3::ZERO, &plain()).unwrap();
+        let t = encode_tile(&s, &whole(0), DVec3::ZERO, &plain()).unwrap();
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let blob = g.blob.as_deref().unwrap();
         let prim = g

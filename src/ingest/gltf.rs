@@ -260,6 +260,53 @@ struct Reader<'a> {
     scene: Scene,
 }
 
+/// BIM semantics from a node's `extras`, as BIM exporters write them (IfcOpenShell:
+/// `{ifc_class, name, storey}`; others: `guid`/`GlobalId`, `building`, `site`, `material`). Other
+/// scalar extras become properties of the set "extras".
+fn element_info(extras: Option<&Value>) -> ElementInfo {
+    let mut info = ElementInfo::default();
+    let Some(obj) = extras.and_then(Value::as_object) else {
+        return info;
+    };
+    for (k, v) in obj {
+        let text = || v.as_str().map(str::to_string);
+        match k.as_str() {
+            "guid" | "GlobalId" | "globalId" | "ifc_guid" => info.guid = text(),
+            "ifc_class" | "ifcClass" | "IfcClass" | "class" => info.class = text(),
+            "storey" | "Storey" | "level" | "Level" => info.storey = text(),
+            "building" => info.building = text(),
+            "site" => info.site = text(),
+            "material" => info.material = text(),
+            _ => {
+                let value = match v {
+                    Value::String(s) => PropertyValue::Text(s.clone()),
+                    Value::Bool(b) => PropertyValue::Bool(*b),
+                    Value::Number(n) => match n.as_i64() {
+                        Some(i) => PropertyValue::Integer(i),
+                        None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
+                    },
+                    _ => continue,
+                };
+                info.properties.push(Property {
+                    set: "extras".into(),
+                    name: k.clone(),
+                    value,
+                });
+            }
+        }
+    }
+    info
+}
+
+/// Whether `s` has the form of an IFC GlobalId: 22 characters of IFC's base-64 alphabet, the first
+/// one of 0-3 (it encodes the top 2 bits of a 128-bit GUID).
+pub fn is_ifc_guid(s: &str) -> bool {
+    s.len() == 22
+        && s.starts_with(['0', '1', '2', '3'])
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'$')
+}
+
 /// The node transforms of a glTF JSON, read as f64.
 #[derive(serde::Deserialize, Default)]
 struct RawTransforms {
@@ -429,18 +476,29 @@ impl Reader<'_> {
                     mesh_order.push(mesh.index());
                     MeshId(mesh_order.len() as u32 - 1)
                 });
-                let id = ComponentId(self.scene.components.len() as u32);
-                let key = self.scene.node_path(NodeId(idx as u32));
-                self.scene.components.push(Component {
-                    id,
-                    key,
-                    name: node.name().map(str::to_string),
-                    node: Some(NodeId(idx as u32)),
-                    mesh: mesh_id,
-                    world,
-                    world_bounds: Aabb::EMPTY,
-                    source: 0,
-                });
+                let mut info = element_info(self.scene.nodes[idx].extras.as_ref());
+                if info.guid.is_none() {
+                    // IfcOpenShell names each node by its element's GlobalId.
+                    info.guid = node.name().filter(|n| is_ifc_guid(n)).map(str::to_string);
+                }
+                // The GlobalId is the stable identity when the exporter gives one.
+                let key = info
+                    .guid
+                    .clone()
+                    .unwrap_or_else(|| self.scene.node_path(NodeId(idx as u32)));
+                self.scene.push_component(
+                    Component {
+                        id: ComponentId(0),
+                        key,
+                        name: node.name().map(str::to_string),
+                        node: Some(NodeId(idx as u32)),
+                        mesh: mesh_id,
+                        world,
+                        world_bounds: Aabb::EMPTY,
+                        source: 0,
+                    },
+                    info,
+                );
             }
             for c in node.children().collect::<Vec<_>>().into_iter().rev() {
                 stack.push((c.index(), world));
@@ -798,6 +856,30 @@ mod tests {
         assert_eq!(decode_component(&[0x81], D::I8, true), -1.0);
         assert_eq!(decode_component(&[0xff, 0xff], D::U16, true), 1.0);
         assert_eq!(decode_component(&[7, 0], D::U16, false), 7.0);
+    }
+
+    #[test]
+    fn ifc_guids_and_extras() {
+        assert!(is_ifc_guid("2V3RCMqZPE5ad58ZlBLt5Y"));
+        assert!(is_ifc_guid("1srAI$R4T8ihLXSNHmUSET"));
+        assert!(!is_ifc_guid("Window-07"));
+        assert!(!is_ifc_guid("9V3RCMqZPE5ad58ZlBLt5Y"));
+        let v = serde_json::json!({"ifc_class": "IfcWindow", "storey": "Level 1", "name": "W1", "width": 1.2, "count": 3, "fire": true});
+        let i = element_info(Some(&v));
+        assert_eq!(i.class.as_deref(), Some("IfcWindow"));
+        assert_eq!(i.storey.as_deref(), Some("Level 1"));
+        assert!(i
+            .properties
+            .iter()
+            .any(|p| p.name == "width" && p.value == PropertyValue::Number(1.2)));
+        assert!(i
+            .properties
+            .iter()
+            .any(|p| p.name == "count" && p.value == PropertyValue::Integer(3)));
+        assert!(i
+            .properties
+            .iter()
+            .any(|p| p.name == "fire" && p.value == PropertyValue::Bool(true)));
     }
 
     #[test]

@@ -3,4 +3,4 @@
 
 pub mod octree;
 
-pub use octree::{plan_octree, OctreeOptions, PlannedTile, TilePlan};
+pub use octree::{plan_octree, ContentItem, OctreeOptions, PlannedTile, TilePlan, TriRef};

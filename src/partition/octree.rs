@@ -7,11 +7,31 @@
 //! tree and small windows low. Empty cells make no tile, and a tile with no content of its own and a
 //! single child is replaced by that child.
 //!
+//! Cutting big meshes: when what stays in an over-budget cell is itself over the budget (one
+//! merged-by-material mesh, a city in one node, a scanned surface), the largest of those meshes are
+//! cut, largest first, until the rest fits: their triangles go to the child octants by centroid
+//! (whole triangles, no clipping), as parts that keep their component's identity and descend like
+//! components, to be cut again if needed. So no content exceeds the budget unless a single
+//! triangle does (or the depth cap is hit), every input triangle is in exactly one tile, and
+//! per-element models keep their elements whole: only what overflows a tile is cut.
+//!
 //! The plan is computed from bounds and counts only, and is a pure function of the scene and the
 //! options (input order, no hashing, no threads): the output is the same on every run.
 
 use crate::scene::{Aabb, ComponentId, Scene};
 use glam::DVec3;
+use std::sync::Arc;
+
+/// A triangle of a component's mesh: (primitive index, triangle index in that primitive).
+pub type TriRef = (u32, u32);
+
+/// What a tile draws of one component: all of it, or a part of a cut mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContentItem {
+    pub component: ComponentId,
+    /// `None`: the whole component; `Some`: only these triangles, sorted.
+    pub triangles: Option<Arc<Vec<TriRef>>>,
+}
 
 #[derive(Debug, Clone)]
 pub struct OctreeOptions {
@@ -41,8 +61,8 @@ pub struct PlannedTile {
     pub depth: u32,
     /// The octree cell (cubic); not a bounding volume.
     pub cell: Aabb,
-    /// Components drawn by this tile, in id order.
-    pub content: Vec<ComponentId>,
+    /// What this tile draws, ordered by component id (parts of one component together).
+    pub content: Vec<ContentItem>,
     /// Indices into [`TilePlan::tiles`].
     pub children: Vec<usize>,
     /// Box of this tile's own content (empty if none).
@@ -69,6 +89,7 @@ impl TilePlan {
 
 struct Item {
     id: ComponentId,
+    part: Option<Arc<Vec<TriRef>>>,
     center: DVec3,
     extent: f64,
     triangles: usize,
@@ -88,6 +109,7 @@ pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
             let s = c.world_bounds.size();
             Item {
                 id: c.id,
+                part: None,
                 center: c.world_bounds.center(),
                 extent: s.max_element(),
                 triangles: mesh.triangle_count(),
@@ -107,8 +129,7 @@ pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
         min: all.center() - DVec3::splat(half),
         max: all.center() + DVec3::splat(half),
     };
-    let refs: Vec<&Item> = items.iter().collect();
-    if let Some(root) = build(root_cell, refs, 0, "r".into(), opts) {
+    if let Some(root) = build(scene, root_cell, items, 0, "r".into(), opts) {
         flatten(root, &mut plan.tiles);
     }
     plan
@@ -118,16 +139,94 @@ struct Node {
     path: String,
     depth: u32,
     cell: Aabb,
-    content: Vec<ComponentId>,
+    content: Vec<ContentItem>,
     content_bounds: Aabb,
     content_triangles: usize,
     content_max_diag: f64,
     children: Vec<Node>,
 }
 
+fn octant_of(p: DVec3, c: DVec3) -> usize {
+    (p.x >= c.x) as usize | ((p.y >= c.y) as usize) << 1 | ((p.z >= c.z) as usize) << 2
+}
+
+fn child_cell(cell: &Aabb, o: usize) -> Aabb {
+    let c = cell.center();
+    let half = cell.size().x * 0.5;
+    let min = DVec3::new(
+        if o & 1 == 0 { cell.min.x } else { c.x },
+        if o & 2 == 0 { cell.min.y } else { c.y },
+        if o & 4 == 0 { cell.min.z } else { c.z },
+    );
+    Aabb {
+        min,
+        max: min + DVec3::splat(half),
+    }
+}
+
+/// Cuts an item into up to 8 parts by triangle centroid against the cell's centre; returns
+/// (octant, part) in octant order.
+fn cut(scene: &Scene, item: &Item, cell: &Aabb) -> Vec<(usize, Item)> {
+    let comp = scene.component(item.id);
+    let mesh = scene.mesh(comp.mesh);
+    let c = cell.center();
+    let all: Vec<TriRef>;
+    let tris: &[TriRef] = match &item.part {
+        Some(p) => p,
+        None => {
+            all = mesh
+                .primitives
+                .iter()
+                .enumerate()
+                .flat_map(|(pi, p)| (0..p.triangle_count() as u32).map(move |t| (pi as u32, t)))
+                .collect();
+            &all
+        }
+    };
+    let bytes_per_tri = item.bytes as f64 / item.triangles.max(1) as f64;
+    let mut groups: [(Vec<TriRef>, Aabb); 8] = Default::default();
+    for &(pi, t) in tris {
+        let prim = &mesh.primitives[pi as usize];
+        let k = t as usize * 3;
+        let idx = [prim.indices[k], prim.indices[k + 1], prim.indices[k + 2]];
+        let v = idx.map(|i| {
+            let p = prim.positions[i as usize];
+            comp.world
+                .transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        });
+        let g = &mut groups[octant_of((v[0] + v[1] + v[2]) / 3.0, c)];
+        g.0.push((pi, t));
+        for p in v {
+            g.1.extend(p);
+        }
+    }
+    groups
+        .into_iter()
+        .enumerate()
+        .filter(|(_, g)| !g.0.is_empty())
+        .map(|(o, (tris, bounds))| {
+            let s = bounds.size();
+            (
+                o,
+                Item {
+                    id: item.id,
+                    center: bounds.center(),
+                    extent: s.max_element(),
+                    triangles: tris.len(),
+                    bytes: (tris.len() as f64 * bytes_per_tri).ceil() as usize,
+                    diagonal: s.length(),
+                    bounds,
+                    part: Some(Arc::new(tris)),
+                },
+            )
+        })
+        .collect()
+}
+
 fn build(
+    scene: &Scene,
     cell: Aabb,
-    items: Vec<&Item>,
+    items: Vec<Item>,
     depth: u32,
     path: String,
     opts: &OctreeOptions,
@@ -139,37 +238,69 @@ fn build(
     let bytes: usize = items.iter().map(|i| i.bytes).sum();
     let side = cell.size().x;
     let fits_budget = tris <= opts.max_tile_triangles && bytes <= opts.max_tile_bytes;
-    let (mut stay, mut down): (Vec<&Item>, Vec<&Item>) = if fits_budget || depth >= opts.max_depth {
-        (items, Vec::new())
+    let mut octants: [Vec<Item>; 8] = Default::default();
+    let mut stay: Vec<Item> = Vec::new();
+    if fits_budget || depth >= opts.max_depth {
+        stay = items;
     } else {
-        items.into_iter().partition(|i| i.extent > side * 0.5)
-    };
-    let mut children = Vec::new();
-    if !down.is_empty() {
         let c = cell.center();
-        let mut octants: [Vec<&Item>; 8] = Default::default();
-        for it in down.drain(..) {
-            let o = (it.center.x >= c.x) as usize
-                | ((it.center.y >= c.y) as usize) << 1
-                | ((it.center.z >= c.z) as usize) << 2;
-            octants[o].push(it);
-        }
-        for (o, group) in octants.into_iter().enumerate() {
-            let min = DVec3::new(
-                if o & 1 == 0 { cell.min.x } else { c.x },
-                if o & 2 == 0 { cell.min.y } else { c.y },
-                if o & 4 == 0 { cell.min.z } else { c.z },
-            );
-            let child_cell = Aabb {
-                min,
-                max: min + DVec3::splat(side * 0.5),
-            };
-            if let Some(n) = build(child_cell, group, depth + 1, format!("{path}{o}"), opts) {
-                children.push(n);
+        for it in items {
+            if it.extent > side * 0.5 {
+                stay.push(it);
+            } else {
+                octants[octant_of(it.center, c)].push(it);
             }
         }
+        // What cannot descend whole is still too much: cut the largest meshes until it fits.
+        let (mut stay_tris, mut stay_bytes) = (
+            stay.iter().map(|i| i.triangles).sum::<usize>(),
+            stay.iter().map(|i| i.bytes).sum::<usize>(),
+        );
+        if stay_tris > opts.max_tile_triangles || stay_bytes > opts.max_tile_bytes {
+            stay.sort_by(|a, b| b.triangles.cmp(&a.triangles).then(a.id.cmp(&b.id)));
+            let mut kept = Vec::new();
+            for it in stay {
+                let over = stay_tris > opts.max_tile_triangles || stay_bytes > opts.max_tile_bytes;
+                if !over {
+                    kept.push(it);
+                    continue;
+                }
+                stay_tris -= it.triangles;
+                stay_bytes -= it.bytes;
+                if it.triangles > 1 {
+                    for (o, part) in cut(scene, &it, &cell) {
+                        octants[o].push(part);
+                    }
+                } else {
+                    // One triangle cannot be cut: it descends by its centre (its tile's volume
+                    // comes from the content, so it stays correct), until the depth cap.
+                    octants[octant_of(it.center, c)].push(it);
+                }
+            }
+            stay = kept;
+        }
     }
-    stay.sort_by_key(|i| i.id);
+    let mut children = Vec::new();
+    for (o, group) in octants.into_iter().enumerate() {
+        if let Some(n) = build(
+            scene,
+            child_cell(&cell, o),
+            group,
+            depth + 1,
+            format!("{path}{o}"),
+            opts,
+        ) {
+            children.push(n);
+        }
+    }
+    stay.sort_by(|a, b| {
+        a.id.cmp(&b.id).then_with(|| {
+            a.part
+                .as_ref()
+                .map(|p| p[0])
+                .cmp(&b.part.as_ref().map(|p| p[0]))
+        })
+    });
     if stay.is_empty() && children.len() == 1 {
         // An empty tile with one child adds a request and nothing else.
         let mut only = children.pop().expect("one child");
@@ -183,7 +314,13 @@ fn build(
         content_bounds: stay.iter().fold(Aabb::EMPTY, |b, i| b.union(&i.bounds)),
         content_triangles: stay.iter().map(|i| i.triangles).sum(),
         content_max_diag: stay.iter().map(|i| i.diagonal).fold(0.0, f64::max),
-        content: stay.into_iter().map(|i| i.id).collect(),
+        content: stay
+            .into_iter()
+            .map(|i| ContentItem {
+                component: i.id,
+                triangles: i.part,
+            })
+            .collect(),
         children,
     })
 }
@@ -272,11 +409,30 @@ mod tests {
     }
 
     fn check_invariants(scene: &Scene, plan: &TilePlan, opts: &OctreeOptions) {
-        // Every component exactly once.
-        let mut seen = vec![0; scene.components.len()];
+        // Every triangle exactly once.
+        let mut seen: Vec<Vec<u32>> = scene
+            .components
+            .iter()
+            .map(|c| vec![0; scene.mesh(c.mesh).triangle_count()])
+            .collect();
         for t in &plan.tiles {
             for c in &t.content {
-                seen[c.index()] += 1;
+                let mesh = scene.mesh(scene.component(c.component).mesh);
+                let first_tri = |pi: u32| -> usize {
+                    mesh.primitives[..pi as usize]
+                        .iter()
+                        .map(|p| p.triangle_count())
+                        .sum()
+                };
+                match &c.triangles {
+                    None => seen[c.component.index()].iter_mut().for_each(|n| *n += 1),
+                    Some(tris) => {
+                        assert!(tris.windows(2).all(|w| w[0] < w[1]), "sorted, unique");
+                        for &(pi, ti) in tris.iter() {
+                            seen[c.component.index()][first_tri(pi) + ti as usize] += 1;
+                        }
+                    }
+                }
             }
             for &ch in &t.children {
                 let child = &plan.tiles[ch];
@@ -291,19 +447,20 @@ mod tests {
             if t.children.is_empty() {
                 assert_eq!(t.omitted_size_m, 0.0);
                 assert!(!t.content.is_empty(), "no empty leaves");
-                // Over budget only where nothing could go lower: every component is larger than
-                // a child cell (splitting meshes is another stage's job), or the depth cap.
-                let all_too_big = t.content.iter().all(|c| {
-                    scene.component(*c).world_bounds.size().max_element() > t.cell.size().x * 0.5
-                });
-                assert!(
-                    t.content_triangles <= opts.max_tile_triangles
-                        || all_too_big
-                        || t.depth == opts.max_depth
-                );
             }
+            // The budget holds for every tile, unless one triangle exceeds it or the depth cap
+            // was hit.
+            assert!(
+                t.content_triangles <= opts.max_tile_triangles || t.depth == opts.max_depth,
+                "{} holds {} triangles",
+                t.path,
+                t.content_triangles
+            );
         }
-        assert!(seen.iter().all(|&n| n == 1));
+        assert!(
+            seen.iter().flatten().all(|&n| n == 1),
+            "every triangle exactly once"
+        );
     }
 
     #[test]
@@ -335,7 +492,10 @@ mod tests {
         let plan = plan_octree(&s, &opts);
         assert!(plan.tiles.len() > 8);
         // The slab stays at the root.
-        assert!(plan.tiles[0].content.contains(&ComponentId(0)));
+        assert!(plan.tiles[0]
+            .content
+            .iter()
+            .any(|c| c.component == ComponentId(0) && c.triangles.is_none()));
         assert!(plan.tiles[0].omitted_size_m >= 3f64.sqrt() - 1e-9);
         check_invariants(&s, &plan, &opts);
         // Pure function of the input.
@@ -360,6 +520,89 @@ mod tests {
         };
         let plan = plan_octree(&s, &opts);
         check_invariants(&s, &plan, &opts);
+    }
+
+    /// One mesh: an n x n grid of quads (2 n^2 triangles) on the ground, `size` metres wide.
+    fn grid_scene(n: usize, size: f32) -> Scene {
+        let mut positions = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (x, y) = (i as f32 / n as f32 * size, j as f32 / n as f32 * size);
+                positions.push([x, y, (x * 0.3).sin()]);
+            }
+        }
+        let mut indices = Vec::new();
+        for j in 0..n as u32 {
+            for i in 0..n as u32 {
+                let a = j * (n as u32 + 1) + i;
+                let b = a + n as u32 + 1;
+                indices.extend_from_slice(&[a, a + 1, b + 1, a, b + 1, b]);
+            }
+        }
+        let mut s = Scene::default();
+        s.meshes.push(Mesh {
+            name: None,
+            primitives: vec![Primitive {
+                positions,
+                indices,
+                ..Default::default()
+            }],
+            local_bounds: None,
+        });
+        s.components.push(Component {
+            id: ComponentId(0),
+            key: "grid".into(),
+            name: None,
+            node: None,
+            mesh: MeshId(0),
+            world: DMat4::IDENTITY,
+            world_bounds: Aabb::EMPTY,
+            source: 0,
+        });
+        s.finish();
+        s
+    }
+
+    #[test]
+    fn big_meshes_are_cut_to_the_budget() {
+        let s = grid_scene(100, 100.0); // 20,000 triangles in one mesh
+        let opts = OctreeOptions {
+            max_tile_triangles: 1000,
+            ..Default::default()
+        };
+        let plan = plan_octree(&s, &opts);
+        check_invariants(&s, &plan, &opts);
+        let with_content = plan.tiles.iter().filter(|t| !t.content.is_empty()).count();
+        assert!(with_content >= 20, "{with_content} tiles");
+        // Parts are tight: a leaf's box is far smaller than the mesh.
+        let leaf = plan.tiles.iter().find(|t| t.children.is_empty()).unwrap();
+        assert!(leaf.content_bounds.size().x < 60.0);
+    }
+
+    #[test]
+    fn whole_elements_stay_whole_when_they_fit() {
+        // A big mesh plus small boxes: only the big mesh is cut.
+        let mut s = grid_scene(60, 100.0);
+        let boxes_scene = boxes(
+            &(0..20)
+                .map(|i| (DVec3::new(5.0 * i as f64, 50.0, 2.0), 1.0))
+                .collect::<Vec<_>>(),
+        );
+        s.append(boxes_scene);
+        s.finish();
+        let opts = OctreeOptions {
+            max_tile_triangles: 800,
+            ..Default::default()
+        };
+        let plan = plan_octree(&s, &opts);
+        check_invariants(&s, &plan, &opts);
+        for t in &plan.tiles {
+            for c in &t.content {
+                if c.component != ComponentId(0) {
+                    assert!(c.triangles.is_none(), "box {:?} was cut", c.component);
+                }
+            }
+        }
     }
 
     #[test]

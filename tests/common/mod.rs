@@ -296,7 +296,7 @@ pub fn primitive_geometry(
     )
 }
 
-trait AsDMat4 {
+pub trait AsDMat4 {
     fn as_dmat4(&self) -> DMat4;
 }
 impl AsDMat4 for glam::Mat4 {
@@ -411,25 +411,6 @@ pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<
     glb(&serde_json::to_vec(&json).unwrap(), &bin)
 }
 
-pub fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
-    let mut j = json.to_vec();
-    while j.len() % 4 != 0 {
-        j.push(b' ');
-    }
-    let mut b = bin.to_vec();
-    while b.len() % 4 != 0 {
-        b.push(0);
-    }
-    let total = 12 + 8 + j.len() + 8 + b.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(j.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&j);
-    out.extend_from_slice(&(b.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&b);
-    out
-}
+#[path = "../support/height_field.rs"]
+pub mod height_field;
+pub use height_field::glb;
