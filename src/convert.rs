@@ -10,6 +10,7 @@ use crate::error::{Error, Result};
 use crate::partition::{plan_octree, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, Scene};
 use crate::tileset::georef::GeoOrigin;
+use crate::tileset::metadata::MetadataSchema;
 use crate::tileset::{tileset_json, TileFacts};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -70,6 +71,21 @@ pub struct OutputReport {
     pub max_depth: u32,
     pub triangles: usize,
     pub vertices: usize,
+    /// Bytes of the property tables (EXT_structural_metadata) over all tiles.
+    pub metadata_bytes: u64,
+}
+
+/// One tile, for scripts that want more than the per-level summary.
+#[derive(Debug, Clone, Serialize)]
+pub struct TileReport {
+    pub path: String,
+    pub depth: u32,
+    pub content: Option<String>,
+    pub features: usize,
+    pub triangles: usize,
+    pub bytes: u64,
+    pub metadata_bytes: u64,
+    pub geometric_error_m: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -108,6 +124,7 @@ pub struct Report {
     pub input: InputReport,
     pub output: OutputReport,
     pub levels: Vec<LevelReport>,
+    pub tiles: Vec<TileReport>,
     pub georeference: GeoReport,
     /// Which metric produced the tiles' geometricError.
     pub geometric_error_metric: String,
@@ -273,10 +290,27 @@ pub fn convert_scene(
     let mut out_tris = 0;
     let mut out_verts = 0;
     let mut out_bytes = 0u64;
-    for (t, (ge, bytes, tris, verts)) in plan.tiles.iter().zip(&facts_bytes) {
+    let mut tiles = Vec::new();
+    for (t, st) in plan.tiles.iter().zip(&facts_bytes) {
+        let (ge, bytes, tris, verts) = (
+            &st.geometric_error_m,
+            &st.bytes,
+            &st.triangles,
+            &st.vertices,
+        );
         out_tris += tris;
         out_verts += verts;
         out_bytes += bytes;
+        tiles.push(TileReport {
+            path: t.path.clone(),
+            depth: t.depth,
+            content: st.uri.clone(),
+            features: st.features,
+            triangles: st.triangles,
+            bytes: st.bytes,
+            metadata_bytes: st.metadata_bytes,
+            geometric_error_m: st.geometric_error_m,
+        });
         let d = t.depth as usize;
         while levels.len() <= d {
             levels.push(LevelReport {
@@ -295,7 +329,10 @@ pub fn convert_scene(
         l.geometric_error_min_m = l.geometric_error_min_m.min(*ge);
         l.geometric_error_max_m = l.geometric_error_max_m.max(*ge);
     }
-    let tileset_bytes = std::fs::metadata(tmp.join("tileset.json")).map_or(0, |m| m.len());
+    let tileset_bytes = ["tileset.json", "schema.json"]
+        .iter()
+        .map(|f| std::fs::metadata(tmp.join(f)).map_or(0, |m| m.len()))
+        .sum::<u64>();
     let mut report = Report {
         tool: concat!("bimtiles ", env!("CARGO_PKG_VERSION")).into(),
         input,
@@ -306,8 +343,10 @@ pub fn convert_scene(
             max_depth: plan.max_depth(),
             triangles: out_tris,
             vertices: out_verts,
+            metadata_bytes: tiles.iter().map(|t| t.metadata_bytes).sum(),
         },
         levels,
+        tiles,
         georeference: GeoReport {
             origin,
             origin_source: if opts.origin.is_some() {
@@ -362,8 +401,17 @@ pub const GEOMETRIC_ERROR_METRIC: &str = "size-bound: a tile's geometricError is
 among the components of its descendants (what is missing from the view when the tile is drawn without its children, \
 additive refinement); leaves have 0";
 
-/// Per tile: (geometric error, content bytes, triangles, vertices).
-type TileStats = (f64, u64, usize, usize);
+/// What writing one tile gave.
+#[derive(Debug, Clone, Default)]
+struct TileStats {
+    uri: Option<String>,
+    geometric_error_m: f64,
+    bytes: u64,
+    triangles: usize,
+    vertices: usize,
+    features: usize,
+    metadata_bytes: u64,
+}
 
 fn write_tileset(
     scene: &Scene,
@@ -381,20 +429,36 @@ fn write_tileset(
         compression: opts.compression,
         ..TileEncoding::default()
     };
-    let stats: Vec<Result<(Option<String>, Aabb, TileStats)>> = plan
+    // The metadata schema, once for the tileset (schema.json), referenced by every tile.
+    let schema = MetadataSchema::from_scene(scene);
+    let schema_json =
+        serde_json::to_vec_pretty(&schema.to_json(None)).map_err(|e| Error::output(tmp, e))?;
+    let schema_path = tmp.join("schema.json");
+    std::fs::write(&schema_path, schema_json).map_err(|e| Error::output(&schema_path, e))?;
+    let make_table = |features: &[crate::scene::ComponentId]| {
+        schema.property_table(scene, features, "../schema.json")
+    };
+    let stats: Vec<Result<(Aabb, TileStats)>> = plan
         .tiles
         .par_iter()
         .map(|tile| {
             let ge = tile.omitted_size_m;
             if tile.content.is_empty() {
                 pb.inc(1);
-                return Ok((None, Aabb::EMPTY, (ge, 0, 0, 0)));
+                return Ok((
+                    Aabb::EMPTY,
+                    TileStats {
+                        geometric_error_m: ge,
+                        ..Default::default()
+                    },
+                ));
             }
             let enc = encode_tile(
                 scene,
                 &tile.content,
                 tile.content_bounds.center(),
                 &encoding,
+                Some(&make_table),
             )
             .map_err(|e| Error::output(tmp.join(format!("tiles/{}.glb", tile.path)), e))?;
             let uri = format!("tiles/{}.glb", tile.path);
@@ -402,9 +466,16 @@ fn write_tileset(
             std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
             pb.inc(1);
             Ok((
-                Some(uri),
                 enc.bounds,
-                (ge, enc.glb.len() as u64, enc.triangles, enc.vertices),
+                TileStats {
+                    uri: Some(uri),
+                    geometric_error_m: ge,
+                    bytes: enc.glb.len() as u64,
+                    triangles: enc.triangles,
+                    vertices: enc.vertices,
+                    features: enc.features.len(),
+                    metadata_bytes: enc.metadata_bytes as u64,
+                },
             ))
         })
         .collect();
@@ -412,11 +483,11 @@ fn write_tileset(
     let mut facts = Vec::with_capacity(stats.len());
     let mut tile_stats = Vec::with_capacity(stats.len());
     for s in stats {
-        let (uri, content_bounds, st) = s?;
+        let (content_bounds, st) = s?;
         facts.push(TileFacts {
-            content_uri: uri,
+            content_uri: st.uri.clone(),
             content_bounds,
-            geometric_error_m: st.0,
+            geometric_error_m: st.geometric_error_m,
         });
         tile_stats.push(st);
     }
@@ -427,7 +498,8 @@ fn write_tileset(
         "anchor_m": anchor.to_array(),
         "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
     }});
-    let ts = tileset_json(plan, &facts, &origin.enu_to_ecef(), extras);
+    let mut ts = tileset_json(plan, &facts, &origin.enu_to_ecef(), extras);
+    ts["schemaUri"] = json!("schema.json");
     let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
     let ts_path = tmp.join("tileset.json");
     std::fs::write(&ts_path, bytes).map_err(|e| Error::output(&ts_path, e))?;

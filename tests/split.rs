@@ -310,10 +310,11 @@ fn merged_by_material_exports_tile_like_per_element_ones() {
             per_element["output"]["tiles"].as_f64().unwrap(),
             by_material["output"]["tiles"].as_f64().unwrap(),
         );
-        let (b_e, b_m) = (
-            per_element["output"]["bytes"].as_f64().unwrap(),
-            by_material["output"]["bytes"].as_f64().unwrap(),
-        );
+        // Geometry bytes: the per-element output also carries one metadata row per element.
+        let geometry = |r: &serde_json::Value| {
+            r["output"]["bytes"].as_f64().unwrap() - r["output"]["metadata_bytes"].as_f64().unwrap()
+        };
+        let (b_e, b_m) = (geometry(&per_element), geometry(&by_material));
         eprintln!(
             "{name}: per element {n_e} tiles {b_e} B; merged by material {n_m} tiles {b_m} B"
         );

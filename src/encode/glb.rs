@@ -9,6 +9,7 @@
 //! tile's centre, turned to glTF's y-up, and only then stored as f32; the centre goes into the
 //! root node's translation. Precision is thus bounded by the tile's size, not the model's.
 
+use super::metadata::{write_property_table, PropertyTable};
 use crate::error::{Error, Result};
 use crate::partition::ContentItem;
 use crate::scene::*;
@@ -33,6 +34,8 @@ pub struct EncodedTile {
     pub bounds: Aabb,
     /// The component of each feature ID (`_FEATURE_ID_0` value = index here).
     pub features: Vec<ComponentId>,
+    /// Bytes of the property table (buffers and its JSON), 0 without metadata.
+    pub metadata_bytes: usize,
 }
 
 /// Geometry compression of tile content.
@@ -99,11 +102,17 @@ struct MergedPrimitive {
 }
 
 /// Encodes `components` of `scene` as one GLB whose origin is `center` (scene frame).
+/// Makes the property table of a tile's features (in feature-ID order).
+pub type TableMaker<'a> = &'a (dyn Fn(&[ComponentId]) -> PropertyTable + Sync);
+
+/// Encodes `content` of `scene` as one GLB whose origin is `center` (scene frame); with
+/// `metadata`, the features get a property table (`EXT_structural_metadata`).
 pub fn encode_tile(
     scene: &Scene,
     content: &[ContentItem],
     center: DVec3,
     enc: &TileEncoding,
+    metadata: Option<TableMaker>,
 ) -> Result<EncodedTile> {
     // One feature per component, in content order (parts of a component share it).
     let mut features: Vec<ComponentId> = Vec::new();
@@ -162,14 +171,24 @@ pub fn encode_tile(
     }
     let triangles = merged.iter().map(|m| m.1.indices.len() / 3).sum();
     let vertices = merged.iter().map(|m| m.1.positions.len()).sum();
-    let glb = write_glb(scene, &merged, center, features.len(), enc, &mut bounds)
-        .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    let table = metadata.map(|make| make(&features));
+    let (glb, metadata_bytes) = write_glb(
+        scene,
+        &merged,
+        center,
+        features.len(),
+        enc,
+        table.as_ref(),
+        &mut bounds,
+    )
+    .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles,
         vertices,
         bounds,
         features,
+        metadata_bytes,
     })
 }
 
@@ -293,7 +312,13 @@ struct GltfBuilder {
 
 impl GltfBuilder {
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.bin.len() % 4 != 0 {
+        self.view_aligned(bytes, target, 4)
+    }
+
+    /// A bufferView whose offset is a multiple of `align` (and of 4).
+    fn view_aligned(&mut self, bytes: &[u8], target: Option<u32>, align: usize) -> usize {
+        let align = align.max(4);
+        while self.bin.len() % align != 0 {
             self.bin.push(0);
         }
         let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
@@ -365,8 +390,9 @@ fn write_glb(
     center: DVec3,
     feature_count: usize,
     enc: &TileEncoding,
+    table: Option<&PropertyTable>,
     bounds: &mut Aabb,
-) -> std::result::Result<Vec<u8>, String> {
+) -> std::result::Result<(Vec<u8>, usize), String> {
     let mut b = GltfBuilder {
         bin: Vec::new(),
         buffer_views: Vec::new(),
@@ -394,8 +420,11 @@ fn write_glb(
             )?,
         };
         prim["mode"] = json!(4);
-        prim["extensions"]["EXT_mesh_features"] =
-            json!({"featureIds": [{"featureCount": feature_count, "attribute": 0}]});
+        let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
+        if table.is_some() {
+            feature_ids["propertyTable"] = json!(0);
+        }
+        prim["extensions"]["EXT_mesh_features"] = json!({"featureIds": [feature_ids]});
         if let Some(mid) = material {
             let next = materials.len();
             let idx = *material_map.entry(mid.0).or_insert(next);
@@ -431,6 +460,15 @@ fn write_glb(
     }
     let mut used = vec!["EXT_mesh_features"];
     let mut required = Vec::new();
+    let (metadata_ext, metadata_bytes) = match table {
+        Some(t) => {
+            used.push("EXT_structural_metadata");
+            let (ext, n) =
+                write_property_table(t, &mut |bytes, align| b.view_aligned(bytes, None, align));
+            (Some(ext), n)
+        }
+        None => (None, 0),
+    };
     if enc.compression == Compression::Draco {
         used.push("KHR_draco_mesh_compression");
         required.push("KHR_draco_mesh_compression");
@@ -449,6 +487,9 @@ fn write_glb(
     if !required.is_empty() {
         root["extensionsRequired"] = json!(required);
     }
+    if let Some(ext) = metadata_ext {
+        root["extensions"] = json!({"EXT_structural_metadata": ext});
+    }
     if !materials.is_empty() {
         root["materials"] = json!(materials);
     }
@@ -461,7 +502,7 @@ fn write_glb(
         root["samplers"] = json!(samplers.iter().map(sampler_json).collect::<Vec<_>>());
     }
     let json_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?;
-    Ok(glb_container(&json_bytes, &b.bin))
+    Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
 }
 
 /// Attributes and indices as plain accessors.
@@ -710,7 +751,7 @@ mod tests {
         let far = DVec3::new(500_000.25, 5_400_000.5, 100.0);
         let s = one_triangle_scene(DMat4::from_translation(far) * Y_UP_TO_Z_UP);
         let center = s.components[0].world_bounds.center();
-        let t = encode_tile(&s, &whole(0), center, &plain()).unwrap();
+        let t = encode_tile(&s, &whole(0), center, &plain(), None).unwrap();
         assert_eq!(t.triangles, 1);
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let node = g.document.nodes().next().unwrap();
@@ -737,7 +778,7 @@ mod tests {
     #[test]
     fn mirrored_transforms_keep_front_faces() {
         let s = one_triangle_scene(DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0)));
-        let t = encode_tile(&s, &whole(0), DVec3::ZERO, &plain()).unwrap();
+        let t = encode_tile(&s, &whole(0), DVec3::ZERO, &plain(), None).unwrap();
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let blob = g.blob.as_deref().unwrap();
         let prim = g

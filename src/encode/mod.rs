@@ -2,5 +2,6 @@
 
 pub mod draco;
 pub mod glb;
+pub mod metadata;
 
 pub use glb::{encode_tile, Compression, EncodedTile, TileEncoding};

@@ -2,6 +2,7 @@
 //! refinement and content URIs, and the root transform that georeferences it.
 
 pub mod georef;
+pub mod metadata;
 
 use crate::partition::octree::TilePlan;
 use crate::scene::Aabb;

@@ -1,0 +1,497 @@
+//! The metadata schema of a tileset (3D Tiles 1.1 metadata, as used by `EXT_structural_metadata`):
+//! the fixed class of `schemas/bimtiles.schema.json` (id, name, path, source, IFC class, storey,
+//! building, site, material), its enums filled with the values this scene uses, and one typed
+//! property per property-set entry found in the input.
+//!
+//! Repeated strings (classes, storeys, materials, source files) are enums: a tile stores a 2-byte
+//! code per element and the names once, in the schema. Property-set values are typed when every
+//! value of a property has one type (numbers → FLOAT64, booleans → an enum), else text.
+
+use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
+use crate::scene::{ComponentId, PropertyValue, Scene};
+use serde_json::{json, Map, Value};
+use std::collections::{BTreeMap, HashMap};
+
+/// The base schema, written once, kept in `schemas/`.
+pub const BASE_SCHEMA: &str = include_str!("../../schemas/bimtiles.schema.json");
+pub const CLASS_ID: &str = "element";
+/// The enum name that stands for "no value" (enum value 0 of every enum).
+pub const NO_VALUE: &str = "(none)";
+/// `noData` of FLOAT64 properties: no real property value is this.
+pub const NO_NUMBER: f64 = f64::MIN;
+
+/// Where a property's values come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Column {
+    Id,
+    Name,
+    Path,
+    Source,
+    Class,
+    Storey,
+    Building,
+    Site,
+    Material,
+    /// The n-th property-set entry (`MetadataSchema::pset_keys`).
+    Pset(usize),
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ValueType {
+    Text,
+    Float64,
+    /// An enum of the schema, by id.
+    Enum(String),
+}
+
+#[derive(Debug, Clone)]
+pub struct PropertyDef {
+    /// Property id in the schema (`^[a-zA-Z_][a-zA-Z0-9_]*$`).
+    pub id: String,
+    pub column: Column,
+    pub value_type: ValueType,
+}
+
+/// One element's value of one property.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MetaValue {
+    Text(String),
+    Number(f64),
+    /// Enum code (index into the enum's values; 0 = none).
+    Code(u16),
+}
+
+/// The schema of one tileset.
+#[derive(Debug, Clone)]
+pub struct MetadataSchema {
+    pub properties: Vec<PropertyDef>,
+    /// (property set, property name) of each `Column::Pset`.
+    pub pset_keys: Vec<(String, String)>,
+    /// Enum id → value names (index = code; 0 is [`NO_VALUE`]).
+    pub enums: BTreeMap<String, Vec<String>>,
+    enum_codes: HashMap<String, HashMap<String, u16>>,
+    base: Value,
+}
+
+/// A schema identifier from any text: non-alphanumerics become '_', no leading digit.
+pub fn identifier(s: &str) -> String {
+    let mut id: String = s
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    if id.is_empty() || id.starts_with(|c: char| c.is_ascii_digit()) {
+        id.insert(0, '_');
+    }
+    id
+}
+
+impl MetadataSchema {
+    /// Builds the schema for `scene`: enum values in first-use order, one property per
+    /// property-set entry (ordered by set, then name).
+    pub fn from_scene(scene: &Scene) -> MetadataSchema {
+        let base: Value =
+            serde_json::from_str(BASE_SCHEMA).expect("schemas/bimtiles.schema.json is valid JSON");
+        let mut enums: BTreeMap<String, Vec<String>> = BTreeMap::new();
+        let mut enum_codes: HashMap<String, HashMap<String, u16>> = HashMap::new();
+        for (id, e) in base["enums"].as_object().expect("base enums") {
+            let names: Vec<String> = e["values"]
+                .as_array()
+                .expect("enum values")
+                .iter()
+                .map(|v| v["name"].as_str().expect("enum value name").to_string())
+                .collect();
+            enum_codes.insert(
+                id.clone(),
+                names
+                    .iter()
+                    .enumerate()
+                    .map(|(i, n)| (n.clone(), i as u16))
+                    .collect(),
+            );
+            enums.insert(id.clone(), names);
+        }
+        let mut add = |enum_id: &str, v: &Option<String>| {
+            if let Some(v) = v {
+                let codes = enum_codes.get_mut(enum_id).expect("known enum");
+                if !codes.contains_key(v) && codes.len() < u16::MAX as usize {
+                    let list = enums.get_mut(enum_id).expect("known enum");
+                    codes.insert(v.clone(), list.len() as u16);
+                    list.push(v.clone());
+                }
+            }
+        };
+        for s in &scene.sources {
+            add(
+                "sourceFile",
+                &s.path.file_name().map(|n| n.to_string_lossy().to_string()),
+            );
+        }
+        for info in &scene.info {
+            add("ifcClass", &info.class);
+            add("storey", &info.storey);
+            add("building", &info.building);
+            add("site", &info.site);
+            add("material", &info.material);
+        }
+        // Property-set entries and their value types.
+        let mut kinds: BTreeMap<(String, String), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
+        for info in &scene.info {
+            for p in &info.properties {
+                let k = kinds.entry((p.set.clone(), p.name.clone())).or_default();
+                match p.value {
+                    PropertyValue::Text(_) => k.0 = true,
+                    PropertyValue::Number(_) | PropertyValue::Integer(_) => k.1 = true,
+                    PropertyValue::Bool(_) => k.2 = true,
+                }
+            }
+        }
+        let mut properties: Vec<PropertyDef> = [
+            ("id", Column::Id, ValueType::Text),
+            ("name", Column::Name, ValueType::Text),
+            ("path", Column::Path, ValueType::Text),
+            (
+                "source",
+                Column::Source,
+                ValueType::Enum("sourceFile".into()),
+            ),
+            ("class", Column::Class, ValueType::Enum("ifcClass".into())),
+            ("storey", Column::Storey, ValueType::Enum("storey".into())),
+            (
+                "building",
+                Column::Building,
+                ValueType::Enum("building".into()),
+            ),
+            ("site", Column::Site, ValueType::Enum("site".into())),
+            (
+                "material",
+                Column::Material,
+                ValueType::Enum("material".into()),
+            ),
+        ]
+        .into_iter()
+        .map(|(id, column, value_type)| PropertyDef {
+            id: id.into(),
+            column,
+            value_type,
+        })
+        .collect();
+        let mut pset_keys = Vec::new();
+        for ((set, name), (text, number, boolean)) in kinds {
+            let value_type = match (text, number, boolean) {
+                (false, true, false) => ValueType::Float64,
+                (false, false, true) => ValueType::Enum("boolean".into()),
+                _ => ValueType::Text,
+            };
+            let mut id = identifier(&format!("{set}_{name}"));
+            while properties.iter().any(|p| p.id == id) {
+                id.push('_');
+            }
+            properties.push(PropertyDef {
+                id,
+                column: Column::Pset(pset_keys.len()),
+                value_type,
+            });
+            pset_keys.push((set, name));
+        }
+        MetadataSchema {
+            properties,
+            pset_keys,
+            enums,
+            enum_codes,
+            base,
+        }
+    }
+
+    fn code(&self, enum_id: &str, v: Option<&str>) -> Option<MetaValue> {
+        let c = *self.enum_codes.get(enum_id)?.get(v?)?;
+        Some(MetaValue::Code(c))
+    }
+
+    /// The value of property `p` for component `c` (None: no value).
+    pub fn value(&self, scene: &Scene, c: ComponentId, p: usize) -> Option<MetaValue> {
+        let comp = scene.component(c);
+        let info = scene.info.get(c.index())?;
+        let text = |s: Option<String>| s.filter(|s| !s.is_empty()).map(MetaValue::Text);
+        match self.properties[p].column {
+            Column::Id => Some(MetaValue::Text(comp.key.clone())),
+            Column::Name => text(comp.name.clone()),
+            Column::Path => text(comp.node.map(|n| scene.node_path(n))),
+            Column::Source => self.code(
+                "sourceFile",
+                scene
+                    .sources
+                    .get(comp.source as usize)
+                    .and_then(|s| s.path.file_name())
+                    .and_then(|n| n.to_str()),
+            ),
+            Column::Class => self.code("ifcClass", info.class.as_deref()),
+            Column::Storey => self.code("storey", info.storey.as_deref()),
+            Column::Building => self.code("building", info.building.as_deref()),
+            Column::Site => self.code("site", info.site.as_deref()),
+            Column::Material => self.code("material", info.material.as_deref()),
+            Column::Pset(k) => {
+                let (set, name) = &self.pset_keys[k];
+                let v = &info
+                    .properties
+                    .iter()
+                    .find(|q| &q.set == set && &q.name == name)?
+                    .value;
+                match (&self.properties[p].value_type, v) {
+                    (ValueType::Float64, PropertyValue::Number(x)) => Some(MetaValue::Number(*x)),
+                    (ValueType::Float64, PropertyValue::Integer(i)) => {
+                        Some(MetaValue::Number(*i as f64))
+                    }
+                    (ValueType::Enum(_), PropertyValue::Bool(b)) => {
+                        self.code("boolean", Some(if *b { "true" } else { "false" }))
+                    }
+                    (_, PropertyValue::Text(s)) => text(Some(s.clone())),
+                    (_, PropertyValue::Number(x)) => Some(MetaValue::Text(x.to_string())),
+                    (_, PropertyValue::Integer(i)) => Some(MetaValue::Text(i.to_string())),
+                    (_, PropertyValue::Bool(b)) => Some(MetaValue::Text(b.to_string())),
+                }
+            }
+        }
+    }
+
+    /// The property table of one tile's features: only the properties some feature has a value
+    /// for; the schema is the tileset's, at `schema_uri` (relative to the tile).
+    pub fn property_table(
+        &self,
+        scene: &Scene,
+        features: &[ComponentId],
+        schema_uri: &str,
+    ) -> PropertyTable {
+        let mut columns = Vec::new();
+        for (p, def) in self.properties.iter().enumerate() {
+            let values: Vec<Option<MetaValue>> =
+                features.iter().map(|&c| self.value(scene, c, p)).collect();
+            if values.iter().all(Option::is_none) {
+                continue;
+            }
+            let col = match def.value_type {
+                ValueType::Text => ColumnData::Text(
+                    values
+                        .into_iter()
+                        .map(|v| match v {
+                            Some(MetaValue::Text(t)) => Some(t),
+                            _ => None,
+                        })
+                        .collect(),
+                ),
+                ValueType::Float64 => ColumnData::Float64(
+                    values
+                        .into_iter()
+                        .map(|v| match v {
+                            Some(MetaValue::Number(x)) => x,
+                            _ => NO_NUMBER,
+                        })
+                        .collect(),
+                ),
+                ValueType::Enum(_) => ColumnData::Enum(
+                    values
+                        .into_iter()
+                        .map(|v| match v {
+                            Some(MetaValue::Code(c)) => c,
+                            _ => 0,
+                        })
+                        .collect(),
+                ),
+            };
+            columns.push((def.id.clone(), col));
+        }
+        PropertyTable {
+            schema: SchemaRef::Uri(schema_uri.into()),
+            class: CLASS_ID.into(),
+            count: features.len(),
+            columns,
+        }
+    }
+
+    /// The schema as JSON; with `only`, just those properties (by index) and the enums they use
+    /// (what one tile needs inline).
+    pub fn to_json(&self, only: Option<&[usize]>) -> Value {
+        let mut schema = self.base.clone();
+        let base_props = self.base["classes"][CLASS_ID]["properties"].clone();
+        let mut props = Map::new();
+        let mut used_enums = Vec::new();
+        for (i, p) in self.properties.iter().enumerate() {
+            if only.is_some_and(|o| !o.contains(&i)) {
+                continue;
+            }
+            let def = match p.column {
+                Column::Pset(k) => {
+                    let (set, name) = &self.pset_keys[k];
+                    let mut d = json!({"name": format!("{set}.{name}"), "description": format!("Property {name} of {set}")});
+                    match &p.value_type {
+                        ValueType::Text => {
+                            d["type"] = json!("STRING");
+                            d["noData"] = json!("");
+                        }
+                        ValueType::Float64 => {
+                            d["type"] = json!("SCALAR");
+                            d["componentType"] = json!("FLOAT64");
+                            d["noData"] = json!(NO_NUMBER);
+                        }
+                        ValueType::Enum(e) => {
+                            d["type"] = json!("ENUM");
+                            d["enumType"] = json!(e);
+                            d["noData"] = json!(NO_VALUE);
+                        }
+                    }
+                    d
+                }
+                _ => base_props[&p.id].clone(),
+            };
+            if let ValueType::Enum(e) = &p.value_type {
+                used_enums.push(e.clone());
+            }
+            props.insert(p.id.clone(), def);
+        }
+        schema["classes"][CLASS_ID]["properties"] = Value::Object(props);
+        let mut enums = Map::new();
+        for (id, names) in &self.enums {
+            if only.is_some() && !used_enums.contains(id) {
+                continue;
+            }
+            let mut e = self.base["enums"][id].clone();
+            e["values"] = json!(names
+                .iter()
+                .enumerate()
+                .map(|(i, n)| json!({"name": n, "value": i}))
+                .collect::<Vec<_>>());
+            enums.insert(id.clone(), e);
+        }
+        if enums.is_empty() {
+            schema.as_object_mut().expect("object").remove("enums");
+        } else {
+            schema["enums"] = Value::Object(enums);
+        }
+        schema
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::*;
+
+    fn scene_with(infos: Vec<ElementInfo>) -> Scene {
+        let mut s = Scene::default();
+        s.sources.push(SourceFile {
+            path: "dir/model.glb".into(),
+            bytes: 0,
+        });
+        s.meshes.push(Mesh::default());
+        for (i, info) in infos.into_iter().enumerate() {
+            s.push_component(
+                Component {
+                    id: ComponentId(0),
+                    key: format!("k{i}"),
+                    name: Some(format!("n{i}")),
+                    node: None,
+                    mesh: MeshId(0),
+                    world: glam::DMat4::IDENTITY,
+                    world_bounds: Aabb::EMPTY,
+                    source: 0,
+                },
+                info,
+            );
+        }
+        s
+    }
+
+    fn prop(set: &str, name: &str, value: PropertyValue) -> Property {
+        Property {
+            set: set.into(),
+            name: name.into(),
+            value,
+        }
+    }
+
+    #[test]
+    fn enums_types_and_values() {
+        let s = scene_with(vec![
+            ElementInfo {
+                class: Some("IfcWall".into()),
+                storey: Some("L1".into()),
+                properties: vec![
+                    prop("Pset_WallCommon", "IsExternal", PropertyValue::Bool(true)),
+                    prop("Qto", "Width", PropertyValue::Number(0.3)),
+                    prop(
+                        "Pset_WallCommon",
+                        "Reference",
+                        PropertyValue::Text("W-01".into()),
+                    ),
+                    prop("Mixed", "x", PropertyValue::Integer(3)),
+                ],
+                ..Default::default()
+            },
+            ElementInfo {
+                class: Some("IfcWindow".into()),
+                properties: vec![
+                    prop("Qto", "Width", PropertyValue::Integer(1)),
+                    prop("Mixed", "x", PropertyValue::Text("a".into())),
+                ],
+                ..Default::default()
+            },
+        ]);
+        let m = MetadataSchema::from_scene(&s);
+        assert_eq!(m.enums["ifcClass"], vec!["(none)", "IfcWall", "IfcWindow"]);
+        let idx = |id: &str| m.properties.iter().position(|p| p.id == id).unwrap();
+        assert_eq!(
+            m.properties[idx("Qto_Width")].value_type,
+            ValueType::Float64
+        );
+        assert_eq!(
+            m.properties[idx("Pset_WallCommon_IsExternal")].value_type,
+            ValueType::Enum("boolean".into())
+        );
+        assert_eq!(m.properties[idx("Mixed_x")].value_type, ValueType::Text);
+        assert_eq!(
+            m.value(&s, ComponentId(1), idx("class")),
+            Some(MetaValue::Code(2))
+        );
+        assert_eq!(m.value(&s, ComponentId(1), idx("storey")), None);
+        assert_eq!(
+            m.value(&s, ComponentId(1), idx("Qto_Width")),
+            Some(MetaValue::Number(1.0))
+        );
+        assert_eq!(
+            m.value(&s, ComponentId(0), idx("Pset_WallCommon_IsExternal")),
+            Some(MetaValue::Code(2))
+        );
+        assert_eq!(
+            m.value(&s, ComponentId(1), idx("Mixed_x")),
+            Some(MetaValue::Text("a".into()))
+        );
+        assert_eq!(
+            m.value(&s, ComponentId(0), idx("source")),
+            Some(MetaValue::Code(1))
+        );
+        let full = m.to_json(None);
+        assert_eq!(full["id"], "bimtiles");
+        assert_eq!(
+            full["classes"]["element"]["properties"]["Qto_Width"]["componentType"],
+            "FLOAT64"
+        );
+        let sub = m.to_json(Some(&[idx("id"), idx("class")]));
+        assert_eq!(
+            sub["classes"]["element"]["properties"]
+                .as_object()
+                .unwrap()
+                .len(),
+            2
+        );
+        assert_eq!(sub["enums"].as_object().unwrap().len(), 1);
+    }
+
+    #[test]
+    fn identifiers_are_valid() {
+        assert_eq!(
+            identifier("Pset_WallCommon.FireRating"),
+            "Pset_WallCommon_FireRating"
+        );
+        assert_eq!(identifier("3D Höhe"), "_3D_H_he");
+        assert_eq!(identifier(""), "_");
+    }
+}

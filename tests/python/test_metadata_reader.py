@@ -1,0 +1,165 @@
+"""Independent reader of the BIM metadata in bimtiles output (shares no code with the writer).
+
+For every tileset directory in BIMTILES_TILESET_DIRS whose report.json names glTF inputs, this
+decodes each tile's EXT_structural_metadata property table (schema from ``schemaUri``; STRING,
+SCALAR FLOAT64 and ENUM columns as the extension defines them) and EXT_mesh_features feature IDs,
+then checks against the *input* file, read here from its JSON chunk:
+
+* every input node with a mesh appears as a feature (by its id: GlobalId extras/name, else path),
+* with its name, IFC class and storey (from the node's ``extras``),
+* and every feature ID stored on the vertices names a row of the tile's table.
+
+Run: BIMTILES_TILESET_DIRS=out/a:out/b python3 -m pytest -q tests/python/test_metadata_reader.py
+"""
+
+import json
+import os
+import pathlib
+import re
+import struct
+
+import pytest
+
+GUID = re.compile(r"^[0-3][0-9A-Za-z_$]{21}$")
+
+
+def read_glb(path):
+    data = pathlib.Path(path).read_bytes()
+    assert data[:4] == b"glTF", f"{path}: not a GLB"
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + jlen])
+    bin_chunk = b""
+    off = 20 + jlen
+    if off + 8 <= len(data):
+        blen = struct.unpack_from("<I", data, off)[0]
+        bin_chunk = data[off + 8:off + 8 + blen]
+    return doc, bin_chunk
+
+
+def view_bytes(doc, blob, index):
+    v = doc["bufferViews"][index]
+    start = v.get("byteOffset", 0)
+    return blob[start:start + v["byteLength"]]
+
+
+def decode_table(doc, blob, schema):
+    """Rows of property table 0 as a list of dicts {property id: python value or None}."""
+    ext = doc["extensions"]["EXT_structural_metadata"]
+    table = ext["propertyTables"][0]
+    cls = schema["classes"][table["class"]]["properties"]
+    enums = schema.get("enums", {})
+    n = table["count"]
+    rows = [dict() for _ in range(n)]
+    for pid, prop in table["properties"].items():
+        d = cls[pid]
+        values = view_bytes(doc, blob, prop["values"])
+        if d["type"] == "STRING":
+            assert prop.get("stringOffsetType", "UINT32") == "UINT32"
+            offs = struct.unpack_from(f"<{n + 1}I", view_bytes(doc, blob, prop["stringOffsets"]))
+            col = [values[offs[i]:offs[i + 1]].decode("utf-8") for i in range(n)]
+            col = [None if v == d.get("noData") else v for v in col]
+        elif d["type"] == "SCALAR" and d["componentType"] == "FLOAT64":
+            col = list(struct.unpack_from(f"<{n}d", values))
+            col = [None if v == d.get("noData") else v for v in col]
+        elif d["type"] == "ENUM":
+            e = enums[d["enumType"]]
+            assert e.get("valueType", "UINT16") == "UINT16"
+            names = {v["value"]: v["name"] for v in e["values"]}
+            col = [names[c] for c in struct.unpack_from(f"<{n}H", values)]
+            col = [None if v == d.get("noData") else v for v in col]
+        else:
+            pytest.fail(f"unexpected property type {d}")
+        for i, v in enumerate(col):
+            rows[i][pid] = v
+    return rows
+
+
+def feature_ids(doc, blob):
+    """Feature IDs of uncompressed primitives (Draco-compressed ones are checked by the Draco test)."""
+    out = []
+    for mesh in doc.get("meshes", []):
+        for p in mesh["primitives"]:
+            if "KHR_draco_mesh_compression" in p.get("extensions", {}):
+                continue
+            acc = doc["accessors"][p["attributes"]["_FEATURE_ID_0"]]
+            raw = view_bytes(doc, blob, acc["bufferView"])[acc.get("byteOffset", 0):]
+            fmt = {5126: "f", 5123: "H", 5121: "B"}[acc["componentType"]]
+            out.extend(struct.unpack_from(f"<{acc['count']}{fmt}", raw))
+    return out
+
+
+def input_elements(path):
+    """Nodes with a mesh of a glTF/GLB input: {id: (name, class, storey)}."""
+    doc, _ = read_glb(path) if str(path).endswith(".glb") else (json.loads(pathlib.Path(path).read_text()), b"")
+    nodes = doc.get("nodes", [])
+    parent = {}
+    for i, n in enumerate(nodes):
+        for c in n.get("children", []):
+            parent[c] = i
+
+    def node_path(i):
+        parts = []
+        while i is not None:
+            parts.append(nodes[i].get("name", f"node{i}"))
+            i = parent.get(i)
+        return "/".join(reversed(parts))
+
+    out = {}
+    for i, n in enumerate(nodes):
+        if "mesh" not in n:
+            continue
+        extras = n.get("extras") or {}
+        guid = extras.get("guid") or extras.get("GlobalId")
+        if not guid and GUID.match(n.get("name", "")):
+            guid = n["name"]
+        key = guid or node_path(i)
+        out[key] = (n.get("name"), extras.get("ifc_class"), extras.get("storey"))
+    return out
+
+
+def tileset_dirs():
+    dirs = [d for d in os.environ.get("BIMTILES_TILESET_DIRS", "").split(":") if d]
+    if not dirs:
+        pytest.skip("BIMTILES_TILESET_DIRS is not set: set it to bimtiles output folders")
+    return dirs
+
+
+def test_metadata_names_every_input_element():
+    checked = 0
+    for d in tileset_dirs():
+        d = pathlib.Path(d)
+        report_path = d / "report.json"
+        if not report_path.is_file():
+            continue
+        report = json.loads(report_path.read_text())
+        inputs = [f for f in report["input"]["files"] if pathlib.Path(f).is_file() and f.endswith((".glb", ".gltf"))]
+        if len(inputs) != 1 or "(embedded)" in inputs[0]:
+            continue
+        expected = input_elements(inputs[0])
+        seen = {}
+        for tile in report["tiles"]:
+            if not tile["content"]:
+                continue
+            doc, blob = read_glb(d / tile["content"])
+            ext = doc.get("extensions", {}).get("EXT_structural_metadata")
+            assert ext, f"{tile['content']}: no EXT_structural_metadata"
+            assert "EXT_structural_metadata" in doc["extensionsUsed"]
+            schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+            assert schema["id"] == "bimtiles"
+            rows = decode_table(doc, blob, schema)
+            assert len(rows) == tile["features"]
+            for fid in feature_ids(doc, blob):
+                assert fid == int(fid) and 0 <= fid < len(rows), f"feature id {fid} names no row"
+            for r in rows:
+                seen.setdefault(r["id"], r)
+        missing = set(expected) - set(seen)
+        assert not missing, f"{d}: {len(missing)} input elements have no feature, e.g. {sorted(missing)[:3]}"
+        for key, (name, cls, storey) in expected.items():
+            r = seen[key]
+            assert r.get("name") == name, f"{key}: name {r.get('name')!r} != {name!r}"
+            assert r.get("class") == cls, f"{key}: class {r.get('class')!r} != {cls!r}"
+            assert r.get("storey") == storey, f"{key}: storey {r.get('storey')!r} != {storey!r}"
+        checked += len(expected)
+        print(f"{d}: {len(expected)} elements named correctly in {sum(1 for t in report['tiles'] if t['content'])} tiles")
+    if checked == 0:
+        pytest.skip("no tileset converted from a single glTF input among BIMTILES_TILESET_DIRS")
