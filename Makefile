@@ -49,9 +49,12 @@ $(VENV)/.installed: tests/python/requirements.txt
 
 test: deps
 	rm -rf target/test-out
+	mkdir -p target/test-out/ifc-dump
 	BIMTILES_REQUIRE_TOOLS=1 BIMTILES_SHARED=$(SHARED) BIMTILES_DRACO_FIXTURE_DIR=$(CURDIR)/target/test-out/draco-fixtures \
+	BIMTILES_IFC_DUMP_DIR=$(CURDIR)/target/test-out/ifc-dump \
 	  $(CARGO) test --release
 	BIMTILES_SHARED=$(SHARED) BIMTILES_DRACO_FIXTURE_DIR=$(CURDIR)/target/test-out/draco-fixtures \
+	BIMTILES_IFC_DUMP_DIR=$(CURDIR)/target/test-out/ifc-dump \
 	BIMTILES_TILE_DIR=$(CURDIR)/target/test-out \
 	BIMTILES_TILESET_DIRS=$$(find target/test-out -name tileset.json -printf '%h:' | sed 's/:$$//') \
 	  $(PY) -m pytest -q tests/python

@@ -54,6 +54,8 @@ impl ConvertOptions {
 pub struct InputReport {
     pub files: Vec<String>,
     pub bytes: u64,
+    /// Elements a reader could not use (e.g. IFC elements that failed to triangulate).
+    pub skipped_elements: usize,
     pub triangles: usize,
     pub vertices: usize,
     pub components: usize,
@@ -101,7 +103,7 @@ pub struct LevelReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct GeoReport {
     pub origin: GeoOrigin,
-    /// "option" (from --origin) or "default".
+    /// "option" (from --origin), "input-site" (the input's georeference) or "default".
     pub origin_source: String,
     /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
     pub anchor_m: [f64; 3],
@@ -241,6 +243,7 @@ pub fn convert_scene(
             .map(|s| s.path.display().to_string())
             .collect(),
         bytes: scene.sources.iter().map(|s| s.bytes).sum(),
+        skipped_elements: scene.skipped_elements,
         triangles: scene.triangle_count(),
         vertices: scene.vertex_count(),
         components: scene.components.len(),
@@ -250,12 +253,41 @@ pub fn convert_scene(
         skipped_primitives: scene.skipped_primitives,
     };
 
-    // Place: the anchor goes to the scene frame's origin, in f64, before anything is rounded.
-    let (anchor, anchor_rule) = choose_anchor(&scene.bounds());
-    if anchor != DVec3::ZERO {
-        scene.apply_transform(&DMat4::from_translation(-anchor));
-    }
-    let origin = opts.origin.unwrap_or(GeoOrigin::DEFAULT);
+    // Place: the anchor goes to the scene frame's origin, in f64, before anything is rounded. An
+    // input's own georeference (IFC site) gives the anchor, the true-north turn and, unless
+    // --origin overrides it, the place on Earth.
+    let (anchor, anchor_rule, origin, origin_source) = match (scene.georeference, opts.origin) {
+        (Some(g), user) => {
+            let turn = DMat4::from_rotation_z((-g.true_north_deg.unwrap_or(0.0)).to_radians());
+            scene.apply_transform(&(turn * DMat4::from_translation(-g.anchor)));
+            let source_origin = GeoOrigin {
+                longitude_deg: g.longitude_deg,
+                latitude_deg: g.latitude_deg,
+                height_m: g.height_m,
+            };
+            (
+                g.anchor,
+                format!(
+                    "the input's site reference point (turned {:.3}° to true north)",
+                    g.true_north_deg.unwrap_or(0.0)
+                ),
+                user.unwrap_or(source_origin),
+                if user.is_some() {
+                    "option"
+                } else {
+                    "input-site"
+                },
+            )
+        }
+        (None, user) => {
+            let (anchor, rule) = choose_anchor(&scene.bounds());
+            if anchor != DVec3::ZERO {
+                scene.apply_transform(&DMat4::from_translation(-anchor));
+            }
+            let source = if user.is_some() { "option" } else { "default" };
+            (anchor, rule, user.unwrap_or(GeoOrigin::DEFAULT), source)
+        }
+    };
 
     let t1 = Instant::now();
     let plan = plan_octree(scene, &opts.octree);
@@ -349,12 +381,7 @@ pub fn convert_scene(
         tiles,
         georeference: GeoReport {
             origin,
-            origin_source: if opts.origin.is_some() {
-                "option"
-            } else {
-                "default"
-            }
-            .into(),
+            origin_source: origin_source.into(),
             anchor_m: anchor.to_array(),
             anchor_rule,
         },

@@ -295,9 +295,25 @@ pub struct SourceFile {
     pub bytes: u64,
 }
 
+/// A georeference found in an input (IFC site reference): where the model's `anchor` (a point in
+/// the scene frame) lies on Earth, and how far the model is turned from true north.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SourceGeoreference {
+    pub longitude_deg: f64,
+    pub latitude_deg: f64,
+    pub height_m: f64,
+    /// Angle of true north from the model's +y axis, counter-clockwise positive (IFC TrueNorth).
+    pub true_north_deg: Option<f64>,
+    pub anchor: DVec3,
+}
+
 #[derive(Debug, Clone, Default)]
 pub struct Scene {
     pub sources: Vec<SourceFile>,
+    /// The first georeference an input carried, if any.
+    pub georeference: Option<SourceGeoreference>,
+    /// Elements a reader skipped (broken geometry), counted for the report.
+    pub skipped_elements: usize,
     pub nodes: Vec<Node>,
     pub components: Vec<Component>,
     /// `info[i]` describes `components[i]` (same length; see [`Scene::push_component`]).
@@ -399,6 +415,8 @@ impl Scene {
                 c
             }));
         self.skipped_primitives += other.skipped_primitives;
+        self.skipped_elements += other.skipped_elements;
+        self.georeference = self.georeference.or(other.georeference);
     }
 
     /// Pre-multiplies every component's world transform (e.g. to move the anchor to the origin).

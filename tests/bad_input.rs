@@ -230,3 +230,27 @@ fn existing_output_needs_force() {
         b"precious"
     );
 }
+
+#[test]
+fn broken_ifc_files() {
+    let d = tmpdir("bad-ifc");
+    let Some(sh) = shared() else {
+        // A small hand-written IFC stands in for the real one.
+        let p = write(&d, "cut.ifc", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n#1=IFCPROJECT('0YvctVUKr0kugbFTf53O9L',$,'P',$,$,$,$,(#2),#3");
+        expect_failure(&p, "ifc-truncated", &[]);
+        return;
+    };
+    let full = std::fs::read(sh.join("data/IfcOpenHouse_IFC4.ifc")).unwrap();
+    let p = write(&d, "truncated.ifc", &full[..full.len() / 2]);
+    expect_failure(&p, "ifc-truncated", &[]);
+    let p = write(
+        &d,
+        "garbage.ifc",
+        b"ISO-10303-21;\nthis is not STEP at all (((",
+    );
+    expect_failure(&p, "ifc-garbage", &[]);
+    let text =
+        String::from_utf8_lossy(&full).replace("FILE_SCHEMA(('IFC4'))", "FILE_SCHEMA(('IFC9'))");
+    let p = write(&d, "schema.ifc", text.as_bytes());
+    expect_failure(&p, "ifc-schema", &[]);
+}

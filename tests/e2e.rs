@@ -282,3 +282,62 @@ fn draco_tiles_stay_within_half_a_millimetre_of_the_uncompressed_ones() {
     );
     assert!(sa < sb * 0.5, "Draco output {sa} B vs uncompressed {sb} B");
 }
+
+#[test]
+fn every_shared_ifc_converts_with_semantics_and_georeference() {
+    let Some(sh) = shared() else {
+        eprintln!("SKIPPED: ../shared/data not found (IFC models)");
+        return;
+    };
+    let mut ifcs: Vec<_> = std::fs::read_dir(sh.join("data"))
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "ifc"))
+        .collect();
+    ifcs.sort();
+    assert!(!ifcs.is_empty());
+    for ifc in ifcs {
+        let name = ifc.file_stem().unwrap().to_string_lossy().to_string();
+        let out = tmpdir(&format!("ifc-{name}")).join("tiles");
+        let report = convert(&ifc, &out, &["--max-tile-triangles", "20000"]);
+        let tris = report["input"]["triangles"].as_u64().unwrap() as usize;
+        assert!(
+            report["input"]["components"].as_u64().unwrap() > 0,
+            "{name}"
+        );
+        assert_eq!(report["input"]["skipped_elements"], 0, "{name}");
+        check_tileset(&out, tris);
+        gltf_validator(&out);
+        // The IFC classes reach the tileset's schema.
+        let schema: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("schema.json")).unwrap()).unwrap();
+        let classes: Vec<&str> = schema["enums"]["ifcClass"]["values"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v["name"].as_str().unwrap())
+            .collect();
+        assert!(
+            classes.iter().any(|c| c.starts_with("Ifc")),
+            "{name}: {classes:?}"
+        );
+        eprintln!(
+            "{name}: {tris} triangles, origin from {}",
+            report["georeference"]["origin_source"]
+        );
+    }
+    // FZK-Haus carries its site reference: it is placed there, not at the default.
+    let r: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(repo().join("target/test-out/ifc-AC20-FZK-Haus/tiles/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(r["georeference"]["origin_source"], "input-site");
+    assert!(
+        (r["georeference"]["origin"]["latitude_deg"]
+            .as_f64()
+            .unwrap()
+            - 49.100435)
+            .abs()
+            < 1e-6
+    );
+}

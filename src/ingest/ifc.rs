@@ -1,8 +1,8 @@
 //! IFC reader (IFC2X3, IFC4, IFC4X1–IFC4X3 STEP files, `.ifc`), behind the cargo feature `ifc`.
 //!
 //! Parsing and triangulation are done by `ifc-lite-processing` (MPL-2.0, pinned `=28.2.0`). Its API
-//! changes every major version, so it is reached only through the small internal [`engine`]
-//! module: one trait ([`engine::IfcEngine`]) that returns plain data ([`engine::RawModel`]); nothing
+//! changes every major version, so it is reached only through the small internal `engine`
+//! module: one trait (`engine::IfcEngine`) that returns plain data (`RawGeometry`, `RawData`, `RawGeoref`); nothing
 //! outside that module names an ifc-lite type. Porting to another ifc-lite major (or another IFC
 //! kernel) means rewriting `engine::IfcLite` only.
 //!

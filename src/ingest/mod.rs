@@ -3,6 +3,8 @@
 //! naming the file.
 
 pub mod gltf;
+#[cfg(feature = "ifc")]
+pub mod ifc;
 
 use crate::error::{Error, Result};
 use crate::scene::Scene;
@@ -21,13 +23,45 @@ pub fn read_input(path: &Path) -> Result<Scene> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    match ext.as_str() {
-        "ifc" => Err(Error::input(
-            path,
-            "IFC input is not supported yet (convert it to glTF first)",
-        )),
-        _ => gltf::read_gltf(path),
+    if ext == "ifc" || looks_like_step(path) {
+        return read_ifc(path);
     }
+    gltf::read_gltf(path)
+}
+
+/// IFC files are ISO 10303-21 (STEP) text, whatever their extension.
+fn looks_like_step(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 64];
+    let n = std::fs::File::open(path)
+        .and_then(|mut f| f.read(&mut head))
+        .unwrap_or(0);
+    let text = String::from_utf8_lossy(&head[..n]);
+    text.trim_start_matches('\u{feff}')
+        .trim_start()
+        .starts_with("ISO-10303-21")
+}
+
+#[cfg(feature = "ifc")]
+fn read_ifc(path: &Path) -> Result<Scene> {
+    let (mut scene, report) = ifc::read_ifc_with_report(path)?;
+    scene.skipped_elements += report.skipped.len();
+    scene.georeference = report.georef.map(|g| crate::scene::SourceGeoreference {
+        longitude_deg: g.longitude_deg,
+        latitude_deg: g.latitude_deg,
+        height_m: g.height_m,
+        true_north_deg: g.true_north_deg,
+        anchor: g.anchor,
+    });
+    Ok(scene)
+}
+
+#[cfg(not(feature = "ifc"))]
+fn read_ifc(path: &Path) -> Result<Scene> {
+    Err(Error::input(
+        path,
+        "IFC input needs bimtiles built with the `ifc` feature (cargo build --features ifc)",
+    ))
 }
 
 /// The bundled sample building (`samples/sample_building.glb`), compiled into the binary so that
