@@ -1,9 +1,10 @@
 //! bimtiles: building models (glTF/GLB, IFC) to OGC 3D Tiles 1.1.
 //!
 //! The pipeline follows the modules in order, data flowing one way:
-//! `ingest` (readers) → `scene` (the model) → `partition` (octree plan) → `encode` (GLB) →
-//! `tileset` (tileset.json, georeferencing); `convert` runs it end to end and `inspect` reads a
-//! result back.
+//! `ingest` (readers) → `scene` (the model) → `partition` (octree plan) → `simplify` (QEM) →
+//! `encode` (GLB) →
+//! `tileset` (tileset.json, georeferencing); `convert` runs it end to end, `inspect` reads a
+//! result back and `serve` shows it in a local CesiumJS viewer.
 
 pub mod convert;
 pub mod encode;
@@ -12,6 +13,8 @@ pub mod ingest;
 pub mod inspect;
 pub mod partition;
 pub mod scene;
+pub mod serve;
+pub mod simplify;
 pub mod tileset;
 
 pub use error::{Error, Result};

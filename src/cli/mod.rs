@@ -24,6 +24,41 @@ struct Cli {
 enum Command {
     /// Convert models into a 3D Tiles 1.1 tileset.
     Convert(ConvertArgs),
+    /// Simplify a model with our QEM and write it as one GLB (to compare simplifiers).
+    Simplify {
+        /// Input model (.glb, .gltf, .ifc).
+        input: PathBuf,
+        /// Output GLB.
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Fraction of triangles to keep.
+        #[arg(long, default_value_t = 0.5)]
+        ratio: f32,
+        /// Stop once the error would exceed this (metres).
+        #[arg(long)]
+        max_error: Option<f64>,
+        /// Print JSON for scripts.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Serve a tileset and the CesiumJS viewer over HTTP (loopback by default).
+    Serve {
+        /// The tileset folder (holding tileset.json).
+        dir: PathBuf,
+        #[arg(long, default_value_t = 8080)]
+        port: u16,
+        #[arg(long, default_value = "127.0.0.1")]
+        host: String,
+        /// The viewer page's folder (default: the repository's viewer/).
+        #[arg(long, env = "BIMTILES_VIEWER_DIR")]
+        viewer_dir: Option<PathBuf>,
+        /// CesiumJS's Build/Cesium folder (default: tools/node_modules/cesium/Build/Cesium).
+        #[arg(long, env = "BIMTILES_CESIUM_DIR")]
+        cesium_dir: Option<PathBuf>,
+        /// Log every request on stderr.
+        #[arg(long)]
+        log: bool,
+    },
     /// Summarise a tileset per level (tiles, triangles, bytes, geometric error).
     Inspect {
         /// The tileset folder (holding tileset.json).
@@ -83,6 +118,53 @@ pub fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Convert(a) => run_convert(a),
+        Command::Serve {
+            dir,
+            port,
+            host,
+            viewer_dir,
+            cesium_dir,
+            log,
+        } => {
+            // Installed by `make` into the repository; the binary remembers where that is.
+            let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+            let mut opts = bimtiles::serve::ServeOptions::new(
+                dir,
+                viewer_dir.unwrap_or_else(|| repo.join("viewer")),
+            );
+            opts.cesium_dir = Some(
+                cesium_dir.unwrap_or_else(|| repo.join("tools/node_modules/cesium/Build/Cesium")),
+            );
+            opts.host = host;
+            opts.port = port;
+            opts.log_requests = log;
+            Ok(bimtiles::serve::serve(&opts)?)
+        }
+        Command::Simplify {
+            input,
+            out,
+            ratio,
+            max_error,
+            json,
+        } => {
+            if !(ratio > 0.0 && ratio <= 1.0) {
+                anyhow::bail!("--ratio must be in (0, 1], got {ratio}");
+            }
+            let opts = bimtiles::simplify::SimplifyOptions {
+                target_ratio: ratio,
+                target_error_m: max_error,
+                ..Default::default()
+            };
+            let r = bimtiles::convert::simplify_model(&input, &out, &opts)?;
+            if json {
+                emit(&format!("{}\n", serde_json::to_string_pretty(&r)?))
+            } else {
+                emit(&format!(
+                    "{} -> {}: {} -> {} triangles, error {:.4} m, {:.2} s\n",
+                    r.input, r.output, r.triangles_in, r.triangles_out, r.error_m, r.seconds
+                ))
+            }
+        }
         Command::Inspect { dir, json } => {
             let s = inspect(&dir)?;
             if json {

@@ -1,0 +1,1258 @@
+//! The edge-collapse core: Garland–Heckbert quadrics with optimal placement,
+//! the paper's curvature weighting, angle error control and maximum collapsed
+//! edge length, on flat arrays with a lazily updated binary heap.
+//!
+//! Data layout: *position vertices* carry position, quadric, curvature and
+//! lock flag; *wedges* (attribute vertices) point to a position vertex;
+//! triangles are wedge triples. Vertex -> corner adjacency (`3 * tri + k`) is
+//! a CSR array rebuilt at the start of every pass.
+//!
+//! Driver (as meshoptimizer's): each pass ranks every live edge (in parallel;
+//! the order is a total order on `(cost, u, v)`, so the result does not depend
+//! on the thread count), then walks them cheapest first, re-validating each
+//! against the current geometry and skipping edges with an endpoint already
+//! touched in the pass, until the triangle goal is met or costs exceed 1.5x
+//! the cost at the pass's goal rank.
+//!
+//! Speed (the coverage error below is ~10x the cost of a quadric key): the
+//! ranking computes the quadric key of every edge but the coverage only
+//! lazily, for the cheapest edges the pass can reach (see `grow`), and skips
+//! it when its bound (the larger squared distance of an endpoint to the new
+//! position) cannot raise the key; coverage and interior checks take the
+//! current cost as a threshold and stop as soon as they cannot exceed it; an
+//! edge whose neighbourhood is untouched since it was ranked reuses the
+//! ranked coverage when applied. All of these are exact except growing the
+//! known order during a walk, which uses the state at that time.
+//!
+//! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
+//! and the error of a collapse is the larger of
+//! * the two endpoints' mean squared plane distances at the new position (not
+//!   the mean over the union, which let large surfaces dilute small parts), and
+//! * the *coverage* error (`State::coverage2`): squared distance of the old
+//!   endpoint positions to the new star and of the new position to the old
+//!   star. Plane distances alone let a thin plate or bar be squashed flat and
+//!   then lose its last triangles for a few millimetres of plane error (whole
+//!   parts vanished: duplex part 206, a 5.8 x 4.4 m plate; a 8.3 m bar of
+//!   Mini_Project). When nothing survives around the edge the coverage error
+//!   is the radius of the connected part;
+//! * at apply time also the distance of the new triangles' edge midpoints and
+//!   centroids to the old star (`State::interior2`; catches triangles cutting
+//!   across a concave corner, which vertex checks miss).
+//!
+//! Part removal (as meshoptimizer's component pruning): every connected part
+//! is also a candidate of cost = its squared radius (half the bounding-box
+//! diagonal of the input part), removed whole when the pass reaches that cost.
+//! Small closed parts (door handles, bolts) often cannot be collapsed at all
+//! (link condition); without this they kept hundreds of triangles and forced
+//! far worse collapses elsewhere. Parts with a locked vertex or larger than
+//! `max_edge_length_m` are never removed.
+//!
+//! Placement rules (they keep attribute seams, open borders and non-manifold
+//! edges intact — together called *constraint edges*):
+//! * a vertex with no incident constraint edge is *free*: it may move anywhere;
+//! * a vertex with constraint edges may only slide along one of them, so a
+//!   collapse along a constraint edge is placed on that segment, and any other
+//!   collapse keeps it fixed;
+//! * a locked vertex never moves.
+
+use rayon::prelude::*;
+use std::cmp::Ordering;
+
+use glam::DVec3;
+
+use super::hausdorff::closest_point_on_triangle;
+use super::quadric::Quadric;
+
+const NONE: u32 = u32::MAX;
+const MAX_OF_ENDPOINTS: bool = true;
+const SQRT_AREA: bool = true;
+const BORDER_SCALE: f64 = 1.0;
+const COVERAGE: bool = true;
+const PRUNE: bool = true;
+const COVER_P: bool = true;
+const RANK_COVERAGE: bool = true;
+const INTERIOR: bool = true;
+
+/// Parameters of one run.
+#[derive(Clone, Debug)]
+pub(crate) struct QemParams {
+    pub target_tris: usize,
+    pub target_error2: f64,
+    pub curvature_weight: f64,
+    pub cos_max_angle: f64,
+    pub max_edge_len2: f64,
+    pub lock_borders: bool,
+    pub boundary_weight: f64,
+    /// Attributes other than normals present: see [`State::valid`].
+    pub strict_wedges: bool,
+}
+
+/// Result of a run (state after the collapses).
+pub(crate) struct QemOutput {
+    pub pos: Vec<DVec3>,
+    pub wedge_pos: Vec<u32>,
+    pub attr: Vec<f32>,
+    pub tris: Vec<[u32; 3]>,
+    /// Largest QEM distance estimate (RMS distance to merged planes) of an
+    /// applied collapse, metres.
+    pub max_qem_distance: f64,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+struct Entry {
+    key: f64,
+    u: u32,
+    v: u32,
+}
+impl Eq for Entry {}
+impl Ord for Entry {
+    fn cmp(&self, o: &Self) -> Ordering {
+        // Max-heap: the smallest key (then smallest u, v) is the greatest.
+        o.key
+            .total_cmp(&self.key)
+            .then(o.u.cmp(&self.u))
+            .then(o.v.cmp(&self.v))
+    }
+}
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+/// A ranked edge: `key` is the quadric key, raised to the full key (with
+/// the coverage error) once computed; `f > 0` (the curvature factor) while the
+/// coverage is still to be computed for placement `p`.
+#[derive(Clone, Copy)]
+struct Ranked {
+    key: f64,
+    u: u32,
+    v: u32,
+    p: DVec3,
+    f: f64,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Mobility {
+    Fixed,
+    Segment,
+    Any,
+}
+
+/// Wedge pairs `(wedge at u, wedge at v)` of the edge triangles that are
+/// one-to-one; those are merged by a collapse.
+fn merge_pairs(e: &EdgeInfo) -> ([(u32, u32); MAX_EDGE_TRIS], usize) {
+    let m = e.count.min(MAX_EDGE_TRIS);
+    let mut merged = [(NONE, NONE); MAX_EDGE_TRIS];
+    let mut nm = 0;
+    for i in 0..m {
+        let (a, b) = e.pairs[i];
+        let ok = (0..m).all(|j| {
+            let (x, y) = e.pairs[j];
+            (x == a) == (y == b)
+        });
+        if ok && !merged[..nm].contains(&(a, b)) {
+            merged[nm] = (a, b);
+            nm += 1;
+        }
+    }
+    (merged, nm)
+}
+
+/// Up to this many triangles on one edge are tracked for wedge pairing.
+const MAX_EDGE_TRIS: usize = 8;
+
+#[derive(Clone, Copy)]
+struct EdgeInfo {
+    count: usize,
+    pairs: [(u32, u32); MAX_EDGE_TRIS],
+    opp: [u32; MAX_EDGE_TRIS],
+    constraint: bool,
+}
+
+#[derive(Clone, Copy)]
+struct Candidate {
+    p: DVec3,
+    key: f64,
+    dist2: f64,
+}
+
+struct Eval {
+    cands: [Candidate; 4],
+    n: usize,
+}
+
+struct State<'a> {
+    pos: Vec<DVec3>,
+    quad: Vec<Quadric>,
+    curv: Vec<f32>,
+    locked: Vec<bool>,
+    stamp: Vec<u32>,
+    alive: Vec<bool>,
+    tris: Vec<[u32; 3]>,
+    tri_alive: Vec<bool>,
+    wedge_pos: Vec<u32>,
+    attr: Vec<f32>,
+    stride: usize,
+    normal_offset: Option<usize>,
+    /// CSR vertex -> corners (`3 * tri + k`), rebuilt at the start of every
+    /// pass; dead triangles are filtered when reading.
+    off: Vec<u32>,
+    corners: Vec<u32>,
+    /// Per-pass cache: vertex has an incident constraint edge.
+    cflag: Vec<bool>,
+    mark: Vec<u32>,
+    /// Connected component of each position vertex (input connectivity) and
+    /// the squared radius of each component (half its bounding box diagonal).
+    comp: Vec<u32>,
+    comp_r2: Vec<f64>,
+    gen: u32,
+    live: usize,
+    p: &'a QemParams,
+}
+
+impl State<'_> {
+    #[inline]
+    fn corner_vertex(&self, c: u32) -> u32 {
+        self.wedge_pos[self.tris[(c / 3) as usize][(c % 3) as usize] as usize]
+    }
+
+    #[inline]
+    fn corner_wedge(&self, c: u32) -> u32 {
+        self.tris[(c / 3) as usize][(c % 3) as usize]
+    }
+
+    /// Other two vertices of the triangle of corner `c`.
+    #[inline]
+    fn corner_others(&self, c: u32) -> (u32, u32) {
+        let t = &self.tris[(c / 3) as usize];
+        let k = (c % 3) as usize;
+        (
+            self.wedge_pos[t[(k + 1) % 3] as usize],
+            self.wedge_pos[t[(k + 2) % 3] as usize],
+        )
+    }
+
+    /// Live corners of `x` into `out` (from the per-pass CSR).
+    #[inline]
+    fn gather(&self, x: u32, out: &mut Vec<u32>) {
+        out.clear();
+        let (a, b) = (
+            self.off[x as usize] as usize,
+            self.off[x as usize + 1] as usize,
+        );
+        out.extend(
+            self.corners[a..b]
+                .iter()
+                .copied()
+                .filter(|&c| self.tri_alive[(c / 3) as usize]),
+        );
+    }
+
+    /// Rebuilds the CSR adjacency from the live triangles.
+    fn rebuild_csr(&mut self) {
+        let nv = self.pos.len();
+        self.off.clear();
+        self.off.resize(nv + 1, 0);
+        for (t, &alive) in self.tris.iter().zip(&self.tri_alive) {
+            if alive {
+                for &w in t {
+                    self.off[self.wedge_pos[w as usize] as usize + 1] += 1;
+                }
+            }
+        }
+        for i in 0..nv {
+            self.off[i + 1] += self.off[i];
+        }
+        self.corners.clear();
+        self.corners.resize(self.off[nv] as usize, 0);
+        let mut fill: Vec<u32> = self.off[..nv].to_vec();
+        for (ti, (t, &alive)) in self.tris.iter().zip(&self.tri_alive).enumerate() {
+            if alive {
+                for (k, &w) in t.iter().enumerate() {
+                    let x = self.wedge_pos[w as usize] as usize;
+                    self.corners[fill[x] as usize] = 3 * ti as u32 + k as u32;
+                    fill[x] += 1;
+                }
+            }
+        }
+    }
+
+    fn next_gen(&mut self) -> u32 {
+        self.gen = self.gen.wrapping_add(2);
+        if self.gen < 2 {
+            self.mark.iter_mut().for_each(|m| *m = 0);
+            self.gen = 2;
+        }
+        self.gen
+    }
+
+    /// True if `x` has an incident constraint edge (seam, border or
+    /// non-manifold edge).
+    fn constrained(&self, star: &[u32], s: &mut Vec<u32>) -> bool {
+        let Some(&c0) = star.first() else {
+            return false;
+        };
+        let w0 = self.corner_wedge(c0);
+        if star.iter().any(|&c| self.corner_wedge(c) != w0) {
+            return true;
+        }
+        s.clear();
+        for &c in star {
+            let (a, b) = self.corner_others(c);
+            s.push(a);
+            s.push(b);
+        }
+        s.sort_unstable();
+        let mut res = false;
+        let mut i = 0;
+        while i < s.len() {
+            let mut j = i + 1;
+            while j < s.len() && s[j] == s[i] {
+                j += 1;
+            }
+            if j - i != 2 {
+                res = true;
+                break;
+            }
+            i = j;
+        }
+        res
+    }
+
+    fn edge_info(&self, v: u32, star_u: &[u32]) -> EdgeInfo {
+        let mut e = EdgeInfo {
+            count: 0,
+            pairs: [(NONE, NONE); MAX_EDGE_TRIS],
+            opp: [NONE; MAX_EDGE_TRIS],
+            constraint: false,
+        };
+        for &c in star_u {
+            let t = &self.tris[(c / 3) as usize];
+            let k = (c % 3) as usize;
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            let (w1, w2) = (t[k1], t[k2]);
+            let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
+            let (wv, o) = if x1 == v {
+                (w1, x2)
+            } else if x2 == v {
+                (w2, x1)
+            } else {
+                continue;
+            };
+            if e.count < MAX_EDGE_TRIS {
+                e.pairs[e.count] = (t[k], wv);
+                e.opp[e.count] = o;
+            }
+            e.count += 1;
+        }
+        e.constraint = match e.count {
+            2 => e.pairs[0] != e.pairs[1],
+            _ => true,
+        };
+        e
+    }
+
+    fn mobility(&self, x: u32, constrained: bool, edge_constraint: bool) -> Mobility {
+        if self.locked[x as usize] {
+            Mobility::Fixed
+        } else if constrained {
+            if edge_constraint {
+                Mobility::Segment
+            } else {
+                Mobility::Fixed
+            }
+        } else {
+            Mobility::Any
+        }
+    }
+
+    /// Candidate placements of collapsing edge (u, v), cheapest first.
+    /// `su`: live star of `u`; constraint flags from [`State::cflag`].
+    fn evaluate(&self, u: u32, v: u32, su: &[u32]) -> Option<Eval> {
+        if !self.alive[u as usize] || !self.alive[v as usize] {
+            return None;
+        }
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        if (pu - pv).length_squared() > self.p.max_edge_len2 {
+            return None;
+        }
+        let e = self.edge_info(v, su);
+        if e.count == 0 {
+            return None;
+        }
+        let cu = self.cflag[u as usize];
+        let cv = self.cflag[v as usize];
+        let mu = self.mobility(u, cu, e.constraint);
+        let mv = self.mobility(v, cv, e.constraint);
+        let q = Quadric::sum(&self.quad[u as usize], &self.quad[v as usize]);
+        let mut pts = [DVec3::ZERO; 4];
+        let mut n = 0;
+        match (mu, mv) {
+            (Mobility::Fixed, Mobility::Fixed) => return None,
+            (Mobility::Fixed, _) => {
+                pts[0] = pu;
+                n = 1;
+            }
+            (_, Mobility::Fixed) => {
+                pts[0] = pv;
+                n = 1;
+            }
+            (Mobility::Any, Mobility::Any) => {
+                let mid = (pu + pv) * 0.5;
+                let len = (pu - pv).length();
+                if let Some(x) = q.optimize() {
+                    // Far-away optima come from ill-conditioned quadrics.
+                    if (x - mid).length() <= 2.0 * len {
+                        pts[n] = x;
+                        n += 1;
+                    }
+                }
+                pts[n] = mid;
+                pts[n + 1] = pu;
+                pts[n + 2] = pv;
+                n += 3;
+            }
+            _ => {
+                pts[0] = q.optimize_on_segment(pu, pv);
+                pts[1] = pu;
+                pts[2] = pv;
+                n = 3;
+            }
+        }
+        let factor = self.factor(u, v);
+        let tie = 1e-10 * (pu - pv).length_squared();
+        let mut cands = [Candidate {
+            p: DVec3::ZERO,
+            key: 0.0,
+            dist2: 0.0,
+        }; 4];
+        for i in 0..n {
+            // The error of a collapse is the larger of the two endpoints' mean
+            // squared distances to their own planes (as in meshoptimizer, which
+            // uses the removed vertex's quadric only): averaging over the union
+            // of planes would dilute the planes of a small part (the end cap
+            // of a bar) by the large ones of its neighbour.
+            let d2 = if MAX_OF_ENDPOINTS {
+                self.quad[u as usize]
+                    .distance2(pts[i])
+                    .max(self.quad[v as usize].distance2(pts[i]))
+            } else {
+                q.distance2(pts[i])
+            };
+            cands[i] = Candidate {
+                p: pts[i],
+                key: d2 * factor + tie,
+                dist2: d2,
+            };
+        }
+        cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
+        Some(Eval { cands, n })
+    }
+
+    /// Flip / angle / topology checks for collapsing (u, v) to `p`.
+    fn valid(&mut self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
+        // Link condition: common neighbours must be the edge's opposite vertices.
+        let g = self.next_gen();
+        for &c in su {
+            let (a, b) = self.corner_others(c);
+            self.mark[a as usize] = g;
+            self.mark[b as usize] = g;
+        }
+        let mut common = 0;
+        for &c in sv {
+            let (a, b) = self.corner_others(c);
+            for x in [a, b] {
+                if x != u && x != v && self.mark[x as usize] == g {
+                    self.mark[x as usize] = g + 1;
+                    common += 1;
+                }
+            }
+        }
+        let mut opp = 0;
+        for i in 0..e.count.min(MAX_EDGE_TRIS) {
+            if !e.opp[..i].contains(&e.opp[i]) {
+                opp += 1;
+            }
+        }
+        if common > opp {
+            return false;
+        }
+        if self.p.strict_wedges {
+            // With UVs/colours, a vertex may only move if each of its wedges
+            // is merged with a wedge across the edge (else the texture seam
+            // would be dragged with stale attributes).
+            let (merged, nm) = merge_pairs(e);
+            for (star, x, side) in [(su, u, 0), (sv, v, 1)] {
+                if self.pos[x as usize] == p {
+                    continue;
+                }
+                for &c in star {
+                    let w = self.corner_wedge(c);
+                    let found =
+                        merged[..nm]
+                            .iter()
+                            .any(|pr| if side == 0 { pr.0 == w } else { pr.1 == w });
+                    if !found {
+                        return false;
+                    }
+                }
+            }
+        }
+        let cos_lim = self.p.cos_max_angle.max(0.0);
+        for star in [su, sv] {
+            for &c in star {
+                let (a, b) = self.corner_others(c);
+                if a == u || a == v || b == u || b == v {
+                    continue; // a triangle on the collapsed edge
+                }
+                let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+                let px = self.pos[self.corner_vertex(c) as usize];
+                let n0 = (pa - px).cross(pb - px);
+                let n1 = (pa - p).cross(pb - p);
+                let l0 = n0.length_squared();
+                let l1 = n1.length_squared();
+                if l1.is_nan() || l1 <= 1e-12 * l0 {
+                    return false;
+                }
+                let d = n0.dot(n1);
+                if d <= 0.0 || d * d <= cos_lim * cos_lim * l0 * l1 {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+
+    /// Curvature factor of the cost of collapsing (u, v).
+    #[inline]
+    fn factor(&self, u: u32, v: u32) -> f64 {
+        1.0 + self.p.curvature_weight * self.curv[u as usize].max(self.curv[v as usize]) as f64
+    }
+
+    /// One-step coverage error of collapsing (u, v) to `p`: the larger squared
+    /// distance of the old positions of `u` and `v` to the new star (the
+    /// surviving triangles around `p`) and of `p` to the old star; the squared
+    /// radius of the part if nothing survives. Only values above `t` are
+    /// exact: a result `<= t` means the error is `<= t`.
+    fn coverage2(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], t: f64) -> f64 {
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        // Exact shortcuts: `p` at an endpoint is a vertex of the old star
+        // (dp = 0) and of every new triangle (distance of that endpoint 0).
+        let (at_u, at_v) = (p == pu, p == pv);
+        let need_p = COVER_P && !at_u && !at_v;
+        if at_u || at_v {
+        }
+        let mut du = if at_u { 0.0 } else { f64::INFINITY };
+        let mut dv = if at_v { 0.0 } else { f64::INFINITY };
+        let mut dp = if need_p { f64::INFINITY } else { 0.0 };
+        let mut survives = false;
+        for star in [su, sv] {
+            for &c in star {
+                if survives && du <= t && dv <= t && dp <= t {
+                    // Each minimum is below the threshold: the result is too.
+                    return du.max(dv).max(dp);
+                }
+                let tr = &self.tris[(c / 3) as usize];
+                let k = (c % 3) as usize;
+                let x = self.wedge_pos[tr[k] as usize];
+                let a = self.wedge_pos[tr[(k + 1) % 3] as usize];
+                let b = self.wedge_pos[tr[(k + 2) % 3] as usize];
+                let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+                if dp > t {
+                    let px = self.pos[x as usize];
+                    dp = tri_dist2_min(p, px, pa, pb, dp);
+                }
+                if a == u || a == v || b == u || b == v {
+                    continue;
+                }
+                survives = true;
+                if du <= t && dv <= t {
+                    continue;
+                }
+                // The new triangle (p, pa, pb): one normal for both endpoints.
+                let n = (pa - p).cross(pb - p);
+                let l2 = n.length_squared();
+                let upd = |q: DVec3, d: f64| -> f64 {
+                    if d <= t {
+                        return d;
+                    }
+                    if l2 > 0.0 {
+                        let h = n.dot(q - p);
+                        if h * h >= d * l2 {
+                            return d;
+                        }
+                    }
+                    d.min((closest_point_on_triangle(q, p, pa, pb) - q).length_squared())
+                };
+                du = upd(pu, du);
+                dv = upd(pv, dv);
+            }
+        }
+        if !survives {
+            // Nothing survives around the edge: the part (or this end of it)
+            // vanishes; its size is the error.
+            return self.comp_r2[self.comp[v as usize] as usize];
+        }
+        du.max(dv).max(dp)
+    }
+
+    /// Upper bound of [`State::coverage2`] when some triangle of `su` (the
+    /// star of `u`) is not on the edge (u, v): `p` is a vertex of every new
+    /// triangle and `u`, `v` are vertices of the old star.
+    fn coverage2_bound(&self, u: u32, v: u32, p: DVec3, su: &[u32]) -> Option<f64> {
+        let survives = su.iter().any(|&c| {
+            let (a, b) = self.corner_others(c);
+            a != v && b != v
+        });
+        if !survives {
+            return None;
+        }
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        Some((pu - p).length_squared().max((pv - p).length_squared()))
+    }
+
+    /// Squared distance from sample points of the new triangles around `p`
+    /// (edge midpoints and centroids) to the old surface around the edge,
+    /// or `t` if it is not larger (early exits).
+    fn interior2(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], t: f64) -> f64 {
+        let mut worst: f64 = t.max(0.0);
+        for star in [su, sv] {
+            for &c in star {
+                let (a, b) = self.corner_others(c);
+                if a == u || a == v || b == u || b == v {
+                    continue;
+                }
+                let px = self.pos[self.corner_vertex(c) as usize];
+                if px == p {
+                    continue; // the new triangle is the old one
+                }
+                let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+                for q in [(p + pa) * 0.5, (p + pb) * 0.5, (p + pa + pb) / 3.0] {
+                    // The old triangle this one replaces first (often the
+                    // nearest: an early exit for the rest).
+                    let mut d = tri_dist2_min(q, px, pa, pb, f64::INFINITY);
+                    if d <= worst {
+                        continue;
+                    }
+                    'scan: for st2 in [su, sv] {
+                        for &c2 in st2 {
+                            let (x, y) = self.corner_others(c2);
+                            let pz = self.pos[self.corner_vertex(c2) as usize];
+                            let (px2, py) = (self.pos[x as usize], self.pos[y as usize]);
+                            d = tri_dist2_min(q, pz, px2, py, d);
+                            if d <= worst {
+                                break 'scan;
+                            }
+                        }
+                    }
+                    worst = worst.max(d);
+                }
+            }
+        }
+        worst
+    }
+
+    fn apply(&mut self, u: u32, v: u32, p: DVec3, dist2: f64, su: &[u32], e: &EdgeInfo) -> f64 {
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        let d = pv - pu;
+        let t = if d.length_squared() > 0.0 {
+            ((p - pu).dot(d) / d.length_squared()).clamp(0.0, 1.0) as f32
+        } else {
+            0.5
+        };
+        // 1:1 wedge pairs across the edge are merged (attributes interpolated).
+        let (merged, nm) = merge_pairs(e);
+        let s = self.stride;
+        for &(wu, wv) in &merged[..nm] {
+            let (bu, bv) = (wu as usize * s, wv as usize * s);
+            for k in 0..s {
+                self.attr[bv + k] = self.attr[bu + k] * (1.0 - t) + self.attr[bv + k] * t;
+            }
+            if let Some(o) = self.normal_offset {
+                let nrm = &mut self.attr[bv + o..bv + o + 3];
+                let l = (nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]).sqrt();
+                if l > 0.0 {
+                    nrm.iter_mut().for_each(|x| *x /= l);
+                }
+            }
+        }
+        for &c in su {
+            let ti = (c / 3) as usize;
+            if !self.tri_alive[ti] {
+                continue;
+            }
+            let (a, b) = self.corner_others(c);
+            if a == v || b == v {
+                self.tri_alive[ti] = false;
+                self.live -= 1;
+                continue;
+            }
+            let k = (c % 3) as usize;
+            let w = self.tris[ti][k];
+            if let Some(&(_, wv)) = merged[..nm].iter().find(|x| x.0 == w) {
+                self.tris[ti][k] = wv;
+            } else {
+                self.wedge_pos[w as usize] = v;
+            }
+        }
+        self.pos[v as usize] = p;
+        let qu = self.quad[u as usize];
+        self.quad[v as usize].add(&qu);
+        self.curv[v as usize] = self.curv[v as usize].max(self.curv[u as usize]);
+        self.stamp[u as usize] = self.stamp[u as usize].wrapping_add(1);
+        self.stamp[v as usize] = self.stamp[v as usize].wrapping_add(1);
+        self.alive[u as usize] = false;
+        self.locked[v as usize] |= self.locked[u as usize];
+        dist2
+    }
+}
+
+/// `min(best, squared distance from q to triangle (a, b, c))`, skipping the
+/// exact computation when the plane distance alone is not smaller.
+#[inline]
+fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
+    let n = (b - a).cross(c - a);
+    let l2 = n.length_squared();
+    if l2 > 0.0 {
+        let h = n.dot(q - a);
+        if h * h >= best * l2 {
+            return best;
+        }
+    }
+    best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
+}
+
+/// Grows the known prefix of the pass order (see `run`): the coverage of
+/// the `want - m` next-smallest quadric keys is computed (skipping edges with a
+/// touched endpoint), and the entries whose full key lies in the new range
+/// `[old lim, new lim)` are appended to `entries` in order.
+#[allow(clippy::too_many_arguments)]
+fn grow(
+    st: &State,
+    ranked: &mut [Ranked],
+    entries: &mut Vec<Entry>,
+    m: &mut usize,
+    lim: &mut f64,
+    want: usize,
+    touched: &[bool],
+) {
+    let n = ranked.len();
+    let by_key = |a: &Ranked, b: &Ranked| {
+        a.key
+            .total_cmp(&b.key)
+            .then(a.u.cmp(&b.u))
+            .then(a.v.cmp(&b.v))
+    };
+    if want < n && want > *m {
+        // The `want` smallest quadric keys first; `ranked[want]` is then the
+        // smallest of the rest.
+        ranked[*m..].select_nth_unstable_by(want - *m, by_key);
+    }
+    ranked[*m..want]
+        .par_iter_mut()
+        .with_min_len(256)
+        .for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(sa, sb), r| {
+                if r.f > 0.0 && !touched[r.u as usize] && !touched[r.v as usize] {
+                    st.gather(r.u, sa);
+                    st.gather(r.v, sb);
+                    let d1 = st.coverage2(r.u, r.v, r.p, sa, sb, r.key / r.f);
+                    r.key = r.key.max(d1 * r.f);
+                    r.f = 0.0;
+                }
+            },
+        );
+    *m = want;
+    let old = *lim;
+    *lim = if want == n {
+        f64::INFINITY
+    } else {
+        ranked[want].key
+    };
+    let start = entries.len();
+    let new_lim = *lim;
+    entries.extend(
+        ranked[..want]
+            .iter()
+            .filter(|r| r.key >= old && (r.key < new_lim || want == n))
+            .map(|r| Entry {
+                key: r.key,
+                u: r.u,
+                v: r.v,
+            }),
+    );
+    entries[start..].par_sort_unstable_by(|a, b| b.cmp(a));
+}
+
+/// Connected components of the position vertices and their squared radii.
+fn components(pos: &[DVec3], wedge_pos: &[u32], tris: &[[u32; 3]]) -> (Vec<u32>, Vec<f64>) {
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    let nv = pos.len();
+    let mut parent: Vec<u32> = (0..nv as u32).collect();
+    for t in tris {
+        let v = t.map(|w| wedge_pos[w as usize]);
+        for k in 1..3 {
+            let (a, b) = (find(&mut parent, v[0]), find(&mut parent, v[k]));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let mut comp = vec![0u32; nv];
+    let mut id = vec![u32::MAX; nv];
+    let mut lo: Vec<DVec3> = Vec::new();
+    let mut hi: Vec<DVec3> = Vec::new();
+    for x in 0..nv {
+        let r = find(&mut parent, x as u32) as usize;
+        if id[r] == u32::MAX {
+            id[r] = lo.len() as u32;
+            lo.push(pos[x]);
+            hi.push(pos[x]);
+        }
+        let c = id[r];
+        comp[x] = c;
+        lo[c as usize] = lo[c as usize].min(pos[x]);
+        hi[c as usize] = hi[c as usize].max(pos[x]);
+    }
+    let r2 = lo
+        .iter()
+        .zip(&hi)
+        .map(|(l, h)| 0.25 * (*h - *l).length_squared())
+        .collect();
+    (comp, r2)
+}
+
+/// Runs the simplification on welded data. `tris` are wedge triples;
+/// `curv` is the per-position-vertex curvature.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run(
+    pos: Vec<DVec3>,
+    mut locked: Vec<bool>,
+    curv: Vec<f32>,
+    wedge_pos: Vec<u32>,
+    tris: Vec<[u32; 3]>,
+    attr: Vec<f32>,
+    stride: usize,
+    normal_offset: Option<usize>,
+    params: &QemParams,
+) -> QemOutput {
+    let nv = pos.len();
+    let nt = tris.len();
+    // Quadrics: face planes plus border planes.
+    let mut quad = vec![Quadric::default(); nv];
+    for t in &tris {
+        let v = t.map(|w| wedge_pos[w as usize] as usize);
+        if let Some(mut q) = Quadric::from_triangle(pos[v[0]], pos[v[1]], pos[v[2]]) {
+            if SQRT_AREA {
+                // Weight sqrt(area) instead of area (as meshoptimizer): small
+                // faces (thin plates, small parts) keep more say in the mean.
+                let s = 1.0 / q.weight.sqrt();
+                q.a.iter_mut().for_each(|x| *x *= s);
+                q.b.iter_mut().for_each(|x| *x *= s);
+                q.c *= s;
+                q.weight *= s;
+            }
+            for &x in &v {
+                quad[x].add(&q);
+            }
+        }
+    }
+    let (comp, comp_r2) = components(&pos, &wedge_pos, &tris);
+    let mut st = State {
+        pos,
+        quad,
+        curv,
+        locked: Vec::new(),
+        stamp: vec![0; nv],
+        alive: vec![true; nv],
+        tris,
+        tri_alive: vec![true; nt],
+        wedge_pos,
+        attr,
+        stride,
+        normal_offset,
+        off: Vec::new(),
+        corners: Vec::new(),
+        cflag: vec![false; nv],
+        mark: vec![0; nv],
+        comp,
+        comp_r2,
+        gen: 0,
+        live: nt,
+        p: params,
+    };
+    // Border edges: extra perpendicular planes (weighted by length²) and
+    // optional locking of border vertices.
+    let mut su = Vec::new();
+    let mut sv = Vec::new();
+    st.rebuild_csr();
+    for a in 0..nv as u32 {
+        st.gather(a, &mut su);
+        for i in 0..su.len() {
+            let c = su[i];
+            let (n1, n2) = st.corner_others(c);
+            for (b, other) in [(n1, n2), (n2, n1)] {
+                if b < a {
+                    continue;
+                }
+                let count = su
+                    .iter()
+                    .filter(|&&c2| {
+                        let (x, y) = st.corner_others(c2);
+                        x == b || y == b
+                    })
+                    .count();
+                if count != 1 {
+                    continue;
+                }
+                if params.lock_borders {
+                    locked[a as usize] = true;
+                    locked[b as usize] = true;
+                }
+                let (pa, pb) = (st.pos[a as usize], st.pos[b as usize]);
+                let pc = st.pos[other as usize];
+                let e = pb - pa;
+                let n = e.cross(e.cross(pc - pa)).normalize_or_zero();
+                if n != DVec3::ZERO {
+                    let w = if SQRT_AREA {
+                        e.length() * params.boundary_weight * BORDER_SCALE
+                    } else {
+                        e.length_squared() * params.boundary_weight
+                    };
+                    let q = Quadric::from_plane(n, -n.dot(pa), w);
+                    st.quad[a as usize].add(&q);
+                    st.quad[b as usize].add(&q);
+                }
+            }
+        }
+    }
+    st.locked = locked;
+
+    // Passes (as in meshoptimizer): rank every live edge, then apply the
+    // cheapest collapses whose endpoints were not touched earlier in the
+    // pass (re-validated against the current geometry), until the pass has
+    // done enough work or the costs rise well above the pass's goal.
+    let ncomp = st.comp_r2.len();
+    let mut comp_live = vec![0usize; ncomp];
+    let mut comp_off = vec![0u32; ncomp + 1];
+    for t in &st.tris {
+        comp_off[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize + 1] += 1;
+    }
+    for i in 0..ncomp {
+        comp_off[i + 1] += comp_off[i];
+    }
+    let mut comp_tris = vec![0u32; st.tris.len()];
+    {
+        let mut fill = comp_off[..ncomp].to_vec();
+        for (ti, t) in st.tris.iter().enumerate() {
+            let c = st.comp[st.wedge_pos[t[0] as usize] as usize] as usize;
+            comp_tris[fill[c] as usize] = ti as u32;
+            fill[c] += 1;
+        }
+    }
+    // Parts with a locked vertex, or larger than the longest collapsible
+    // edge, are never dropped.
+    let mut prunable: Vec<bool> = st
+        .comp_r2
+        .iter()
+        .map(|&r2| 4.0 * r2 <= params.max_edge_len2)
+        .collect();
+    for (x, &l) in st.locked.iter().enumerate() {
+        if l {
+            prunable[st.comp[x] as usize] = false;
+        }
+    }
+    let mut max_d2: f64 = 0.0;
+    let mut touched = vec![false; nv];
+    let mut entries: Vec<Entry> = Vec::new();
+    let mut ranked: Vec<Ranked> = Vec::new();
+    while st.live > params.target_tris {
+        st.rebuild_csr();
+        let stref = &st;
+        let cflag: Vec<bool> = (0..nv as u32)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(star, scratch), a| {
+                    if !stref.alive[a as usize] {
+                        return false;
+                    }
+                    stref.gather(a, star);
+                    stref.constrained(star, scratch)
+                },
+            )
+            .collect();
+        st.cflag = cflag;
+        let stref = &st;
+        ranked.clear();
+        // Per-chunk vectors (no allocation per vertex); the order of
+        // `ranked` does not matter (everything below uses the total order).
+        let chunks: Vec<Vec<Ranked>> = (0..nv as u32)
+            .into_par_iter()
+            .with_min_len(4096)
+            .fold(
+                || (Vec::new(), Vec::new(), Vec::new()),
+                |(mut out, mut star, mut nb): (Vec<Ranked>, Vec<u32>, Vec<u32>), a| {
+                    if !stref.alive[a as usize] {
+                        return (out, star, nb);
+                    }
+                    stref.gather(a, &mut star);
+                    nb.clear();
+                    for &c in star.iter() {
+                        let (x, y) = stref.corner_others(c);
+                        for z in [x, y] {
+                            if z > a && !nb.contains(&z) {
+                                nb.push(z);
+                            }
+                        }
+                    }
+                    for &b in nb.iter() {
+                        if let Some(ev) = stref.evaluate(a, b, &star) {
+                            let key = ev.cands[0].key;
+                            let f = stref.factor(a, b);
+                            let p = ev.cands[0].p;
+                            // Coverage can only raise the key: computed
+                            // lazily (below) unless its bound is no larger.
+                            let skip = !RANK_COVERAGE
+                                || stref
+                                    .coverage2_bound(a, b, p, &star)
+                                    .is_some_and(|ub| ub * f <= key);
+                            out.push(Ranked {
+                                key,
+                                u: a,
+                                v: b,
+                                p,
+                                f: if skip { 0.0 } else { f },
+                            });
+                        }
+                    }
+                    (out, star, nb)
+                },
+            )
+            .map(|(out, _, _)| out)
+            .collect();
+        for c in &chunks {
+            ranked.extend_from_slice(c);
+        }
+        if PRUNE {
+            // Whole-part removal: a connected part is dropped for its radius.
+            comp_live.iter_mut().for_each(|c| *c = 0);
+            for (t, &a) in st.tris.iter().zip(&st.tri_alive) {
+                if a {
+                    comp_live[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize] += 1;
+                }
+            }
+            for (c, &n) in comp_live.iter().enumerate() {
+                if n > 0 && prunable[c] {
+                    ranked.push(Ranked {
+                        key: st.comp_r2[c],
+                        u: NONE,
+                        v: c as u32,
+                        p: DVec3::ZERO,
+                        f: 0.0,
+                    });
+                }
+            }
+        }
+        if ranked.is_empty() {
+            break;
+        }
+        // Lazy coverage. The full key (quadric key raised by the coverage
+        // error) is never below the quadric key, so once the coverage is
+        // computed for the edges with the `m` smallest quadric keys, the full
+        // keys below the smallest remaining quadric key (`lim`) are known and
+        // in exact order. A pass only walks the front of the order (up to
+        // 1.5x the key at its goal rank), so the known prefix is grown (by
+        // half, on the unmodified state) until it covers that with some slack
+        // (`grow`); most edges never get their coverage computed. If the walk
+        // still runs past the known prefix, it is grown again on the current
+        // state (see `grow`).
+        let tri_goal = st.live - params.target_tris;
+        let goal0 = tri_goal / 2;
+        let n_ranked = ranked.len();
+        touched.iter_mut().for_each(|t| *t = false);
+        let mut m = 0usize;
+        let mut lim = f64::NEG_INFINITY;
+        entries.clear();
+        let first = (goal0 + goal0 / 2 + 4096).min(n_ranked);
+        loop {
+            let want = if m == 0 {
+                first
+            } else {
+                (m + m / 2).max(m + 4096).min(n_ranked)
+            };
+            grow(
+                &st,
+                &mut ranked,
+                &mut entries,
+                &mut m,
+                &mut lim,
+                want,
+                &touched,
+            );
+            let gi = goal0 + goal0 / 4 + 64;
+            if m == n_ranked || (entries.len() > gi && 1.5 * entries[gi].key < lim) {
+                break;
+            }
+        }
+        if entries.is_empty() {
+            break;
+        }
+        // As in meshoptimizer, the cost of the `tri_goal / 2`-th entry (skipping
+        // invalid ones) times 1.5 bounds what a pass accepts.
+        let mut goal_idx = tri_goal / 2;
+        let live0 = st.live;
+        let mut collapses = 0usize;
+        let mut i = 0;
+        loop {
+            if i == entries.len() {
+                if m == n_ranked {
+                    break;
+                }
+                // Past the known order: compute more coverage, on the current
+                // state (entries with a touched endpoint are skipped anyway
+                // and keep their quadric key). Their keys are >= `lim`, so
+                // the order stays sorted.
+                let want = (m + m / 2).max(m + 4096).min(n_ranked);
+                grow(
+                    &st,
+                    &mut ranked,
+                    &mut entries,
+                    &mut m,
+                    &mut lim,
+                    want,
+                    &touched,
+                );
+                if i == entries.len() {
+                    continue;
+                }
+            }
+            let en = entries[i];
+            i += 1;
+            if st.live <= params.target_tris {
+                break;
+            }
+            let error_goal = if m == n_ranked || goal_idx < entries.len() {
+                1.5 * entries[goal_idx.min(entries.len() - 1)].key
+            } else {
+                // The goal entry is past the known order: its key is at least
+                // `lim` (no known entry exceeds the goal; fallbacks are judged
+                // against this lower bound).
+                1.5 * lim
+            };
+            if en.key > error_goal && live0 - st.live > tri_goal / 6 {
+                break;
+            }
+            if en.u == NONE {
+                let c = en.v as usize;
+                let tl = &comp_tris[comp_off[c] as usize..comp_off[c + 1] as usize];
+                let n = tl.iter().filter(|&&t| st.tri_alive[t as usize]).count();
+                if n == 0 || st.live < n + params.target_tris || en.key > params.target_error2 {
+                    continue;
+                }
+                for &t in &comp_tris[comp_off[c] as usize..comp_off[c + 1] as usize] {
+                    if st.tri_alive[t as usize] {
+                        st.tri_alive[t as usize] = false;
+                        st.live -= 1;
+                    }
+                }
+                comp_live[c] = 0;
+                max_d2 = max_d2.max(en.key);
+                collapses += 1;
+                continue;
+            }
+            let (u, v) = (en.u, en.v);
+            if touched[u as usize] || touched[v as usize] {
+                continue;
+            }
+            st.gather(u, &mut su);
+            st.gather(v, &mut sv);
+            let Some(ev) = st.evaluate(u, v, &su) else {
+                goal_idx += 1;
+                continue;
+            };
+            let e = st.edge_info(v, &su);
+            let mut chosen = None;
+            // Nothing around the edge changed since it was ranked: the ranked
+            // key already holds the coverage error of the first placement.
+            let unchanged = [&su, &sv].iter().all(|star| {
+                star.iter().all(|&c| {
+                    let (a, b) = st.corner_others(c);
+                    !touched[a as usize] && !touched[b as usize]
+                })
+            });
+            for (ci, cand) in ev.cands[..ev.n].iter().enumerate() {
+                if cand.dist2 > params.target_error2 {
+                    break;
+                }
+                if st.valid(u, v, cand.p, &su, &sv, &e) {
+                    let mut c = *cand;
+                    if COVERAGE {
+                        // Only values above the cost matter (`t`: early exits;
+                        // the key also holds the tie-break term).
+                        let f = st.factor(u, v);
+                        let t = c.key / f;
+                        let mut d1 = if ci == 0 && unchanged && RANK_COVERAGE {
+                            if en.key > c.key {
+                                en.key / f
+                            } else {
+                                0.0
+                            }
+                        } else {
+                            st.coverage2(u, v, c.p, &su, &sv, t)
+                        };
+                        if INTERIOR {
+                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, t.max(d1)));
+                        }
+                        if d1 > t {
+                            c.key = c.key.max(d1 * st.factor(u, v));
+                            c.dist2 = c.dist2.max(d1);
+                        }
+                    }
+                    chosen = Some(c);
+                    break;
+                }
+            }
+            // A fallback placement (the first one failed validation) costs
+            // more than the rank: only take it if it is within the pass goal.
+            let Some(cand) =
+                chosen.filter(|c| c.key <= en.key * (1.0 + 1e-9) || c.key <= error_goal)
+            else {
+                goal_idx += 1;
+                continue;
+            };
+            let d2 = st.apply(u, v, cand.p, cand.dist2, &su, &e);
+            max_d2 = max_d2.max(d2);
+            collapses += 1;
+            touched[u as usize] = true;
+            touched[v as usize] = true;
+        }
+        if collapses == 0 {
+            break;
+        }
+    }
+
+    let tris: Vec<[u32; 3]> = st
+        .tris
+        .iter()
+        .zip(&st.tri_alive)
+        .filter(|(_, &a)| a)
+        .map(|(t, _)| *t)
+        .collect();
+    QemOutput {
+        pos: st.pos,
+        wedge_pos: st.wedge_pos,
+        attr: st.attr,
+        tris,
+        max_qem_distance: max_d2.sqrt(),
+    }
+}

@@ -1,0 +1,253 @@
+#!/usr/bin/env node
+// Browser benchmark: each model as a single-tile tileset (the original GLB as the one content)
+// against bimtiles' tileset, in real CesiumJS (Debian Chromium, SwiftShader WebGL).
+//
+//   node tools/bench_browser.mjs [--runs 3] [--json out.json] MODEL.glb [MODEL.glb...]
+//
+// Options:
+//   --runs N           measured loads per variant (default 3), interleaved A/B, B/A, ...
+//   --bimtiles PATH    converter binary (default target/release/bimtiles)
+//   --convert-args A   extra `bimtiles convert` arguments (default none)
+//   --serve-cmd T      command serving a folder at port 0 and printing its URL; {dir} is replaced
+//                      (default: `bimtiles serve {dir} --port 0` when the binary has it, else the
+//                      scratch server /work/scratch/serve/target/release/serve_scratch)
+//   --path-frames N    frames of the scripted far-to-near camera path (default 30)
+//   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
+//   --timeout S        per-load timeout (default 180)
+//   --json FILE        write the result there too
+//
+// Method (see shared/notes/browser.md): one browser per model; both variants are loaded once and
+// discarded first (shader compiles, worker start-up), then each measured load replaces the tileset
+// in the same page (bimtiles.loadTileset) with a cache-busting query, service worker off, so
+// every byte comes from the server. Figures are medians over the runs. Stable ones: requests,
+// bytes, tiles, triangles, tileset memory, JS heap after GC, Cesium CPU ms per frame. Wall-clock
+// load times drift with the machine's load (reported with the load average).
+
+import { execFileSync } from "node:child_process";
+import { copyFileSync, cpSync, existsSync, mkdirSync, mkdtempSync, readFileSync, rmSync, statSync, writeFileSync } from "node:fs";
+import { loadavg, tmpdir } from "node:os";
+import { basename, dirname, join, resolve } from "node:path";
+import { fileURLToPath } from "node:url";
+import { collect, launch, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
+
+const REPO = resolve(dirname(fileURLToPath(import.meta.url)), "..");
+
+function parseArgs(argv) {
+  const o = { runs: 3, "path-frames": 30, width: 960, height: 540, timeout: 180, models: [] };
+  for (let i = 0; i < argv.length; i++) {
+    const a = argv[i];
+    if (a.startsWith("--")) o[a.slice(2)] = argv[++i];
+    else o.models.push(a);
+  }
+  for (const k of ["runs", "path-frames", "width", "height", "timeout"]) o[k] = Number(o[k]);
+  o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
+  return o;
+}
+
+function defaultServeCmd(bimtiles) {
+  try {
+    execFileSync(bimtiles, ["serve", "--help"], { stdio: "ignore" });
+    return `${bimtiles} serve {dir} --port 0`;
+  } catch {
+    return "/work/scratch/serve/target/release/serve_scratch {dir} --port 0";
+  }
+}
+
+/** A tileset whose single tile is the original GLB, placed like bimtiles' tileset. */
+function rawTileset(ours, glbName) {
+  const anchor = (ours.asset.extras && ours.asset.extras.bimtiles && ours.asset.extras.bimtiles.anchor_m) || [0, 0, 0];
+  const root = {
+    boundingVolume: ours.root.boundingVolume,
+    geometricError: 0,
+    refine: "ADD",
+    content: { uri: glbName },
+  };
+  if (ours.root.transform) root.transform = ours.root.transform;
+  if (anchor.some((v) => v !== 0)) {
+    // bimtiles moved the model by -anchor (glTF y-up frame); do the same for the raw GLB with a
+    // child tile transform in the tileset's z-up frame: (x, y, z)_gltf -> (x, -z, y).
+    const t = [-anchor[0], anchor[2], -anchor[1]];
+    root.content = undefined;
+    root.children = [
+      {
+        boundingVolume: ours.root.boundingVolume,
+        geometricError: 0,
+        transform: [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, t[0], t[1], t[2], 1],
+        content: { uri: glbName },
+      },
+    ];
+  }
+  return { asset: { version: "1.1" }, geometricError: ours.geometricError, root };
+}
+
+function median(a) {
+  const s = a.filter((x) => typeof x === "number" && Number.isFinite(x)).sort((x, y) => x - y);
+  if (!s.length) return null;
+  const m = s.length >> 1;
+  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
+}
+
+async function cameraPath(page, frames) {
+  return page.evaluate(async (frames) => {
+    const { viewer, tileset } = window.bimtiles;
+    const scene = viewer.scene;
+    const bs = tileset.boundingSphere;
+    const samples = [];
+    await new Promise((resolve) => {
+      let i = 0;
+      let start = 0;
+      let last = performance.now();
+      const offPre = scene.preUpdate.addEventListener(() => (start = performance.now()));
+      const offPost = scene.postRender.addEventListener(() => {
+        const now = performance.now();
+        if (i > 0)
+          samples.push({
+            cpuMs: now - start,
+            wallMs: now - last,
+            triangles: tileset.statistics.numberOfTrianglesSelected,
+            tiles: tileset.statistics.selected,
+          });
+        last = now;
+        if (i >= frames) {
+          offPre();
+          offPost();
+          resolve();
+          return;
+        }
+        // Geometric zoom from 8x to 0.3x the bounding radius.
+        const range = bs.radius * 8 * Math.pow(0.3 / 8, i / Math.max(1, frames - 1));
+        scene.camera.lookAt(bs.center, new Cesium.HeadingPitchRange(0.6, -0.45, range));
+        i++;
+      });
+    });
+    return samples;
+  }, frames);
+}
+
+async function measure(page, url, opts) {
+  const ok = await page.evaluate((u) => window.bimtiles.loadTileset(u), url);
+  if (!ok) throw new Error(`cannot load ${url}`);
+  const w = await waitLoaded(page, opts.timeout * 1000);
+  if (!w.ok) throw new Error(`${url}: ${w.reason}`);
+  const s = await collect(page);
+  const r = {
+    firstFrameWithContentMs: s.firstFrameWithContentMs - s.tilesetRequestedMs,
+    allTilesLoadedMs: s.allTilesLoadedMs - s.tilesetRequestedMs,
+    tileRequests: s.tileRequests,
+    tileBytes: s.tileBytes,
+    tilesLoaded: s.tilesLoaded,
+    trianglesSelected: s.trianglesSelected,
+    tilesetMemoryBytes: s.tilesetMemoryBytes,
+    jsHeapBytesAfterGc: s.jsHeapBytesAfterGc,
+    tileFailures: s.tileFailures.length,
+  };
+  const path = await cameraPath(page, opts["path-frames"]);
+  r.pathCpuFrameMsMedian = median(path.map((p) => p.cpuMs));
+  r.pathWallFrameMsMedian = median(path.map((p) => p.wallMs));
+  r.pathTrianglesMedian = median(path.map((p) => p.triangles));
+  r.pathTrianglesMax = Math.max(...path.map((p) => p.triangles));
+  // At the near end of the path: wait for its tiles, then what was drawn and downloaded in all.
+  const w2 = await waitLoaded(page, opts.timeout * 1000);
+  const s2 = await collect(page);
+  r.nearAllLoaded = w2.ok;
+  r.nearTrianglesSelected = s2.trianglesSelected;
+  r.totalTileBytes = s2.tileBytes;
+  r.totalTileRequests = s2.tileRequests;
+  r.nearTilesetMemoryBytes = s2.tilesetMemoryBytes;
+  await page.evaluate(() => window.bimtiles.viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY));
+  return r;
+}
+
+async function main() {
+  const opts = parseArgs(process.argv.slice(2));
+  if (!opts.models.length) {
+    console.error("usage: node tools/bench_browser.mjs [--runs N] [--json FILE] MODEL.glb...");
+    process.exit(2);
+  }
+  if (!existsSync("/usr/bin/chromium")) {
+    console.log("SKIPPED: bench needs /usr/bin/chromium");
+    process.exit(process.env.BIMTILES_ALLOW_SKIP === "1" ? 0 : 1);
+  }
+  const playwright = await import("playwright-core");
+  const serveCmd = opts["serve-cmd"] || defaultServeCmd(opts.bimtiles);
+  const chromiumVersion = execFileSync("/usr/bin/chromium", ["--version"]).toString().trim();
+  const cesiumVersion = JSON.parse(readFileSync(join(REPO, "tools/node_modules/cesium/package.json"))).version;
+  const result = {
+    date: new Date().toISOString(),
+    chromium: chromiumVersion,
+    cesium: cesiumVersion,
+    viewport: `${opts.width}x${opts.height}`,
+    runs: opts.runs,
+    bimtiles: { path: opts.bimtiles, modified: statSync(opts.bimtiles).mtime.toISOString() },
+    loadAverageAtStart: loadavg().map((x) => +x.toFixed(2)),
+    models: {},
+  };
+  for (const model of opts.models) {
+    const name = basename(model).replace(/\.glb$/i, "");
+    const dir = mkdtempSync(join(tmpdir(), "bimtiles-bench-"));
+    let server = null;
+    let browser = null;
+    const entry = { model, runs: { ours: [], raw: [] } };
+    result.models[name] = entry;
+    try {
+      const oursDir = join(dir, "ours");
+      const extra = opts["convert-args"] ? opts["convert-args"].split(/\s+/).filter(Boolean) : [];
+      const t = Date.now();
+      execFileSync(opts.bimtiles, ["convert", model, "--out", oursDir, "--quiet", ...extra], { stdio: "inherit" });
+      entry.convertMs = Date.now() - t;
+      const ours = JSON.parse(readFileSync(join(oursDir, "tileset.json")));
+      cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
+      const rawDir = join(dir, "raw");
+      mkdirSync(rawDir);
+      copyFileSync(model, join(rawDir, "model.glb"));
+      writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
+
+      server = await startServer(serveCmd.replace("{dir}", dir));
+      const base = new URL(server.url);
+      browser = await launch(playwright, opts.width, opts.height);
+      const w = watch(browser.context);
+      const page = browser.context.pages()[0] || (await browser.context.newPage());
+      const variants = {
+        ours: new URL("/tileset/ours/tileset.json", base).href,
+        raw: new URL("/tileset/raw/tileset.json", base).href,
+      };
+      await page.goto(new URL(`/?cache=0&msaa=1&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      const w0 = await waitLoaded(page, opts.timeout * 1000);
+      if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
+      await measure(page, variants.raw + "?warm=1", opts); // warm-up of the other variant
+      for (let run = 0; run < opts.runs; run++) {
+        const order = run % 2 === 0 ? ["ours", "raw"] : ["raw", "ours"];
+        for (const v of order) {
+          const r = await measure(page, `${variants[v]}?run=${run}`, opts);
+          entry.runs[v].push(r);
+          process.stderr.write(`${name} run ${run} ${v}: all tiles ${Math.round(r.allTilesLoadedMs)} ms, ${r.tileBytes} B\n`);
+        }
+      }
+      entry.median = {};
+      for (const v of ["ours", "raw"]) {
+        entry.median[v] = {};
+        for (const k of Object.keys(entry.runs[v][0]))
+          if (typeof entry.runs[v][0][k] === "number") entry.median[v][k] = median(entry.runs[v].map((r) => r[k]));
+      }
+      entry.externalRequests = w.external.length;
+      entry.consoleErrors = w.consoleErrors;
+    } catch (e) {
+      entry.error = String(e && e.message ? e.message : e);
+    } finally {
+      if (browser) {
+        await browser.context.close().catch(() => {});
+        rmSync(browser.userDataDir, { recursive: true, force: true });
+      }
+      stopServer(server && server.proc);
+      rmSync(dir, { recursive: true, force: true });
+    }
+  }
+  result.loadAverageAtEnd = loadavg().map((x) => +x.toFixed(2));
+  const text = JSON.stringify(result, null, 2);
+  console.log(text);
+  if (opts.json) writeFileSync(opts.json, text + "\n");
+  const failed = Object.values(result.models).some((m) => m.error);
+  process.exit(failed ? 1 : 0);
+}
+
+main();

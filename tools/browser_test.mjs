@@ -1,0 +1,349 @@
+#!/usr/bin/env node
+// End-to-end browser test of the bimtiles viewer: Debian's Chromium (headless, SwiftShader WebGL)
+// driven by playwright-core.
+//
+//   node tools/browser_test.mjs --url http://127.0.0.1:8080/ [--out shot.png]
+//   node tools/browser_test.mjs --server-cmd "bimtiles serve out/sample --port 0" [--out shot.png]
+//
+// Options:
+//   --url URL            viewer page to load
+//   --server-cmd CMD     start a server with `bash -c CMD`; its URL is the first http://... it prints
+//                        on stdout; it is stopped at the end
+//   --out FILE           screenshot (PNG) of the loaded view
+//   --query Q            extra page query, e.g. "msaa=1&sse=8" (default "msaa=1")
+//   --second-load        reload the page (service-worker tile cache warm) and report that load too
+//   --timeout S          seconds to wait for all tiles (default 120)
+//   --width W --height H viewport (default 1280x720)
+//   --require-pick       fail if clicking the centre of the view picks nothing
+//   --json FILE          also write the summary there
+//
+// Checks: the page reaches "all tiles loaded" (browser.md's condition), no tile failed, no console
+// error, no request to anything but the loopback host, the view is not blank (more than 1% of
+// the pixels change when the tileset is hidden). Prints a JSON summary; exits 1 on failure.
+// Without /usr/bin/chromium: prints SKIPPED and exits 0 only if BIMTILES_ALLOW_SKIP=1.
+
+import { spawn } from "node:child_process";
+import { existsSync, mkdtempSync, rmSync, writeFileSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join } from "node:path";
+
+const CHROMIUM = process.env.BIMTILES_CHROMIUM || "/usr/bin/chromium";
+export const CHROME_ARGS = [
+  "--no-sandbox",
+  "--disable-background-networking",
+  "--disable-component-update",
+  "--disable-sync",
+  "--no-first-run",
+  "--enable-precise-memory-info",
+  "--use-gl=angle",
+  "--use-angle=swiftshader",
+  "--enable-unsafe-swiftshader",
+];
+
+function parseArgs(argv) {
+  const o = { query: "msaa=1", timeout: 120, width: 1280, height: 720 };
+  const flags = new Set(["second-load", "require-pick"]);
+  for (let i = 0; i < argv.length; i++) {
+    const a = argv[i];
+    if (!a.startsWith("--")) throw new Error(`unexpected argument ${a}`);
+    const k = a.slice(2);
+    if (flags.has(k)) o[k] = true;
+    else {
+      if (i + 1 >= argv.length) throw new Error(`${a} needs a value`);
+      o[k] = argv[++i];
+    }
+  }
+  for (const k of ["timeout", "width", "height"]) o[k] = Number(o[k]);
+  return o;
+}
+
+/** Starts `bash -c cmd` in its own process group; resolves with {proc, url}. */
+export function startServer(cmd, timeoutMs = 60000) {
+  return new Promise((resolve, reject) => {
+    const proc = spawn("bash", ["-c", cmd], { detached: true, stdio: ["ignore", "pipe", "pipe"] });
+    let out = "";
+    let err = "";
+    const timer = setTimeout(() => {
+      stopServer(proc);
+      reject(new Error(`server printed no URL within ${timeoutMs / 1000} s\nstdout: ${out}\nstderr: ${err}`));
+    }, timeoutMs);
+    proc.stdout.on("data", (d) => {
+      out += d;
+      const m = out.match(/https?:\/\/[^\s"')]+/);
+      if (m) {
+        clearTimeout(timer);
+        resolve({ proc, url: m[0] });
+      }
+    });
+    proc.stderr.on("data", (d) => (err += d));
+    proc.on("exit", (code) => {
+      clearTimeout(timer);
+      reject(new Error(`server exited (${code}) before printing a URL\nstdout: ${out}\nstderr: ${err}`));
+    });
+  });
+}
+
+export function stopServer(proc) {
+  if (!proc || proc.exitCode !== null) return;
+  try {
+    process.kill(-proc.pid, "SIGTERM"); // the group we created (detached), nothing else
+  } catch {
+    /* already gone */
+  }
+}
+
+export async function launch(playwright, width, height) {
+  const userDataDir = mkdtempSync(join(tmpdir(), "bimtiles-chromium-"));
+  const context = await playwright.chromium.launchPersistentContext(userDataDir, {
+    executablePath: CHROMIUM,
+    headless: true,
+    args: CHROME_ARGS,
+    viewport: { width, height },
+  });
+  return { context, userDataDir };
+}
+
+const LOCAL_HOSTS = new Set(["127.0.0.1", "localhost", "[::1]"]);
+export function isLocal(url) {
+  if (/^(data|blob|about|chrome|devtools):/.test(url)) return true;
+  try {
+    return LOCAL_HOSTS.has(new URL(url).hostname) || new URL(url).hostname === "::1";
+  } catch {
+    return false;
+  }
+}
+
+/** Watches a context: external requests, failed responses, console errors. */
+export function watch(context) {
+  const w = { external: [], httpErrors: [], consoleErrors: [], requests: 0 };
+  context.on("request", (r) => {
+    w.requests++;
+    if (!isLocal(r.url())) w.external.push(r.url());
+  });
+  context.on("response", (r) => {
+    if (r.status() >= 400) w.httpErrors.push(`${r.status()} ${r.url()}`);
+  });
+  context.on("requestfailed", (r) => {
+    const f = r.failure();
+    // Cesium cancels requests for tiles that left the view: not an error.
+    if (f && !/ERR_ABORTED/.test(f.errorText)) w.httpErrors.push(`${f.errorText} ${r.url()}`);
+  });
+  const onPage = (page) => {
+    page.on("console", (m) => {
+      if (m.type() === "error") w.consoleErrors.push(m.text().slice(0, 500));
+    });
+    page.on("pageerror", (e) => w.consoleErrors.push("pageerror: " + String(e.message || e).slice(0, 500)));
+  };
+  context.pages().forEach(onPage);
+  context.on("page", onPage);
+  return w;
+}
+
+/** Waits until the viewer reports all tiles loaded (or an error / timeout). */
+export async function waitLoaded(page, timeoutMs) {
+  const start = Date.now();
+  for (;;) {
+    const s = await page.evaluate(() => {
+      const s = window.bimtilesStatus;
+      return s ? { ready: s.ready, all: s.allTilesLoaded, error: s.error, failures: s.tileFailures.length } : null;
+    });
+    if (s && s.error) return { ok: false, reason: "viewer error: " + s.error };
+    if (s && s.ready && s.all) return { ok: true, waitedMs: Date.now() - start };
+    if (Date.now() - start > timeoutMs) return { ok: false, reason: `not all tiles loaded after ${timeoutMs / 1000} s` };
+    await page.waitForTimeout(100);
+  }
+}
+
+function median(a) {
+  if (!a.length) return null;
+  const s = [...a].sort((x, y) => x - y);
+  const m = s.length >> 1;
+  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
+}
+function pct(a, p) {
+  if (!a.length) return null;
+  const s = [...a].sort((x, y) => x - y);
+  return s[Math.min(s.length - 1, Math.floor((p / 100) * s.length))];
+}
+
+/** The status figures, with JS heap measured after a forced GC. */
+export async function collect(page) {
+  const cdp = await page.context().newCDPSession(page);
+  await cdp.send("HeapProfiler.collectGarbage").catch(() => {});
+  await cdp.detach().catch(() => {});
+  const s = await page.evaluate(async () => {
+    const s = JSON.parse(JSON.stringify(window.bimtilesStatus));
+    s.jsHeapBytesAfterGc = performance.memory ? performance.memory.usedJSHeapSize : null;
+    s.serviceWorkerStats = window.bimtiles && window.bimtiles.swStats ? await window.bimtiles.swStats() : null;
+    return s;
+  });
+  const frames = s.cpuFrameMs || [];
+  delete s.cpuFrameMs;
+  delete s._hudLoaded;
+  s.cpuFrameMsMedian = median(frames);
+  s.cpuFrameMsP95 = pct(frames, 95);
+  for (const k of ["tilesetRequestedMs", "tilesetReadyMs", "firstFrameWithContentMs", "allTilesLoadedMs"])
+    if (typeof s[k] === "number") s[k] = Math.round(s[k]);
+  return s;
+}
+
+/** Share of pixels (0..1) that differ between two PNG screenshots, decoded by the page itself. */
+export async function changedShare(page, pngA, pngB) {
+  return page.evaluate(
+    async ([a, b]) => {
+      const decode = async (b64) => {
+        const blob = await (await fetch("data:image/png;base64," + b64)).blob();
+        const bmp = await createImageBitmap(blob);
+        const c = new OffscreenCanvas(bmp.width, bmp.height);
+        const ctx = c.getContext("2d");
+        ctx.drawImage(bmp, 0, 0);
+        return ctx.getImageData(0, 0, bmp.width, bmp.height).data;
+      };
+      const [da, db] = await Promise.all([decode(a), decode(b)]);
+      let changed = 0;
+      for (let i = 0; i < da.length; i += 4) {
+        const d = Math.abs(da[i] - db[i]) + Math.abs(da[i + 1] - db[i + 1]) + Math.abs(da[i + 2] - db[i + 2]);
+        if (d > 24) changed++;
+      }
+      return changed / (da.length / 4);
+    },
+    [pngA.toString("base64"), pngB.toString("base64")],
+  );
+}
+
+async function frames(page, n) {
+  await page.evaluate(
+    (n) =>
+      new Promise((resolve) => {
+        const scene = window.bimtiles.viewer.scene;
+        let k = 0;
+        const off = scene.postRender.addEventListener(() => {
+          if (++k >= n) {
+            off();
+            resolve();
+          }
+        });
+      }),
+    n,
+  );
+}
+
+/** Screenshot with and without the tileset (overlays hidden): share of changed pixels. */
+export async function notBlank(page) {
+  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "hidden")));
+  await frames(page, 3);
+  const shown = await page.screenshot();
+  await page.evaluate(() => (window.bimtiles.tileset.show = false));
+  await frames(page, 3);
+  const hidden = await page.screenshot();
+  await page.evaluate(() => (window.bimtiles.tileset.show = true));
+  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "")));
+  await frames(page, 3);
+  return changedShare(page, shown, hidden);
+}
+
+function withQuery(url, q) {
+  if (!q) return url;
+  return url + (url.includes("?") ? "&" : "?") + q;
+}
+
+async function main() {
+  let opts;
+  try {
+    opts = parseArgs(process.argv.slice(2));
+  } catch (e) {
+    console.error(`error: ${e.message}`);
+    process.exit(2);
+  }
+  if (!opts.url && !opts["server-cmd"]) {
+    console.error("error: give --url URL or --server-cmd CMD");
+    process.exit(2);
+  }
+  if (!existsSync(CHROMIUM)) {
+    const allow = process.env.BIMTILES_ALLOW_SKIP === "1";
+    console.log(`SKIPPED: browser test needs ${CHROMIUM} (apt-get install chromium)${allow ? "" : "; set BIMTILES_ALLOW_SKIP=1 to allow skipping"}`);
+    process.exit(allow ? 0 : 1);
+  }
+  let playwright;
+  try {
+    playwright = await import("playwright-core");
+  } catch (e) {
+    console.error("error: playwright-core is not installed (cd tools && npm ci)");
+    process.exit(1);
+  }
+
+  const failures = [];
+  const summary = { ok: false, url: null, failures };
+  let server = null;
+  let browser = null;
+  try {
+    if (opts["server-cmd"]) {
+      server = await startServer(opts["server-cmd"]);
+      summary.url = server.url;
+    } else summary.url = opts.url;
+
+    browser = await launch(playwright, opts.width, opts.height);
+    const w = watch(browser.context);
+    const page = browser.context.pages()[0] || (await browser.context.newPage());
+    const url = withQuery(summary.url, opts.query);
+    const t = Date.now();
+    await page.goto(url, { waitUntil: "load" });
+    const wait = await waitLoaded(page, opts.timeout * 1000);
+    summary.load = await collect(page);
+    summary.load.wallMs = Date.now() - t;
+    if (!wait.ok) failures.push(wait.reason);
+
+    if (summary.load.ready) {
+      const share = await notBlank(page);
+      summary.changedPixelsPct = +(share * 100).toFixed(2);
+      if (share <= 0.01) failures.push(`view looks blank: only ${summary.changedPixelsPct}% of pixels show the tileset`);
+      if (opts.out) {
+        await page.screenshot({ path: opts.out });
+        summary.screenshot = opts.out;
+      }
+      summary.pick = await page.evaluate(
+        ([x, y]) => window.bimtiles.pickAt(x, y),
+        [Math.round(opts.width / 2), Math.round(opts.height / 2)],
+      );
+      if (opts["require-pick"] && !summary.pick) failures.push("clicking the centre of the view picked nothing");
+    }
+
+    if (opts["second-load"] && wait.ok) {
+      const t2 = Date.now();
+      await page.reload({ waitUntil: "load" });
+      const wait2 = await waitLoaded(page, opts.timeout * 1000);
+      summary.secondLoad = await collect(page);
+      summary.secondLoad.wallMs = Date.now() - t2;
+      if (!wait2.ok) failures.push("second load: " + wait2.reason);
+    }
+
+    const loads = [summary.load, summary.secondLoad].filter(Boolean);
+    for (const l of loads) {
+      for (const f of l.tileFailures || []) failures.push(`tile failed: ${f.url}: ${f.message}`);
+      for (const e of l.consoleErrors || []) if (!w.consoleErrors.includes(e)) w.consoleErrors.push(e);
+    }
+    summary.browserRequests = w.requests;
+    summary.externalRequests = w.external;
+    summary.httpErrors = w.httpErrors;
+    summary.consoleErrors = w.consoleErrors;
+    if (w.external.length) failures.push(`${w.external.length} request(s) to other hosts, first: ${w.external[0]}`);
+    if (w.httpErrors.length) failures.push(`${w.httpErrors.length} failed request(s), first: ${w.httpErrors[0]}`);
+    if (w.consoleErrors.length) failures.push(`${w.consoleErrors.length} console error(s), first: ${w.consoleErrors[0]}`);
+  } catch (e) {
+    failures.push(String(e && e.stack ? e.stack : e));
+  } finally {
+    if (browser) {
+      await browser.context.close().catch(() => {});
+      rmSync(browser.userDataDir, { recursive: true, force: true });
+    }
+    stopServer(server && server.proc);
+  }
+  summary.ok = failures.length === 0;
+  const text = JSON.stringify(summary, null, 2);
+  console.log(text);
+  if (opts.json) writeFileSync(opts.json, text + "\n");
+  console.log(summary.ok ? "browser test: PASSED" : `browser test: FAILED (${failures.length}): ${failures[0]}`);
+  process.exit(summary.ok ? 0 : 1);
+}
+
+if (import.meta.url === `file://${process.argv[1]}`) main();
