@@ -13,7 +13,7 @@ BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
 APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium
 
-.PHONY: run test test-browser serve deps deps-system deps-node deps-python build bench clean
+.PHONY: run test test-browser bench-browser serve deps deps-system deps-node deps-python build bench clean
 
 run: deps build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -70,6 +70,11 @@ test-browser: deps build
 	  log=target/test-out/$$s.browser.log; \
 	  node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" --out target/test-out/$$s.png $$pick > $$log 2>&1 \
 	    || { cat $$log; exit 1; }; tail -n 1 $$log; done
+
+# Raw model (one-tile tileset) vs our tileset in real CesiumJS: load time, bytes, memory, frame cost.
+bench-browser: deps build
+	mkdir -p target/bench
+	node tools/bench_browser.mjs --runs 3 --json target/bench/browser.json $(SAMPLE) $(wildcard $(SHARED)/data/*.glb)
 
 # Convert the sample and open it in the viewer at http://127.0.0.1:8080/
 serve: deps build

@@ -222,7 +222,7 @@ fn projected_coordinates_keep_millimetres() {
 }
 
 #[test]
-fn draco_tiles_stay_within_half_a_millimetre_of_the_uncompressed_ones() {
+fn draco_tiles_stay_within_a_millimetre_of_the_uncompressed_ones() {
     let d = tmpdir("draco-vs-none");
     let (a, b) = (d.join("draco"), d.join("none"));
     let ra = convert(&sample(), &a, &["--max-tile-triangles", "2000"]);
@@ -271,9 +271,9 @@ fn draco_tiles_stay_within_half_a_millimetre_of_the_uncompressed_ones() {
         }
     }
     assert!(n > 1000);
-    // 0.5 mm per axis at most: sqrt(3) * 0.5 mm in 3D.
+    // 1 mm per axis at most: sqrt(3) mm in 3D.
     assert!(
-        worst <= 0.0005 * 3f64.sqrt() + 1e-6,
+        worst <= 0.001 * 3f64.sqrt() + 1e-6,
         "worst quantization error {worst} m"
     );
     let (sa, sb) = (

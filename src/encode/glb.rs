@@ -68,16 +68,18 @@ impl Default for TileEncoding {
     }
 }
 
-/// Quantization error allowed on full-detail content: well under what anyone sees, and the
-/// issue's promise of at most 1 mm at leaves.
-pub const DEFAULT_MAX_POSITION_ERROR_M: f64 = 0.0005;
-/// Draco bits for normals (octahedral): 10 bits is below visible shading error.
-const NORMAL_BITS: u8 = 10;
+/// Quantization error allowed on full-detail content: at most 1 mm per axis, below what a viewer
+/// can show of a building and what BIM exports are accurate to.
+pub const DEFAULT_MAX_POSITION_ERROR_M: f64 = 0.001;
+/// Draco bits for normals (octahedral): 8 bits (Draco's default) keeps normals within about a
+/// degree, below visible shading error.
+const NORMAL_BITS: u8 = 8;
 /// Draco bits for colours: 8 bits per channel, as images have.
 const COLOR_BITS: u8 = 8;
 
-/// Draco bits for texture coordinates: a step of at most 1/2048 of one texture repeat over the
-/// primitive's UV range (tiling UVs span many repeats), at least 12 bits.
+/// Draco bits for texture coordinates: a step of at most 1/1024 of one texture repeat over the
+/// primitive's UV range (tiling UVs span many repeats): half a texel of a 512-pixel texture, at
+/// least 10 bits.
 fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
     let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
     for t in uvs {
@@ -87,7 +89,7 @@ fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
         }
     }
     let range = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) as f64;
-    ((range * 2048.0).log2().ceil() as u8).clamp(12, 20)
+    ((range * 1024.0).log2().ceil() as u8).clamp(10, 20)
 }
 
 /// A vertex stream being assembled for one material.

@@ -124,8 +124,6 @@ fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
     a + d * ((p - a).dot(d) / l).clamp(0.0, 1.0)
 }
 
-pub static HC: [std::sync::atomic::AtomicU64; 4] =
-    [const { std::sync::atomic::AtomicU64::new(0) }; 4];
 /// A BVH over the triangles of a mesh answering closest-point queries.
 pub struct MeshBvh {
     tris: Vec<[DVec3; 3]>,

@@ -541,8 +541,6 @@ impl State<'_> {
         // (dp = 0) and of every new triangle (distance of that endpoint 0).
         let (at_u, at_v) = (p == pu, p == pv);
         let need_p = COVER_P && !at_u && !at_v;
-        if at_u || at_v {
-        }
         let mut du = if at_u { 0.0 } else { f64::INFINITY };
         let mut dv = if at_v { 0.0 } else { f64::INFINITY };
         let mut dp = if need_p { f64::INFINITY } else { 0.0 };
