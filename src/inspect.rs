@@ -150,3 +150,163 @@ impl std::fmt::Display for TilesetSummary {
         Ok(())
     }
 }
+
+/// One element found in a tileset's property tables.
+#[derive(Debug, Clone, Serialize)]
+pub struct FeatureSummary {
+    pub id: String,
+    /// Property name (the schema's display name when it has one) → value as text.
+    pub properties: std::collections::BTreeMap<String, String>,
+    /// Content URIs of the tiles that draw (part of) the element.
+    pub tiles: Vec<String>,
+}
+
+/// Reads one property value of row `row` as text (STRING, SCALAR FLOAT64 and ENUM UINT16, the
+/// types bimtiles writes; others are reported as unsupported).
+fn property_text(
+    def: &Value,
+    prop: &Value,
+    enums: &Value,
+    bin: &[u8],
+    views: &[Value],
+    row: usize,
+) -> Option<String> {
+    let view = |i: &Value| -> Option<&[u8]> {
+        let v = views.get(i.as_u64()? as usize)?;
+        let off = v.get("byteOffset").and_then(Value::as_u64).unwrap_or(0) as usize;
+        bin.get(off..off + v.get("byteLength")?.as_u64()? as usize)
+    };
+    let values = view(&prop["values"])?;
+    let text = match def["type"].as_str()? {
+        "STRING" => {
+            let offs = view(&prop["stringOffsets"])?;
+            let at = |i: usize| {
+                offs.get(i * 4..i * 4 + 4)
+                    .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+            };
+            String::from_utf8_lossy(values.get(at(row)?..at(row + 1)?)?).to_string()
+        }
+        "SCALAR" if def["componentType"] == "FLOAT64" => {
+            let b = values.get(row * 8..row * 8 + 8)?;
+            f64::from_le_bytes(b.try_into().ok()?).to_string()
+        }
+        "ENUM" => {
+            let b = values.get(row * 2..row * 2 + 2)?;
+            let code = u16::from_le_bytes([b[0], b[1]]) as u64;
+            enums[def["enumType"].as_str()?]["values"]
+                .as_array()?
+                .iter()
+                .find(|v| v["value"].as_u64() == Some(code))?["name"]
+                .as_str()?
+                .to_string()
+        }
+        other => format!("({other} not shown)"),
+    };
+    // noData values mean "no value".
+    if def.get("noData").is_some_and(|n| {
+        n.as_str() == Some(&text) || n.as_f64().map(|x| x.to_string()) == Some(text.clone())
+    }) {
+        return None;
+    }
+    Some(text)
+}
+
+/// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
+pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
+    let summary_tiles = {
+        let ts_path = dir.join("tileset.json");
+        let text = std::fs::read(&ts_path)
+            .map_err(|e| Error::input(&ts_path, format!("cannot read: {e}")))?;
+        let ts: Value = serde_json::from_slice(&text)
+            .map_err(|e| Error::input(&ts_path, format!("invalid JSON: {e}")))?;
+        let mut uris = Vec::new();
+        let mut stack = vec![ts["root"].clone()];
+        while let Some(t) = stack.pop() {
+            if let Some(u) = t.pointer("/content/uri").and_then(Value::as_str) {
+                uris.push(u.to_string());
+            }
+            if let Some(c) = t.get("children").and_then(Value::as_array) {
+                stack.extend(c.iter().rev().cloned());
+            }
+        }
+        uris
+    };
+    let mut found: Option<FeatureSummary> = None;
+    let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
+    for uri in summary_tiles {
+        let path = dir.join(&uri);
+        let bytes =
+            std::fs::read(&path).map_err(|e| Error::input(&path, format!("cannot read: {e}")))?;
+        let glb = gltf::binary::Glb::from_slice(&bytes)
+            .map_err(|e| Error::input(&path, format!("not a GLB: {e}")))?;
+        let doc: Value = serde_json::from_slice(&glb.json)
+            .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+        let Some(ext) = doc.pointer("/extensions/EXT_structural_metadata") else {
+            continue;
+        };
+        let schema = match (
+            ext.get("schema"),
+            ext.get("schemaUri").and_then(Value::as_str),
+        ) {
+            (Some(s), _) => s.clone(),
+            (None, Some(u)) => {
+                let p = path.parent().unwrap_or(dir).join(u);
+                if !schemas.contains_key(&p) {
+                    let t = std::fs::read(&p)
+                        .map_err(|e| Error::input(&p, format!("cannot read: {e}")))?;
+                    let v: Value = serde_json::from_slice(&t)
+                        .map_err(|e| Error::input(&p, format!("invalid JSON: {e}")))?;
+                    schemas.insert(p.clone(), v);
+                }
+                schemas[&p].clone()
+            }
+            _ => continue,
+        };
+        let bin = glb.bin.as_deref().unwrap_or(&[]);
+        let views = doc["bufferViews"].as_array().cloned().unwrap_or_default();
+        let Some(table) = ext.pointer("/propertyTables/0") else {
+            continue;
+        };
+        let class = &schema["classes"][table["class"].as_str().unwrap_or("")]["properties"];
+        let props = table["properties"].as_object().cloned().unwrap_or_default();
+        let Some(id_prop) = props.get("id") else {
+            continue;
+        };
+        let count = table["count"].as_u64().unwrap_or(0) as usize;
+        let Some(row) = (0..count).find(|&r| {
+            property_text(&class["id"], id_prop, &schema["enums"], bin, &views, r).as_deref()
+                == Some(id)
+        }) else {
+            continue;
+        };
+        let f = found.get_or_insert_with(|| FeatureSummary {
+            id: id.to_string(),
+            properties: Default::default(),
+            tiles: Vec::new(),
+        });
+        f.tiles.push(uri.clone());
+        for (pid, prop) in &props {
+            if let Some(v) = property_text(&class[pid], prop, &schema["enums"], bin, &views, row) {
+                let name = class[pid]["name"].as_str().unwrap_or(pid).to_string();
+                f.properties.insert(name, v);
+            }
+        }
+    }
+    Ok(found)
+}
+
+impl std::fmt::Display for FeatureSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "element {}", self.id)?;
+        let w = self.properties.keys().map(|k| k.len()).max().unwrap_or(0);
+        for (k, v) in &self.properties {
+            writeln!(f, "  {k:<w$}  {v}")?;
+        }
+        writeln!(
+            f,
+            "drawn by {} tile(s): {}",
+            self.tiles.len(),
+            self.tiles.join(", ")
+        )
+    }
+}

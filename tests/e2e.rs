@@ -341,3 +341,31 @@ fn every_shared_ifc_converts_with_semantics_and_georeference() {
             < 1e-6
     );
 }
+
+#[test]
+fn inspect_finds_an_element_by_its_global_id() {
+    let out = tmpdir("inspect-feature").join("tiles");
+    convert(&sample(), &out, &["--max-tile-triangles", "2000"]);
+    // A window of the sample, by the GlobalId its generator wrote.
+    let o = run(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--feature",
+        "2V3RCMqZPE5ad58ZlBLt5Y",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let f: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(f["properties"]["Id"], "2V3RCMqZPE5ad58ZlBLt5Y");
+    assert_eq!(f["properties"]["IFC class"], "IfcWindow");
+    assert!(f["properties"]["Storey"].as_str().is_some());
+    assert!(!f["tiles"].as_array().unwrap().is_empty());
+    let o = run(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--feature",
+        "no-such-element",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no element with id"));
+}

@@ -66,6 +66,10 @@ enum Command {
         /// Print JSON for scripts.
         #[arg(long)]
         json: bool,
+        /// Show one element instead: its properties and the tiles that draw it (id = GlobalId
+        /// or node path).
+        #[arg(long)]
+        feature: Option<String>,
     },
 }
 
@@ -165,7 +169,16 @@ pub fn main() -> Result<()> {
                 ))
             }
         }
-        Command::Inspect { dir, json } => {
+        Command::Inspect {
+            dir,
+            json,
+            feature: Some(id),
+        } => match bimtiles::inspect::find_feature(&dir, &id)? {
+            Some(f) if json => emit(&format!("{}\n", serde_json::to_string_pretty(&f)?)),
+            Some(f) => emit(&f.to_string()),
+            None => anyhow::bail!("{}: no element with id '{id}' in its tiles", dir.display()),
+        },
+        Command::Inspect { dir, json, .. } => {
             let s = inspect(&dir)?;
             if json {
                 emit(&format!("{}\n", serde_json::to_string_pretty(&s)?))
