@@ -1,4 +1,5 @@
-//! `make bench`: conversion throughput and peak memory of the real binary, per model.
+//! `make bench`: conversion throughput and peak memory of the real binary, per model, and Draco's
+//! geometry compression ratio and encode throughput (each model converted with and without Draco).
 //!
 //! Runs `target/release/bimtiles convert` on every GLB in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
@@ -15,7 +16,54 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn convert(bin: &Path, input: &Path, out: &Path, budget: usize) -> Option<Value> {
+/// Bytes of geometry in a tileset's tiles: the bufferViews holding Draco streams or vertex/index
+/// accessors (not images, not property tables).
+fn geometry_bytes(dir: &Path) -> u64 {
+    let mut total = 0;
+    for e in std::fs::read_dir(dir.join("tiles"))
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        let Ok(bytes) = std::fs::read(e.path()) else {
+            continue;
+        };
+        let Ok(glb) = gltf::binary::Glb::from_slice(&bytes) else {
+            continue;
+        };
+        let Ok(doc) = serde_json::from_slice::<Value>(&glb.json) else {
+            continue;
+        };
+        let views = doc["bufferViews"].as_array().cloned().unwrap_or_default();
+        let mut geometry = std::collections::BTreeSet::new();
+        for a in doc["accessors"].as_array().into_iter().flatten() {
+            if let Some(v) = a["bufferView"].as_u64() {
+                geometry.insert(v);
+            }
+        }
+        for m in doc["meshes"].as_array().into_iter().flatten() {
+            for p in m["primitives"].as_array().into_iter().flatten() {
+                let draco = p.pointer("/extensions/KHR_draco_mesh_compression/bufferView");
+                if let Some(v) = draco.and_then(Value::as_u64) {
+                    geometry.insert(v);
+                }
+            }
+        }
+        total += geometry
+            .iter()
+            .filter_map(|&v| views.get(v as usize)?["byteLength"].as_u64())
+            .sum::<u64>();
+    }
+    total
+}
+
+fn convert(
+    bin: &Path,
+    input: &Path,
+    out: &Path,
+    budget: usize,
+    compression: &str,
+) -> Option<Value> {
     let st = Command::new(bin)
         .args([
             "convert",
@@ -25,7 +73,12 @@ fn convert(bin: &Path, input: &Path, out: &Path, budget: usize) -> Option<Value>
             "--force",
             "--quiet",
         ])
-        .args(["--max-tile-triangles", &budget.to_string()])
+        .args([
+            "--max-tile-triangles",
+            &budget.to_string(),
+            "--compression",
+            compression,
+        ])
         .status()
         .ok()?;
     if !st.success() {
@@ -96,7 +149,7 @@ fn main() {
     inputs.push(surface);
 
     println!(
-        "{:<34} {:>8} {:>10} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>8}",
+        "{:<26} {:>6} {:>9} {:>6} {:>5} {:>8} {:>7} {:>7} {:>8} {:>7} {:>7} {:>9} {:>11}",
         "model",
         "budget",
         "triangles",
@@ -106,16 +159,28 @@ fn main() {
         "secs",
         "Mtri/s",
         "peak MB",
-        "peak/in"
+        "peak/in",
+        "draco %",
+        "draco s",
+        "draco Mtri/s"
     );
     let mut rows = Vec::new();
     for input in &inputs {
         for &budget in &budgets {
             let name = input.file_stem().unwrap().to_string_lossy().to_string();
             let out = work.join(format!("out-{name}-{budget}"));
-            let Some(r) = convert(&bin, input, &out, budget) else {
+            let Some(r) = convert(&bin, input, &out, budget, "draco") else {
                 continue;
             };
+            let draco_geometry = geometry_bytes(&out);
+            let plain = work.join(format!("out-{name}-{budget}-none"));
+            let plain_report = convert(&bin, input, &plain, budget, "none");
+            let plain_geometry = geometry_bytes(&plain);
+            let _ = std::fs::remove_dir_all(&plain);
+            let encode_plain_s = plain_report
+                .as_ref()
+                .and_then(|p| p["timings_s"]["encode_write"].as_f64())
+                .unwrap_or(0.0);
             let tris = r["input"]["triangles"].as_f64().unwrap_or(0.0);
             let secs = r["timings_s"]["total"].as_f64().unwrap_or(0.0);
             let in_bytes = r["input"]["bytes"].as_f64().unwrap_or(1.0);
@@ -126,9 +191,15 @@ fn main() {
                 "output_bytes": r["output"]["bytes"], "seconds": secs, "timings_s": r["timings_s"],
                 "mtri_per_s": tris / secs.max(1e-9) / 1e6, "peak_memory_bytes": peak,
                 "peak_over_input": peak / in_bytes,
+                "geometry_bytes_draco": draco_geometry, "geometry_bytes_uncompressed": plain_geometry,
+                "draco_geometry_ratio": draco_geometry as f64 / plain_geometry.max(1) as f64,
+                "encode_write_s_uncompressed": encode_plain_s,
             });
+            // Draco's own cost: encode+write with Draco minus without.
+            let draco_s =
+                (r["timings_s"]["encode_write"].as_f64().unwrap_or(0.0) - encode_plain_s).max(1e-6);
             println!(
-                "{:<34} {:>8} {:>10} {:>7} {:>6} {:>9.2} {:>8.3} {:>10.2} {:>9.1} {:>8.2}",
+                "{:<26} {:>6} {:>9} {:>6} {:>5} {:>8.2} {:>7.3} {:>7.2} {:>8.1} {:>7.2} {:>7.1} {:>9.3} {:>11.2}",
                 name,
                 budget,
                 tris,
@@ -138,7 +209,10 @@ fn main() {
                 secs,
                 tris / secs.max(1e-9) / 1e6,
                 peak / 1e6,
-                peak / in_bytes
+                peak / in_bytes,
+                draco_geometry as f64 / plain_geometry.max(1) as f64 * 100.0,
+                draco_s,
+                tris / draco_s / 1e6
             );
             let _ = std::fs::remove_dir_all(&out);
             rows.push(row);
