@@ -582,9 +582,8 @@ pub fn simplify_model(
         Vec::new(),
     );
     for c in &scene.components {
-        let linear = glam::DMat3::from_mat4(c.world);
-        let nm = linear.inverse().transpose();
-        let flip = linear.determinant() < 0.0;
+        let nm = c.normal_matrix();
+        let flip = c.mirrors();
         for p in &scene.mesh(c.mesh).primitives {
             let base = pos.len() as u32;
             let g = p.material.map_or(u32::MAX, |m| m.0);
@@ -675,14 +674,8 @@ pub fn simplify_model(
     });
     out.push_component(
         Component {
-            id: ComponentId(0),
-            key: "simplified".into(),
             name: Some("simplified".into()),
-            node: None,
-            mesh: MeshId(0),
-            world: DMat4::from_translation(center),
-            world_bounds: Aabb::EMPTY,
-            source: 0,
+            ..Component::new("simplified", MeshId(0), DMat4::from_translation(center))
         },
         Default::default(),
     );

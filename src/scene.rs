@@ -288,6 +288,34 @@ pub struct ElementInfo {
     pub properties: Vec<Property>,
 }
 
+impl Component {
+    /// A component with no name, hierarchy node or source index (id and bounds are filled in by
+    /// [`Scene::push_component`] and [`Scene::finish`]).
+    pub fn new(key: impl Into<String>, mesh: MeshId, world: DMat4) -> Component {
+        Component {
+            id: ComponentId(0),
+            key: key.into(),
+            name: None,
+            node: None,
+            mesh,
+            world,
+            world_bounds: Aabb::EMPTY,
+            source: 0,
+        }
+    }
+
+    /// The matrix that carries normals through `world` (inverse transpose of its linear part).
+    pub fn normal_matrix(&self) -> glam::DMat3 {
+        glam::DMat3::from_mat4(self.world).inverse().transpose()
+    }
+
+    /// Whether `world` mirrors (negative determinant): triangle winding must then be flipped to
+    /// keep front faces in front.
+    pub fn mirrors(&self) -> bool {
+        glam::DMat3::from_mat4(self.world).determinant() < 0.0
+    }
+}
+
 /// A source file that was read into the scene.
 #[derive(Debug, Clone)]
 pub struct SourceFile {
@@ -518,14 +546,8 @@ mod tests {
                 local_bounds: None,
             });
             s.components.push(Component {
-                id: ComponentId(0),
-                key: "k".into(),
-                name: None,
                 node: Some(NodeId(0)),
-                mesh: MeshId(0),
-                world: DMat4::IDENTITY,
-                world_bounds: Aabb::EMPTY,
-                source: 0,
+                ..Component::new("k", MeshId(0), DMat4::IDENTITY)
             });
             s
         };

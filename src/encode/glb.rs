@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::partition::ContentItem;
 use crate::scene::*;
 use byteorder::{WriteBytesExt, LE};
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use serde_json::{json, Map, Value};
 use std::collections::BTreeMap;
 
@@ -238,9 +238,8 @@ fn append_primitive(
     };
     let base = out.positions.len() as u32;
     let m = comp.world;
-    let linear = DMat3::from_mat4(m);
-    let normal_matrix = linear.inverse().transpose();
-    let mirrored = linear.determinant() < 0.0;
+    let normal_matrix = comp.normal_matrix();
+    let mirrored = comp.mirrors();
     for &v in &verts {
         let p = prim.positions[v as usize];
         let w = m.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
@@ -733,16 +732,10 @@ mod tests {
             }],
             local_bounds: None,
         });
-        s.components.push(Component {
-            id: ComponentId(0),
-            key: "a".into(),
-            name: None,
-            node: None,
-            mesh: MeshId(0),
-            world,
-            world_bounds: Aabb::EMPTY,
-            source: 0,
-        });
+        s.push_component(
+            Component::new("a", MeshId(0), world),
+            ElementInfo::default(),
+        );
         s.finish();
         s
     }

@@ -393,16 +393,14 @@ mod tests {
                 }],
                 local_bounds: None,
             });
-            s.components.push(Component {
-                id: ComponentId(i as u32),
-                key: format!("c{i}"),
-                name: None,
-                node: None,
-                mesh: MeshId(i as u32),
-                world: DMat4::from_translation(c),
-                world_bounds: Aabb::EMPTY,
-                source: 0,
-            });
+            s.push_component(
+                Component::new(
+                    format!("c{i}"),
+                    MeshId(i as u32),
+                    DMat4::from_translation(c),
+                ),
+                ElementInfo::default(),
+            );
         }
         s.finish();
         s
@@ -549,16 +547,10 @@ mod tests {
             }],
             local_bounds: None,
         });
-        s.components.push(Component {
-            id: ComponentId(0),
-            key: "grid".into(),
-            name: None,
-            node: None,
-            mesh: MeshId(0),
-            world: DMat4::IDENTITY,
-            world_bounds: Aabb::EMPTY,
-            source: 0,
-        });
+        s.push_component(
+            Component::new("grid", MeshId(0), DMat4::IDENTITY),
+            ElementInfo::default(),
+        );
         s.finish();
         s
     }

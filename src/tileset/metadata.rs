@@ -385,14 +385,8 @@ mod tests {
         for (i, info) in infos.into_iter().enumerate() {
             s.push_component(
                 Component {
-                    id: ComponentId(0),
-                    key: format!("k{i}"),
                     name: Some(format!("n{i}")),
-                    node: None,
-                    mesh: MeshId(0),
-                    world: glam::DMat4::IDENTITY,
-                    world_bounds: Aabb::EMPTY,
-                    source: 0,
+                    ..Component::new(format!("k{i}"), MeshId(0), glam::DMat4::IDENTITY)
                 },
                 info,
             );
