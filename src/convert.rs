@@ -5,17 +5,21 @@
 //! parallel, each written and freed at once; file names and contents depend only on the input and
 //! the options, never on the thread count.
 
-use crate::encode::{encode_tile, Compression, TileEncoding};
+use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
+use crate::encode::{encode_content, encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::partition::{plan_octree, OctreeOptions, TilePlan};
-use crate::scene::{Aabb, Scene};
+use crate::scene::{Aabb, ComponentId, Scene};
+use crate::simplify::hlod::{simplify_children, tile_error};
+use crate::tile_content::TileContent;
 use crate::tileset::georef::GeoOrigin;
 use crate::tileset::metadata::MetadataSchema;
-use crate::tileset::{tileset_json, TileFacts};
+use crate::tileset::{tileset_json, Refine, TileFacts};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::json;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -33,6 +37,10 @@ pub struct ConvertOptions {
     pub octree: OctreeOptions,
     /// Geometry compression of the tiles.
     pub compression: Compression,
+    /// Levels of detail: HLOD (default), none, or the paper's discrete chains.
+    pub lod: LodMode,
+    /// Options of the QEM simplifier for LOD content (targets are set per tile).
+    pub simplify: crate::simplify::SimplifyOptions,
     /// Show progress bars on stderr.
     pub progress: bool,
 }
@@ -45,7 +53,30 @@ impl ConvertOptions {
             origin: None,
             octree: OctreeOptions::default(),
             compression: Compression::default(),
+            lod: LodMode::default(),
+            simplify: crate::simplify::SimplifyOptions::default(),
             progress: false,
+        }
+    }
+}
+
+/// How levels of detail are made.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum LodMode {
+    /// Hierarchical LOD (paper III.C(3)): every internal tile carries its subtree's content merged
+    /// and simplified to the tile budget; `refine: "REPLACE"`; leaves hold full detail.
+    #[default]
+    Hlod,
+    /// No simplified content: internal tiles hold the components too large for their children and
+    /// refine by adding (`refine: "ADD"`), with a size-bound geometric error.
+    None,
+}
+
+impl LodMode {
+    pub fn name(&self) -> &'static str {
+        match self {
+            LodMode::Hlod => "hlod",
+            LodMode::None => "none",
         }
     }
 }
@@ -88,6 +119,15 @@ pub struct TileReport {
     pub bytes: u64,
     pub metadata_bytes: u64,
     pub geometric_error_m: f64,
+    /// HLOD tiles: the triangles their content was simplified from (their children's content).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub simplified_from_triangles: Option<usize>,
+    /// HLOD tiles: largest distance measured from full detail to this tile's content (metres).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub full_to_coarse_m: Option<f64>,
+    /// HLOD tiles: bound of the distance from this tile's content to full detail (metres).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coarse_to_full_bound_m: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -290,7 +330,10 @@ pub fn convert_scene(
     };
 
     let t1 = Instant::now();
-    let plan = plan_octree(scene, &opts.octree);
+    let mut plan = plan_octree(scene, &opts.octree);
+    if opts.lod == LodMode::Hlod {
+        plan = plan.with_content_in_leaves();
+    }
     let t_partition = t1.elapsed().as_secs_f64();
 
     // Temporary folder beside the target, renamed at the end.
@@ -342,6 +385,9 @@ pub fn convert_scene(
             bytes: st.bytes,
             metadata_bytes: st.metadata_bytes,
             geometric_error_m: st.geometric_error_m,
+            simplified_from_triangles: st.simplified_from_triangles,
+            full_to_coarse_m: st.full_to_coarse_m,
+            coarse_to_full_bound_m: st.coarse_to_full_bound_m,
         });
         let d = t.depth as usize;
         while levels.len() <= d {
@@ -385,12 +431,17 @@ pub fn convert_scene(
             anchor_m: anchor.to_array(),
             anchor_rule,
         },
-        geometric_error_metric: GEOMETRIC_ERROR_METRIC.into(),
+        geometric_error_metric: match opts.lod {
+            LodMode::Hlod => HLOD_ERROR_METRIC,
+            LodMode::None => SIZE_BOUND_ERROR_METRIC,
+        }
+        .into(),
         options: json!({
             "max_tile_triangles": opts.octree.max_tile_triangles,
             "max_tile_bytes": opts.octree.max_tile_bytes,
             "max_depth": opts.octree.max_depth,
             "compression": format!("{:?}", opts.compression).to_lowercase(),
+            "lod": opts.lod.name(),
         }),
         timings_s: Timings {
             ingest: t_ingest,
@@ -423,8 +474,14 @@ pub fn convert_scene(
     Ok(report)
 }
 
-/// The description of the geometric error written in the report.
-pub const GEOMETRIC_ERROR_METRIC: &str = "size-bound: a tile's geometricError is the largest bounding-box diagonal \
+/// The geometric error of HLOD tilesets, as the report describes it.
+pub const HLOD_ERROR_METRIC: &str = "measured: a tile's geometricError bounds the distance between its \
+simplified content and the full detail it stands for (symmetric Hausdorff distance: full-detail samples measured \
+against the content, content samples bounded through the children's content and errors; times 1.1, plus the \
+quantization bound with Draco); leaves have 0";
+
+/// The geometric error without LOD (additive refinement), as the report describes it.
+pub const SIZE_BOUND_ERROR_METRIC: &str = "size-bound: a tile's geometricError is the largest bounding-box diagonal \
 among the components of its descendants (what is missing from the view when the tile is drawn without its children, \
 additive refinement); leaves have 0";
 
@@ -438,6 +495,9 @@ struct TileStats {
     vertices: usize,
     features: usize,
     metadata_bytes: u64,
+    simplified_from_triangles: Option<usize>,
+    full_to_coarse_m: Option<f64>,
+    coarse_to_full_bound_m: Option<f64>,
 }
 
 fn write_tileset(
@@ -465,47 +525,62 @@ fn write_tileset(
     let make_table = |features: &[crate::scene::ComponentId]| {
         schema.property_table(scene, features, "../schema.json")
     };
-    let stats: Vec<Result<(Aabb, TileStats)>> = plan
-        .tiles
-        .par_iter()
-        .map(|tile| {
-            let ge = tile.omitted_size_m;
-            if tile.content.is_empty() {
-                pb.inc(1);
-                return Ok((
-                    Aabb::EMPTY,
-                    TileStats {
-                        geometric_error_m: ge,
-                        ..Default::default()
-                    },
-                ));
-            }
-            let enc = encode_tile(
+    let write = |i: usize, content: &TileContent, mut st: TileStats| -> Result<(Aabb, TileStats)> {
+        let tile = &plan.tiles[i];
+        let uri = format!("tiles/{}.glb", tile.path);
+        let path = tmp.join(&uri);
+        let enc = encode_content(scene, content, &encoding, Some(&make_table))
+            .map_err(|e| Error::output(&path, e))?;
+        std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
+        pb.inc(1);
+        st.uri = Some(uri);
+        st.bytes = enc.glb.len() as u64;
+        st.triangles = enc.triangles;
+        st.vertices = enc.vertices;
+        st.features = enc.features.len();
+        st.metadata_bytes = enc.metadata_bytes as u64;
+        Ok((enc.bounds, st))
+    };
+    let stats: Vec<Result<(Aabb, TileStats)>> = match opts.lod {
+        LodMode::None => plan
+            .tiles
+            .par_iter()
+            .enumerate()
+            .map(|(i, tile)| {
+                let st = TileStats {
+                    geometric_error_m: tile.omitted_size_m,
+                    ..Default::default()
+                };
+                if tile.content.is_empty() {
+                    pb.inc(1);
+                    return Ok((Aabb::EMPTY, st));
+                }
+                let content =
+                    TileContent::gather(scene, &tile.content, tile.content_bounds.center());
+                write(i, &content, st)
+            })
+            .collect(),
+        LodMode::Hlod => {
+            let slots: Vec<std::sync::Mutex<Option<(Aabb, TileStats)>>> =
+                plan.tiles.iter().map(|_| Default::default()).collect();
+            let hlod = HlodBuilder {
                 scene,
-                &tile.content,
-                tile.content_bounds.center(),
-                &encoding,
-                Some(&make_table),
-            )
-            .map_err(|e| Error::output(tmp.join(format!("tiles/{}.glb", tile.path)), e))?;
-            let uri = format!("tiles/{}.glb", tile.path);
-            let path = tmp.join(&uri);
-            std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
-            pb.inc(1);
-            Ok((
-                enc.bounds,
-                TileStats {
-                    uri: Some(uri),
-                    geometric_error_m: ge,
-                    bytes: enc.glb.len() as u64,
-                    triangles: enc.triangles,
-                    vertices: enc.vertices,
-                    features: enc.features.len(),
-                    metadata_bytes: enc.metadata_bytes as u64,
-                },
-            ))
-        })
-        .collect();
+                plan,
+                opts,
+                write: &write,
+                slots: &slots,
+            };
+            hlod.build(0)?;
+            slots
+                .into_iter()
+                .map(|m| {
+                    Ok(m.into_inner()
+                        .expect("no poisoned slot")
+                        .expect("every tile built"))
+                })
+                .collect()
+        }
+    };
     pb.finish_and_clear();
     let mut facts = Vec::with_capacity(stats.len());
     let mut tile_stats = Vec::with_capacity(stats.len());
@@ -525,12 +600,149 @@ fn write_tileset(
         "anchor_m": anchor.to_array(),
         "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
     }});
-    let mut ts = tileset_json(plan, &facts, &origin.enu_to_ecef(), extras);
+    let refine = match opts.lod {
+        LodMode::Hlod => Refine::Replace,
+        LodMode::None => Refine::Add,
+    };
+    let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
     ts["schemaUri"] = json!("schema.json");
     let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
     let ts_path = tmp.join("tileset.json");
     std::fs::write(&ts_path, bytes).map_err(|e| Error::output(&ts_path, e))?;
     Ok((tile_stats, t_encode, t.elapsed().as_secs_f64()))
+}
+
+/// What a subtree gives its parent when building HLOD bottom-up.
+struct BuiltSubtree {
+    /// What the tile draws (full detail for leaves, simplified above).
+    content: TileContent,
+    geometric_error_m: f64,
+    /// Bound of the distance from `content` to full detail (0 for leaves).
+    coarse_to_full_m: f64,
+    /// Triangles per cut component in the subtree (only components cut across tiles).
+    cut_triangles: BTreeMap<ComponentId, usize>,
+}
+
+type WriteTile<'a> =
+    dyn Fn(usize, &TileContent, TileStats) -> Result<(Aabb, TileStats)> + Sync + 'a;
+
+/// Builds HLOD content bottom-up, children in parallel; each tile is written as soon as it is made
+/// and only its content travels up to its parent.
+struct HlodBuilder<'a> {
+    scene: &'a Scene,
+    plan: &'a TilePlan,
+    opts: &'a ConvertOptions,
+    write: &'a WriteTile<'a>,
+    slots: &'a [std::sync::Mutex<Option<(Aabb, TileStats)>>],
+}
+
+impl HlodBuilder<'_> {
+    /// The content of every leaf below tile `i` (the full detail it stands for).
+    fn leaves_below(&self, i: usize) -> Vec<&[crate::partition::ContentItem]> {
+        let mut out = Vec::new();
+        let mut stack = vec![i];
+        while let Some(j) = stack.pop() {
+            let t = &self.plan.tiles[j];
+            if t.children.is_empty() {
+                out.push(&t.content[..]);
+            }
+            stack.extend(t.children.iter().rev());
+        }
+        out
+    }
+
+    fn build(&self, i: usize) -> Result<BuiltSubtree> {
+        let tile = &self.plan.tiles[i];
+        let path = || format!("tiles/{}.glb", tile.path);
+        let built = if tile.children.is_empty() {
+            let content =
+                TileContent::gather(self.scene, &tile.content, tile.content_bounds.center());
+            let mut cut_triangles = BTreeMap::new();
+            for item in &tile.content {
+                if let Some(t) = &item.triangles {
+                    *cut_triangles.entry(item.component).or_default() += t.len();
+                }
+            }
+            let written = (self.write)(i, &content, TileStats::default())?;
+            *self.slots[i].lock().expect("slot") = Some(written);
+            BuiltSubtree {
+                content,
+                geometric_error_m: 0.0,
+                coarse_to_full_m: 0.0,
+                cut_triangles,
+            }
+        } else {
+            let kids: Vec<BuiltSubtree> = tile
+                .children
+                .par_iter()
+                .map(|&c| self.build(c))
+                .collect::<Result<_>>()?;
+            let mut cut_triangles: BTreeMap<ComponentId, usize> = BTreeMap::new();
+            for k in &kids {
+                for (&c, &n) in &k.cut_triangles {
+                    *cut_triangles.entry(c).or_default() += n;
+                }
+            }
+            // Components that go on outside this subtree keep their borders.
+            let continuing: Vec<ComponentId> = cut_triangles
+                .iter()
+                .filter(|&(&c, &n)| {
+                    n < self
+                        .scene
+                        .mesh(self.scene.component(c).mesh)
+                        .triangle_count()
+                })
+                .map(|(&c, _)| c)
+                .collect();
+            let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
+            let r = simplify_children(
+                &contents,
+                tile.bounds.center(),
+                &continuing,
+                self.opts.octree.max_tile_triangles,
+                &self.opts.simplify,
+            )
+            .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
+            drop(contents);
+            let children: Vec<(&TileContent, f64)> = kids
+                .iter()
+                .map(|k| (&k.content, k.coarse_to_full_m))
+                .collect();
+            let leaves = self.leaves_below(i);
+            let err = tile_error(
+                self.scene,
+                &r.content,
+                &children,
+                &leaves,
+                &self.opts.simplify,
+            );
+            // Quantization moves decoded vertices by up to this much on top.
+            let quantization_m = match self.opts.compression {
+                Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+                Compression::None => 0.0,
+            };
+            let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
+            // Strictly above the children's, whatever the sampling found.
+            let ge = (err.error_m + quantization_m).max(children_max * (1.0 + 1e-6) + 1e-6);
+            drop(kids);
+            let st = TileStats {
+                geometric_error_m: ge,
+                simplified_from_triangles: Some(r.input_triangles),
+                full_to_coarse_m: Some(err.full_to_coarse_m),
+                coarse_to_full_bound_m: Some(err.coarse_to_full_m),
+                ..Default::default()
+            };
+            let written = (self.write)(i, &r.content, st)?;
+            *self.slots[i].lock().expect("slot") = Some(written);
+            BuiltSubtree {
+                content: r.content,
+                geometric_error_m: ge,
+                coarse_to_full_m: err.coarse_to_full_m,
+                cut_triangles,
+            }
+        };
+        Ok(built)
+    }
 }
 
 /// What `simplify_model` did.

@@ -1,9 +1,9 @@
 //! bimtiles: building models (glTF/GLB, IFC) to OGC 3D Tiles 1.1.
 //!
 //! The pipeline follows the modules in order, data flowing one way:
-//! `ingest` (readers) → `scene` (the model) → `partition` (octree plan) → `simplify` (QEM) →
-//! `encode` (GLB) →
-//! `tileset` (tileset.json, georeferencing); `convert` runs it end to end, `inspect` reads a
+//! `ingest` (readers) → `scene` (the model) → `partition` (octree plan) → `tile_content` (a tile's
+//! merged geometry) → `simplify` (QEM, HLOD) → `encode` (GLB) → `tileset` (tileset.json,
+//! georeferencing); `convert` runs it end to end, `inspect` reads a
 //! result back and `serve` shows it in a local CesiumJS viewer.
 
 pub mod convert;
@@ -15,6 +15,7 @@ pub mod partition;
 pub mod scene;
 pub mod serve;
 pub mod simplify;
+pub mod tile_content;
 pub mod tileset;
 
 pub use error::{Error, Result};

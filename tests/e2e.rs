@@ -20,10 +20,8 @@ fn sample_converts_to_a_valid_tileset() {
         tris
     );
     assert_eq!(report["input"]["components"], expect["components"]);
-    assert_eq!(
-        report["output"]["triangles"].as_u64().unwrap() as usize,
-        tris
-    );
+    // HLOD: full detail in the leaves plus the simplified levels above.
+    assert!(report["output"]["triangles"].as_u64().unwrap() as usize > tris);
     assert!(
         report["output"]["tiles"].as_u64().unwrap() > 4,
         "a tree, not one tile"
@@ -36,7 +34,7 @@ fn sample_converts_to_a_valid_tileset() {
     assert!(report["geometric_error_metric"]
         .as_str()
         .unwrap()
-        .starts_with("size-bound"));
+        .starts_with("measured"));
     let tiles = check_tileset(&out, tris);
     // Geometric error is meaningful: not one constant, and 0 exactly at the leaves.
     let mut errors: Vec<f64> = tiles.iter().map(|t| t.geometric_error).collect();
@@ -368,4 +366,27 @@ fn inspect_finds_an_element_by_its_global_id() {
     ]);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("no element with id"));
+}
+
+#[test]
+fn lod_none_writes_every_triangle_once_with_additive_refinement() {
+    let out = tmpdir("sample-lod-none").join("tiles");
+    let report = convert(
+        &sample(),
+        &out,
+        &["--max-tile-triangles", "2000", "--lod", "none"],
+    );
+    let tris = report["input"]["triangles"].as_u64().unwrap() as usize;
+    assert_eq!(
+        report["output"]["triangles"].as_u64().unwrap() as usize,
+        tris
+    );
+    assert!(report["geometric_error_metric"]
+        .as_str()
+        .unwrap()
+        .starts_with("size-bound"));
+    check_tileset(&out, tris);
+    let ts: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    assert_eq!(ts["root"]["refine"], "ADD");
 }

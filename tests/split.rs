@@ -96,7 +96,15 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
     let report = convert(
         &input,
         &out,
-        &["--max-tile-triangles", "2000", "--compression", "none"],
+        // The cut itself, without HLOD levels (tests/hlod.rs covers those).
+        &[
+            "--max-tile-triangles",
+            "2000",
+            "--compression",
+            "none",
+            "--lod",
+            "none",
+        ],
     );
     assert_eq!(report["input"]["triangles"], 26797);
     let tiles = check_tileset(&out, 26797);

@@ -1,10 +1,11 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{convert, ConvertOptions};
+use bimtiles::convert::{convert, ConvertOptions, LodMode};
 use bimtiles::encode::Compression;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
+use bimtiles::simplify::SimplifyOptions;
 use bimtiles::tileset::georef::GeoOrigin;
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
@@ -95,12 +96,23 @@ struct ConvertArgs {
     /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression) or none.
     #[arg(long, value_enum, default_value = "draco")]
     compression: CompressionArg,
+    /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
+    /// refine REPLACE) or none (internal tiles hold only what is too big for their children,
+    /// refine ADD).
+    #[arg(long, value_enum, default_value = "hlod")]
+    lod: LodArg,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
     /// No progress bars and no summary (report.json is still written).
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum LodArg {
+    Hlod,
+    None,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -154,7 +166,7 @@ pub fn main() -> Result<()> {
             if !(ratio > 0.0 && ratio <= 1.0) {
                 anyhow::bail!("--ratio must be in (0, 1], got {ratio}");
             }
-            let opts = bimtiles::simplify::SimplifyOptions {
+            let opts = SimplifyOptions {
                 target_ratio: ratio,
                 target_error_m: max_error,
                 ..Default::default()
@@ -209,6 +221,11 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             CompressionArg::Draco => Compression::Draco,
             CompressionArg::None => Compression::None,
         },
+        lod: match a.lod {
+            LodArg::Hlod => LodMode::Hlod,
+            LodArg::None => LodMode::None,
+        },
+        simplify: SimplifyOptions::default(),
         progress: !a.quiet,
     };
     let r = convert(&a.inputs, &opts)?;

@@ -13,6 +13,7 @@ use super::metadata::{write_property_table, PropertyTable};
 use crate::error::{Error, Result};
 use crate::partition::ContentItem;
 use crate::scene::*;
+use crate::tile_content::{ContentPrimitive, TileContent};
 use byteorder::{WriteBytesExt, LE};
 use glam::DVec3;
 use serde_json::{json, Map, Value};
@@ -92,23 +93,11 @@ fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
     ((range * 1024.0).log2().ceil() as u8).clamp(10, 20)
 }
 
-/// A vertex stream being assembled for one material.
-#[derive(Default)]
-struct MergedPrimitive {
-    positions: Vec<[f32; 3]>,
-    normals: Vec<[f32; 3]>,
-    uvs: Vec<[f32; 2]>,
-    colors: Vec<[f32; 4]>,
-    feature_ids: Vec<f32>,
-    indices: Vec<u32>,
-}
-
-/// Encodes `components` of `scene` as one GLB whose origin is `center` (scene frame).
 /// Makes the property table of a tile's features (in feature-ID order).
 pub type TableMaker<'a> = &'a (dyn Fn(&[ComponentId]) -> PropertyTable + Sync);
 
-/// Encodes `content` of `scene` as one GLB whose origin is `center` (scene frame); with
-/// `metadata`, the features get a property table (`EXT_structural_metadata`).
+/// Encodes `content` of `scene` (whole components or parts) as one GLB whose origin is `center`
+/// (scene frame); with `metadata`, the features get a property table (`EXT_structural_metadata`).
 pub fn encode_tile(
     scene: &Scene,
     content: &[ContentItem],
@@ -116,192 +105,38 @@ pub fn encode_tile(
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
 ) -> Result<EncodedTile> {
-    // One feature per component, in content order (parts of a component share it).
-    let mut features: Vec<ComponentId> = Vec::new();
-    // Group every (feature, component, primitive, triangle subset) by material; BTreeMap keeps
-    // the order fixed.
-    type Part<'a> = (usize, &'a Component, &'a Primitive, Option<Vec<u32>>);
-    let mut groups: BTreeMap<u32, Vec<Part>> = BTreeMap::new();
-    for item in content {
-        if features.last() != Some(&item.component) {
-            features.push(item.component);
-        }
-        let fid = features.len() - 1;
-        let comp = scene.component(item.component);
-        for (pi, prim) in scene.mesh(comp.mesh).primitives.iter().enumerate() {
-            let subset: Option<Vec<u32>> = item.triangles.as_ref().map(|tris| {
-                let lo = tris.partition_point(|t| t.0 < pi as u32);
-                let hi = tris.partition_point(|t| t.0 <= pi as u32);
-                tris[lo..hi].iter().map(|t| t.1).collect()
-            });
-            if subset.as_ref().is_some_and(|s| s.is_empty()) {
-                continue;
-            }
-            let key = prim.material.map_or(u32::MAX, |m| m.0);
-            groups
-                .entry(key)
-                .or_default()
-                .push((fid, comp, prim, subset));
-        }
-    }
-    let mut bounds = Aabb::EMPTY;
-    let mut merged: Vec<(Option<MaterialId>, MergedPrimitive, bool, bool)> = Vec::new();
-    for (key, parts) in &groups {
-        let material = (*key != u32::MAX).then_some(MaterialId(*key));
-        let textured = material
-            .map(|m| scene.materials[m.index()].base_color_texture.is_some())
-            .unwrap_or(false);
-        let with_uv = textured || parts.iter().any(|(_, _, p, _)| p.uvs.is_some());
-        let with_color = parts.iter().any(|(_, _, p, _)| p.colors.is_some());
-        let mut out = MergedPrimitive::default();
-        for (fid, comp, prim, subset) in parts {
-            append_primitive(
-                &mut out,
-                comp,
-                prim,
-                subset.as_deref(),
-                *fid,
-                center,
-                with_uv,
-                with_color,
-                &mut bounds,
-            );
-        }
-        if !out.indices.is_empty() {
-            merged.push((material, out, with_uv, with_color));
-        }
-    }
-    let triangles = merged.iter().map(|m| m.1.indices.len() / 3).sum();
-    let vertices = merged.iter().map(|m| m.1.positions.len()).sum();
-    let table = metadata.map(|make| make(&features));
-    let (glb, metadata_bytes) = write_glb(
+    encode_content(
         scene,
-        &merged,
-        center,
-        features.len(),
+        &TileContent::gather(scene, content, center),
         enc,
-        table.as_ref(),
-        &mut bounds,
+        metadata,
     )
-    .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+}
+
+/// Encodes merged tile content (full detail or simplified) as one GLB.
+pub fn encode_content(
+    scene: &Scene,
+    content: &TileContent,
+    enc: &TileEncoding,
+    metadata: Option<TableMaker>,
+) -> Result<EncodedTile> {
+    let mut bounds = content.bounds();
+    let table = metadata.map(|make| make(&content.features));
+    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds)
+        .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
-        triangles,
-        vertices,
+        triangles: content.triangle_count(),
+        vertices: content.vertex_count(),
         bounds,
-        features,
+        features: content.features.clone(),
         metadata_bytes,
     })
 }
 
-/// Appends a primitive (or, for a part of a cut mesh, only the triangles `subset`, re-indexed
-/// compactly over the vertices they use) to a merged stream, transformed to the tile's frame.
-#[allow(clippy::too_many_arguments)]
-fn append_primitive(
-    out: &mut MergedPrimitive,
-    comp: &Component,
-    prim: &Primitive,
-    subset: Option<&[u32]>,
-    feature_id: usize,
-    center: DVec3,
-    with_uv: bool,
-    with_color: bool,
-    bounds: &mut Aabb,
-) {
-    // `verts`: source vertex of each new vertex; `tris`: triangles in new indices.
-    let (verts, tris): (Vec<u32>, Vec<u32>) = match subset {
-        None => (
-            (0..prim.positions.len() as u32).collect(),
-            prim.indices.clone(),
-        ),
-        Some(sel) => {
-            let mut used: Vec<u32> = sel
-                .iter()
-                .flat_map(|&t| {
-                    prim.indices[t as usize * 3..t as usize * 3 + 3]
-                        .iter()
-                        .copied()
-                })
-                .collect();
-            used.sort_unstable();
-            used.dedup();
-            let tris = sel
-                .iter()
-                .flat_map(|&t| prim.indices[t as usize * 3..t as usize * 3 + 3].iter())
-                .map(|i| {
-                    used.binary_search(i)
-                        .expect("vertex of a selected triangle") as u32
-                })
-                .collect();
-            (used, tris)
-        }
-    };
-    let base = out.positions.len() as u32;
-    let m = comp.world;
-    let normal_matrix = comp.normal_matrix();
-    let mirrored = comp.mirrors();
-    for &v in &verts {
-        let p = prim.positions[v as usize];
-        let w = m.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
-        bounds.extend(w);
-        let l = w - center;
-        // Scene z-up → glTF y-up: (x, y, z) ↦ (x, z, -y), as `Z_UP_TO_Y_UP`.
-        out.positions.push([l.x as f32, l.z as f32, (-l.y) as f32]);
-    }
-    match &prim.normals {
-        Some(ns) => {
-            for &v in &verts {
-                let n = ns[v as usize];
-                let w = (normal_matrix * DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64))
-                    .normalize_or(DVec3::Z);
-                out.normals.push([w.x as f32, w.z as f32, (-w.y) as f32]);
-            }
-        }
-        None => {
-            // Area-weighted vertex normals from the output triangles.
-            let mut acc = vec![DVec3::ZERO; verts.len()];
-            for t in tris.chunks_exact(3) {
-                let v = |i: u32| {
-                    let q = out.positions[(base + i) as usize];
-                    DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64)
-                };
-                let mut n = (v(t[1]) - v(t[0])).cross(v(t[2]) - v(t[0]));
-                if mirrored {
-                    n = -n;
-                }
-                for &i in t {
-                    acc[i as usize] += n;
-                }
-            }
-            out.normals.extend(acc.into_iter().map(|a| {
-                let n = a.normalize_or(DVec3::Y);
-                [n.x as f32, n.y as f32, n.z as f32]
-            }));
-        }
-    }
-    if with_uv {
-        match &prim.uvs {
-            Some(u) => out.uvs.extend(verts.iter().map(|&v| u[v as usize])),
-            None => out.uvs.resize(out.positions.len(), [0.0; 2]),
-        }
-    }
-    if with_color {
-        match &prim.colors {
-            Some(c) => out.colors.extend(verts.iter().map(|&v| c[v as usize])),
-            None => out.colors.resize(out.positions.len(), [1.0; 4]),
-        }
-    }
-    out.feature_ids
-        .resize(out.positions.len(), feature_id as f32);
-    for t in tris.chunks_exact(3) {
-        if mirrored {
-            out.indices
-                .extend_from_slice(&[base + t[0], base + t[2], base + t[1]]);
-        } else {
-            out.indices
-                .extend_from_slice(&[base + t[0], base + t[1], base + t[2]]);
-        }
-    }
+/// Scene z-up → glTF y-up: (x, y, z) ↦ (x, z, -y), as `Z_UP_TO_Y_UP`.
+fn y_up(v: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    v.iter().map(|p| [p[0], p[2], -p[1]]).collect()
 }
 
 /// Builds the glTF JSON and BIN chunk.
@@ -387,9 +222,7 @@ impl GltfBuilder {
 /// the tile's bounding volume contains what clients draw.
 fn write_glb(
     scene: &Scene,
-    merged: &[(Option<MaterialId>, MergedPrimitive, bool, bool)],
-    center: DVec3,
-    feature_count: usize,
+    content: &TileContent,
     enc: &TileEncoding,
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
@@ -406,19 +239,12 @@ fn write_glb(
     let mut samplers: Vec<Sampler> = Vec::new();
     let mut textures: Vec<(usize, usize)> = Vec::new();
     let mut primitives = Vec::new();
-    for (material, m, with_uv, with_color) in merged {
+    let (center, feature_count) = (content.center, content.features.len());
+    for m in &content.primitives {
+        let material = &m.material;
         let mut prim = match enc.compression {
-            Compression::None => plain_primitive(&mut b, m, *with_uv, *with_color),
-            Compression::Draco => draco_primitive(
-                &mut b,
-                m,
-                *with_uv,
-                *with_color,
-                feature_count,
-                enc,
-                center,
-                bounds,
-            )?,
+            Compression::None => plain_primitive(&mut b, m),
+            Compression::Draco => draco_primitive(&mut b, m, feature_count, enc, center, bounds)?,
         };
         prim["mode"] = json!(4);
         let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
@@ -507,27 +333,25 @@ fn write_glb(
 }
 
 /// Attributes and indices as plain accessors.
-fn plain_primitive(
-    b: &mut GltfBuilder,
-    m: &MergedPrimitive,
-    with_uv: bool,
-    with_color: bool,
-) -> Value {
+fn plain_primitive(b: &mut GltfBuilder, m: &ContentPrimitive) -> Value {
     let mut attributes = Map::new();
     attributes.insert(
         "POSITION".into(),
-        json!(b.float_accessor(&m.positions, true)),
+        json!(b.float_accessor(&y_up(&m.positions), true)),
     );
     if !m.normals.is_empty() {
-        attributes.insert("NORMAL".into(), json!(b.float_accessor(&m.normals, false)));
+        attributes.insert(
+            "NORMAL".into(),
+            json!(b.float_accessor(&y_up(&m.normals), false)),
+        );
     }
-    if with_uv {
+    if !m.uvs.is_empty() {
         attributes.insert("TEXCOORD_0".into(), json!(b.float_accessor(&m.uvs, false)));
     }
-    if with_color {
+    if !m.colors.is_empty() {
         attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
     }
-    let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f]).collect();
+    let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
     attributes.insert(
         "_FEATURE_ID_0".into(),
         json!(b.float_accessor(&fids, false)),
@@ -541,18 +365,18 @@ fn plain_primitive(
 #[allow(clippy::too_many_arguments)]
 fn draco_primitive(
     b: &mut GltfBuilder,
-    m: &MergedPrimitive,
-    with_uv: bool,
-    with_color: bool,
+    m: &ContentPrimitive,
     feature_count: usize,
     enc: &TileEncoding,
     center: DVec3,
     bounds: &mut Aabb,
 ) -> std::result::Result<Value, String> {
     use super::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
-    let positions = m.positions.as_flattened();
+    let positions_y_up = y_up(&m.positions);
+    let normals_y_up = y_up(&m.normals);
+    let positions = positions_y_up.as_flattened();
     let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    for p in &m.positions {
+    for p in &positions_y_up {
         for k in 0..3 {
             lo[k] = lo[k].min(p[k]);
             hi[k] = hi[k].max(p[k]);
@@ -566,19 +390,19 @@ fn draco_primitive(
     let mut names = vec![("POSITION", FLOAT, "VEC3")];
     if !m.normals.is_empty() {
         attrs.push(EncodeAttribute::normal(
-            m.normals.as_flattened(),
+            normals_y_up.as_flattened(),
             NORMAL_BITS,
         ));
         names.push(("NORMAL", FLOAT, "VEC3"));
     }
-    if with_uv {
+    if !m.uvs.is_empty() {
         attrs.push(EncodeAttribute::tex_coord(
             m.uvs.as_flattened(),
             uv_bits(&m.uvs),
         ));
         names.push(("TEXCOORD_0", FLOAT, "VEC2"));
     }
-    if with_color {
+    if !m.colors.is_empty() {
         attrs.push(EncodeAttribute::color_f32(
             m.colors.as_flattened(),
             COLOR_BITS,
@@ -587,12 +411,14 @@ fn draco_primitive(
     }
     // Feature IDs are exact integers: u16 while they fit (lossless in Draco), f32 beyond.
     let fid_u16: Vec<u16>;
+    let fid_f32: Vec<f32>;
     if feature_count <= u16::MAX as usize {
         fid_u16 = m.feature_ids.iter().map(|&f| f as u16).collect();
         attrs.push(EncodeAttribute::feature_id_u16(&fid_u16));
         names.push(("_FEATURE_ID_0", UNSIGNED_SHORT, "SCALAR"));
     } else {
-        attrs.push(EncodeAttribute::feature_id_f32(&m.feature_ids));
+        fid_f32 = m.feature_ids.iter().map(|&f| f as f32).collect();
+        attrs.push(EncodeAttribute::feature_id_f32(&fid_f32));
         names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
     }
     let encoded =

@@ -4,4 +4,4 @@ pub mod draco;
 pub mod glb;
 pub mod metadata;
 
-pub use glb::{encode_tile, Compression, EncodedTile, TileEncoding};
+pub use glb::{encode_content, encode_tile, Compression, EncodedTile, TableMaker, TileEncoding};

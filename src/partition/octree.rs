@@ -85,6 +85,51 @@ impl TilePlan {
     pub fn max_depth(&self) -> u32 {
         self.tiles.iter().map(|t| t.depth).max().unwrap_or(0)
     }
+
+    /// The plan for replacement refinement (HLOD): all full-detail content in leaves. A tile that
+    /// has both content of its own and children hands its content to a new leaf child named
+    /// `<path>8` (octants are 0-7), which is drawn beside the other children once the tile
+    /// refines; the tile itself then carries only what the HLOD builder makes of its subtree.
+    pub fn with_content_in_leaves(self) -> TilePlan {
+        fn visit(old: &[PlannedTile], i: usize, depth: u32, out: &mut Vec<PlannedTile>) {
+            let t = &old[i];
+            let me = out.len();
+            out.push(PlannedTile {
+                depth,
+                children: Vec::new(),
+                ..t.clone()
+            });
+            if t.children.is_empty() {
+                return;
+            }
+            if !t.content.is_empty() {
+                let leaf = out.len();
+                out.push(PlannedTile {
+                    path: format!("{}8", t.path),
+                    depth: depth + 1,
+                    children: Vec::new(),
+                    bounds: t.content_bounds,
+                    omitted_size_m: 0.0,
+                    ..t.clone()
+                });
+                out[me].children.push(leaf);
+                let own = &mut out[me];
+                own.content = Vec::new();
+                own.content_bounds = Aabb::EMPTY;
+                own.content_triangles = 0;
+            }
+            for &c in &t.children {
+                let ci = out.len();
+                out[me].children.push(ci);
+                visit(old, c, depth + 1, out);
+            }
+        }
+        let mut out = Vec::with_capacity(self.tiles.len() * 9 / 8 + 1);
+        if !self.tiles.is_empty() {
+            visit(&self.tiles, 0, 0, &mut out);
+        }
+        TilePlan { tiles: out }
+    }
 }
 
 struct Item {
@@ -505,6 +550,35 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert_eq!(names(&plan), names(&again));
+    }
+
+    #[test]
+    fn replacement_plan_has_all_content_in_leaves() {
+        let mut specs = vec![(DVec3::new(50.0, 50.0, 0.0), 100.0)];
+        for i in 0..10 {
+            for j in 0..10 {
+                specs.push((
+                    DVec3::new(5.0 + i as f64 * 10.0, 5.0 + j as f64 * 10.0, 1.0),
+                    1.0,
+                ));
+            }
+        }
+        let s = boxes(&specs);
+        let opts = OctreeOptions {
+            max_tile_triangles: 120,
+            ..Default::default()
+        };
+        let plan = plan_octree(&s, &opts);
+        let leaves = plan.clone().with_content_in_leaves();
+        check_invariants(&s, &leaves, &opts);
+        assert!(leaves.tiles.len() > plan.tiles.len());
+        for t in &leaves.tiles {
+            assert_eq!(t.content.is_empty(), !t.children.is_empty(), "{}", t.path);
+        }
+        // The slab went from the root to the root's new leaf "r8".
+        let r8 = leaves.tiles.iter().find(|t| t.path == "r8").unwrap();
+        assert!(r8.content.iter().any(|c| c.component == ComponentId(0)));
+        assert_eq!(r8.depth, 1);
     }
 
     #[test]

@@ -68,6 +68,7 @@
 
 mod curvature;
 pub mod hausdorff;
+pub mod hlod;
 mod qem;
 pub mod quadric;
 mod weld;

@@ -38,11 +38,25 @@ pub fn box_volume(b: &Aabb) -> Value {
     json!([c.x, c.y, c.z, h.x, 0.0, 0.0, 0.0, h.y, 0.0, 0.0, 0.0, h.z])
 }
 
+/// How a tile's children refine it (3D Tiles `refine`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refine {
+    /// Children are drawn in addition to the tile.
+    Add,
+    /// Children replace the tile (HLOD).
+    Replace,
+}
+
+/// How many times the model's diagonal the tileset's own geometricError is: the model is then
+/// drawn once it spans about 16/4 = 4 pixels at CesiumJS's default maximumScreenSpaceError of 16.
+pub const TOP_ERROR_PER_DIAGONAL: f64 = 4.0;
+
 /// Builds the tileset JSON. `facts[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
 /// frame to ECEF; `extras` is stored under `asset.extras`.
 pub fn tileset_json(
     plan: &TilePlan,
     facts: &[TileFacts],
+    refine: Refine,
     root_transform: &DMat4,
     extras: Value,
 ) -> Value {
@@ -74,10 +88,14 @@ pub fn tileset_json(
         v
     }
     let mut root = tile(plan, facts, &bounds, 0);
-    root["refine"] = json!("ADD");
+    root["refine"] = json!(match refine {
+        Refine::Add => "ADD",
+        Refine::Replace => "REPLACE",
+    });
     root["transform"] = json!(root_transform.to_cols_array());
-    // The whole model is what goes missing when the root is not drawn.
-    let top_error = bounds[0].diagonal().max(facts[0].geometric_error_m);
+    // The whole model is what goes missing when the root is not drawn: it should appear once it
+    // covers a few pixels.
+    let top_error = (bounds[0].diagonal() * TOP_ERROR_PER_DIAGONAL).max(facts[0].geometric_error_m);
     json!({
         "asset": {"version": "1.1", "generator": concat!("bimtiles ", env!("CARGO_PKG_VERSION")), "extras": extras},
         "geometricError": top_error,

@@ -176,6 +176,8 @@ pub struct DecodedTile {
     pub parent: Option<usize>,
     /// Content vertex positions in the root frame (z-up), and triangles.
     pub positions: Vec<DVec3>,
+    /// Triangle corners, indices into `positions`.
+    pub indices: Vec<u32>,
     pub triangles: usize,
     pub area: f64,
 }
@@ -212,7 +214,8 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
             .pointer("/content/uri")
             .and_then(Value::as_str)
             .map(str::to_string);
-        let (mut positions, mut triangles, mut area) = (Vec::new(), 0, 0.0);
+        let (mut positions, mut indices, mut triangles, mut area) =
+            (Vec::new(), Vec::new(), 0, 0.0);
         if let Some(u) = &uri {
             let bytes = std::fs::read(dir.join(u)).unwrap();
             let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
@@ -232,6 +235,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
                         area += (v(t[1]) - v(t[0])).cross(v(t[2]) - v(t[0])).length() * 0.5;
                     }
                     triangles += idx.len() / 3;
+                    indices.extend(idx.iter().map(|&i| base as u32 + i));
                 }
             }
         }
@@ -244,6 +248,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
             depth,
             parent,
             positions,
+            indices,
             triangles,
             area,
         });
@@ -322,21 +327,48 @@ pub fn check_tileset(dir: &Path, input_triangles: usize) -> Vec<DecodedTile> {
         );
         eprintln!("SKIPPED schema check: ../shared/specs not found");
     }
-    let total: usize = tiles.iter().map(|t| t.triangles).sum();
-    assert_eq!(
-        total,
-        input_triangles,
-        "{}: every input triangle is written once",
-        dir.display()
-    );
-    let top = ts["geometricError"].as_f64().unwrap();
-    assert!(top > 0.0);
     let mut has_child = vec![false; tiles.len()];
     for t in &tiles {
         if let Some(p) = t.parent {
             has_child[p] = true;
         }
     }
+    // Additive refinement: every input triangle in exactly one tile; replacement (HLOD): in
+    // exactly one leaf, and every internal tile has (simplified) content.
+    let replace = ts["root"]["refine"] == "REPLACE";
+    let total: usize = tiles
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| !replace || !has_child[i])
+        .map(|(_, t)| t.triangles)
+        .sum();
+    assert_eq!(
+        total,
+        input_triangles,
+        "{}: every input triangle is written once (in a leaf, with HLOD)",
+        dir.display()
+    );
+    if replace {
+        for (i, t) in tiles.iter().enumerate() {
+            assert!(
+                t.triangles > 0,
+                "{}: HLOD tile {i} without content",
+                dir.display()
+            );
+            if !has_child[i] {
+                assert_eq!(t.geometric_error, 0.0, "leaves are full detail");
+            }
+            if let Some(p) = t.parent {
+                assert!(
+                    t.geometric_error < tiles[p].geometric_error,
+                    "{}: geometric error decreases strictly downwards",
+                    dir.display()
+                );
+            }
+        }
+    }
+    let top = ts["geometricError"].as_f64().unwrap();
+    assert!(top > 0.0);
     for (i, t) in tiles.iter().enumerate() {
         // Content inside its box (f32 rounding allowance of 0.1 mm).
         for p in &t.positions {
