@@ -515,9 +515,8 @@ mod tests {
         assert_eq!(plan.tiles[0].omitted_size_m, 0.0);
     }
 
-    #[test]
-    fn splits_over_budget_and_keeps_large_components_high() {
-        // A 100 m slab plus a 10x10 grid of 1 m boxes; budget of 10 boxes (120 triangles).
+    /// A 100 m slab plus a 10x10 grid of 1 m boxes; budget of 10 boxes (120 triangles).
+    fn slab_and_boxes() -> (Scene, OctreeOptions) {
         let mut specs = vec![(DVec3::new(50.0, 50.0, 0.0), 100.0)];
         for i in 0..10 {
             for j in 0..10 {
@@ -527,11 +526,16 @@ mod tests {
                 ));
             }
         }
-        let s = boxes(&specs);
         let opts = OctreeOptions {
             max_tile_triangles: 120,
             ..Default::default()
         };
+        (boxes(&specs), opts)
+    }
+
+    #[test]
+    fn splits_over_budget_and_keeps_large_components_high() {
+        let (s, opts) = slab_and_boxes();
         let plan = plan_octree(&s, &opts);
         assert!(plan.tiles.len() > 8);
         // The slab stays at the root.
@@ -554,20 +558,7 @@ mod tests {
 
     #[test]
     fn replacement_plan_has_all_content_in_leaves() {
-        let mut specs = vec![(DVec3::new(50.0, 50.0, 0.0), 100.0)];
-        for i in 0..10 {
-            for j in 0..10 {
-                specs.push((
-                    DVec3::new(5.0 + i as f64 * 10.0, 5.0 + j as f64 * 10.0, 1.0),
-                    1.0,
-                ));
-            }
-        }
-        let s = boxes(&specs);
-        let opts = OctreeOptions {
-            max_tile_triangles: 120,
-            ..Default::default()
-        };
+        let (s, opts) = slab_and_boxes();
         let plan = plan_octree(&s, &opts);
         let leaves = plan.clone().with_content_in_leaves();
         check_invariants(&s, &leaves, &opts);
