@@ -412,6 +412,27 @@ mod tests {
     use crate::scene::*;
     use glam::DMat4;
 
+    /// Adds a one-primitive mesh and the component that draws it.
+    fn push_mesh_component(
+        s: &mut Scene,
+        positions: Vec<[f32; 3]>,
+        indices: Vec<u32>,
+        key: String,
+        world: DMat4,
+    ) {
+        let mesh = MeshId(s.meshes.len() as u32);
+        s.meshes.push(Mesh {
+            name: None,
+            primitives: vec![Primitive {
+                positions,
+                indices,
+                ..Default::default()
+            }],
+            local_bounds: None,
+        });
+        s.push_component(Component::new(key, mesh, world), ElementInfo::default());
+    }
+
     /// A scene of unit-ish boxes (12 triangles each) at the given centres and sizes.
     fn boxes(specs: &[(DVec3, f64)]) -> Scene {
         let mut s = Scene::default();
@@ -429,22 +450,12 @@ mod tests {
                 0, 1, 3, 0, 3, 2, 4, 6, 7, 4, 7, 5, 0, 4, 5, 0, 5, 1, 2, 3, 7, 2, 7, 6, 0, 2, 6, 0,
                 6, 4, 1, 5, 7, 1, 7, 3,
             ];
-            s.meshes.push(Mesh {
-                name: None,
-                primitives: vec![Primitive {
-                    positions,
-                    indices,
-                    ..Default::default()
-                }],
-                local_bounds: None,
-            });
-            s.push_component(
-                Component::new(
-                    format!("c{i}"),
-                    MeshId(i as u32),
-                    DMat4::from_translation(c),
-                ),
-                ElementInfo::default(),
+            push_mesh_component(
+                &mut s,
+                positions,
+                indices,
+                format!("c{i}"),
+                DMat4::from_translation(c),
             );
         }
         s.finish();
@@ -603,19 +614,7 @@ mod tests {
             }
         }
         let mut s = Scene::default();
-        s.meshes.push(Mesh {
-            name: None,
-            primitives: vec![Primitive {
-                positions,
-                indices,
-                ..Default::default()
-            }],
-            local_bounds: None,
-        });
-        s.push_component(
-            Component::new("grid", MeshId(0), DMat4::IDENTITY),
-            ElementInfo::default(),
-        );
+        push_mesh_component(&mut s, positions, indices, "grid".into(), DMat4::IDENTITY);
         s.finish();
         s
     }
