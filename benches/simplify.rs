@@ -113,6 +113,21 @@ fn load_glb(path: &Path) -> Option<Model> {
     (!m.indices.is_empty()).then_some(m)
 }
 
+/// CPU time of the process (all threads) in seconds, from /proc/self/stat
+/// (0 where unavailable): less disturbed than wall time by other jobs on a
+/// shared machine.
+fn cpu_time() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are the
+    // 14th and 15th fields of the line, in clock ticks (100 Hz on Linux).
+    let rest = s.rsplit_once(')').map_or("", |r| r.1);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
 /// FNV-1a over the output positions, indices and declared error.
 fn hash(r: &SimplifiedMesh) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -153,13 +168,15 @@ fn bench(m: &Model, reps: usize, time_error: bool) {
             ..Default::default()
         };
         let (mut ours, mut theirs, mut full) = (f64::MAX, f64::MAX, f64::MAX);
+        let (mut ours_cpu, mut theirs_cpu) = (f64::MAX, f64::MAX);
         let mut r = None;
         let mut mo_tris = 0;
         for _ in 0..reps {
-            let t = Instant::now();
+            let (t, c) = (Instant::now(), cpu_time());
             let out = simplify(&input, &o).unwrap();
             ours = ours.min(t.elapsed().as_secs_f64());
-            let t = Instant::now();
+            ours_cpu = ours_cpu.min(cpu_time() - c);
+            let (t, c) = (Instant::now(), cpu_time());
             let mo = meshopt::simplify(
                 &m.indices,
                 &ad,
@@ -169,6 +186,7 @@ fn bench(m: &Model, reps: usize, time_error: bool) {
                 None,
             );
             theirs = theirs.min(t.elapsed().as_secs_f64());
+            theirs_cpu = theirs_cpu.min(cpu_time() - c);
             mo_tris = mo.len() / 3;
             r = Some(out);
         }
@@ -197,7 +215,7 @@ fn bench(m: &Model, reps: usize, time_error: bool) {
             String::new()
         };
         println!(
-            "{:<26} {:>3.0}% {:>8} -> {:>7} | ours {:>7.3} s ({:>5.2} Mtri/s) | meshopt {:>6.3} s ({} tris) | ratio {:>5.2}x | hash {:016x}{err}",
+            "{:<26} {:>3.0}% {:>8} -> {:>7} | ours {:>7.3} s ({:>5.2} Mtri/s) | meshopt {:>6.3} s ({} tris) | ratio {:>5.2}x | cpu {:.2} / {:.2} s | hash {:016x}{err}",
             m.name,
             ratio * 100.0,
             tris,
@@ -207,6 +225,8 @@ fn bench(m: &Model, reps: usize, time_error: bool) {
             theirs,
             mo_tris,
             ours / theirs,
+            ours_cpu,
+            theirs_cpu,
             hash(&r),
         );
     }

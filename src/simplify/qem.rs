@@ -22,7 +22,10 @@
 //! current cost as a threshold and stop as soon as they cannot exceed it; an
 //! edge whose neighbourhood is untouched since it was ranked reuses the
 //! ranked coverage when applied. All of these are exact except growing the
-//! known order during a walk, which uses the state at that time.
+//! known order during a walk, which uses the state at that time. The
+//! ranking reads each vertex's star once for all its edges (`star_edges`),
+//! and the interior check resolves the old star (positions, normals) once
+//! per collapse rather than once per sample point.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
