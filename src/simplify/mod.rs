@@ -259,7 +259,7 @@ fn validate(m: &MeshInput, o: &SimplifyOptions) -> Result<(), SimplifyError> {
     if n >= u32::MAX as usize {
         return Err(SimplifyError::TooManyVertices(n));
     }
-    if !m.indices.len().is_multiple_of(3) {
+    if m.indices.len() % 3 != 0 {
         return Err(SimplifyError::IndexCount(m.indices.len()));
     }
     let lens = [

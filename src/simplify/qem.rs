@@ -22,7 +22,10 @@
 //! current cost as a threshold and stop as soon as they cannot exceed it; an
 //! edge whose neighbourhood is untouched since it was ranked reuses the
 //! ranked coverage when applied. All of these are exact except growing the
-//! known order during a walk, which uses the state at that time.
+//! known order during a walk, which uses the state at that time. The
+//! ranking reads each vertex's star once for all its edges (`star_edges`),
+//! and the interior check resolves the old star (positions, normals) once
+//! per collapse rather than once per sample point.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
@@ -168,6 +171,40 @@ struct EdgeInfo {
     pairs: [(u32, u32); MAX_EDGE_TRIS],
     opp: [u32; MAX_EDGE_TRIS],
     constraint: bool,
+}
+
+impl Default for EdgeInfo {
+    fn default() -> Self {
+        EdgeInfo {
+            count: 0,
+            pairs: [(NONE, NONE); MAX_EDGE_TRIS],
+            opp: [NONE; MAX_EDGE_TRIS],
+            constraint: false,
+        }
+    }
+}
+
+impl EdgeInfo {
+    /// One more triangle on the edge: wedges at `u` and `v`, opposite vertex.
+    #[inline]
+    fn push(&mut self, wu: u32, wv: u32, opp: u32) {
+        if self.count < MAX_EDGE_TRIS {
+            self.pairs[self.count] = (wu, wv);
+            self.opp[self.count] = opp;
+        }
+        self.count += 1;
+    }
+
+    /// Sets `constraint` once every triangle is pushed: anything but two
+    /// triangles with the same wedge pairs is a seam, border or
+    /// non-manifold edge.
+    #[inline]
+    fn finish(&mut self) {
+        self.constraint = match self.count {
+            2 => self.pairs[0] != self.pairs[1],
+            _ => true,
+        };
+    }
 }
 
 #[derive(Clone, Copy)]
@@ -320,37 +357,50 @@ impl State<'_> {
         res
     }
 
+    /// The triangles of edge `(u, v)` seen from `u`'s star `star_u`.
     fn edge_info(&self, v: u32, star_u: &[u32]) -> EdgeInfo {
-        let mut e = EdgeInfo {
-            count: 0,
-            pairs: [(NONE, NONE); MAX_EDGE_TRIS],
-            opp: [NONE; MAX_EDGE_TRIS],
-            constraint: false,
-        };
+        let mut e = EdgeInfo::default();
         for &c in star_u {
             let t = &self.tris[(c / 3) as usize];
             let k = (c % 3) as usize;
-            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
-            let (w1, w2) = (t[k1], t[k2]);
+            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
             let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
-            let (wv, o) = if x1 == v {
-                (w1, x2)
+            if x1 == v {
+                e.push(t[k], w1, x2);
             } else if x2 == v {
-                (w2, x1)
-            } else {
-                continue;
-            };
-            if e.count < MAX_EDGE_TRIS {
-                e.pairs[e.count] = (t[k], wv);
-                e.opp[e.count] = o;
+                e.push(t[k], w2, x1);
             }
-            e.count += 1;
         }
-        e.constraint = match e.count {
-            2 => e.pairs[0] != e.pairs[1],
-            _ => true,
-        };
+        e.finish();
         e
+    }
+
+    /// [`State::edge_info`] of every edge `(a, b)` with `b > a`, in one scan
+    /// of `a`'s star (ranking called `edge_info` per edge: a scan of the
+    /// star per neighbour). Order: first appearance of `b` in the star.
+    fn star_edges(&self, a: u32, star: &[u32], out: &mut Vec<(u32, EdgeInfo)>) {
+        out.clear();
+        for &c in star {
+            let t = &self.tris[(c / 3) as usize];
+            let k = (c % 3) as usize;
+            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+            let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
+            // As `edge_info`: a corner counts once, for `x1` first.
+            for (b, wb, o) in [(x1, w1, x2), (x2, w2, x1)] {
+                if b <= a || (b == x2 && x1 == x2) {
+                    continue;
+                }
+                let i = match out.iter().position(|(y, _)| *y == b) {
+                    Some(i) => i,
+                    None => {
+                        out.push((b, EdgeInfo::default()));
+                        out.len() - 1
+                    }
+                };
+                out[i].1.push(t[k], wb, o);
+            }
+        }
+        out.iter_mut().for_each(|(_, e)| e.finish());
     }
 
     fn mobility(&self, x: u32, constrained: bool, edge_constraint: bool) -> Mobility {
@@ -368,8 +418,9 @@ impl State<'_> {
     }
 
     /// Candidate placements of collapsing edge (u, v), cheapest first.
-    /// `su`: live star of `u`; constraint flags from [`State::cflag`].
-    fn evaluate(&self, u: u32, v: u32, su: &[u32]) -> Option<Eval> {
+    /// `e`: [`State::edge_info`] of the edge; constraint flags from
+    /// [`State::cflag`].
+    fn evaluate(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<Eval> {
         if !self.alive[u as usize] || !self.alive[v as usize] {
             return None;
         }
@@ -377,7 +428,6 @@ impl State<'_> {
         if (pu - pv).length_squared() > self.p.max_edge_len2 {
             return None;
         }
-        let e = self.edge_info(v, su);
         if e.count == 0 {
             return None;
         }
@@ -595,15 +645,20 @@ impl State<'_> {
         du.max(dv).max(dp)
     }
 
-    /// Upper bound of [`State::coverage2`] when some triangle of `su` (the
-    /// star of `u`) is not on the edge (u, v): `p` is a vertex of every new
-    /// triangle and `u`, `v` are vertices of the old star.
-    fn coverage2_bound(&self, u: u32, v: u32, p: DVec3, su: &[u32]) -> Option<f64> {
-        let survives = su.iter().any(|&c| {
-            let (a, b) = self.corner_others(c);
-            a != v && b != v
-        });
-        if !survives {
+    /// Upper bound of [`State::coverage2`] when some triangle of `u`'s star
+    /// (`su_len` triangles; `e`: [`State::edge_info`] of the edge) is not
+    /// on the edge (u, v): `p` is a vertex of every new triangle and `u`,
+    /// `v` are vertices of the old star.
+    fn coverage2_bound(
+        &self,
+        u: u32,
+        v: u32,
+        p: DVec3,
+        su_len: usize,
+        e: &EdgeInfo,
+    ) -> Option<f64> {
+        // The triangles of the star on the edge are the ones `e` counted.
+        if e.count >= su_len {
             return None;
         }
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
@@ -612,40 +667,85 @@ impl State<'_> {
 
     /// Squared distance from sample points of the new triangles around `p`
     /// (edge midpoints and centroids) to the old surface around the edge,
-    /// or `t` if it is not larger (early exits).
-    fn interior2(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], t: f64) -> f64 {
+    /// or `t` if it is not larger (early exits). `old`: scratch for the old
+    /// star with its normals (each point scans it, so it is resolved once).
+    #[allow(clippy::too_many_arguments)]
+    fn interior2(
+        &self,
+        u: u32,
+        v: u32,
+        p: DVec3,
+        su: &[u32],
+        sv: &[u32],
+        t: f64,
+        old: &mut Vec<OldTri>,
+    ) -> f64 {
         let mut worst: f64 = t.max(0.0);
-        for star in [su, sv] {
-            for &c in star {
-                let (a, b) = self.corner_others(c);
-                if a == u || a == v || b == u || b == v {
+        old.clear();
+        for &c in su.iter().chain(sv) {
+            let (a, b) = self.corner_others(c);
+            let x = self.corner_vertex(c);
+            let (px, pa, pb) = (
+                self.pos[x as usize],
+                self.pos[a as usize],
+                self.pos[b as usize],
+            );
+            let n = (pa - px).cross(pb - px);
+            old.push(OldTri {
+                px,
+                pa,
+                pb,
+                n,
+                l2: n.length_squared(),
+                a,
+                b,
+                survives: !(a == u || a == v || b == u || b == v),
+                spoke_a: false,
+                spoke_b: false,
+            });
+        }
+        // A spoke (p, a) is shared by two new triangles: its midpoint is
+        // measured once, with the first.
+        for i in 0..old.len() {
+            if !old[i].survives {
+                continue;
+            }
+            let (a, b) = (old[i].a, old[i].b);
+            let seen = |y: u32| {
+                old[..i]
+                    .iter()
+                    .any(|o| o.survives && (o.a == y || o.b == y))
+            };
+            let (sa, sb) = (!seen(a), !seen(b));
+            old[i].spoke_a = sa;
+            old[i].spoke_b = sb;
+        }
+        for (i, tr) in old.iter().enumerate() {
+            if !tr.survives || tr.px == p {
+                continue; // on the edge, or the new triangle is the old one
+            }
+            let (pa, pb) = (tr.pa, tr.pb);
+            let pts = [
+                (tr.spoke_a, (p + pa) * 0.5),
+                (tr.spoke_b, (p + pb) * 0.5),
+                (true, (p + pa + pb) / 3.0),
+            ];
+            for (_, q) in pts.into_iter().filter(|x| x.0) {
+                // The old triangle this one replaces first (often the
+                // nearest: an early exit for the rest).
+                let mut d = tr.dist2_min(q, f64::INFINITY);
+                if d <= worst {
                     continue;
                 }
-                let px = self.pos[self.corner_vertex(c) as usize];
-                if px == p {
-                    continue; // the new triangle is the old one
-                }
-                let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-                for q in [(p + pa) * 0.5, (p + pb) * 0.5, (p + pa + pb) / 3.0] {
-                    // The old triangle this one replaces first (often the
-                    // nearest: an early exit for the rest).
-                    let mut d = tri_dist2_min(q, px, pa, pb, f64::INFINITY);
-                    if d <= worst {
-                        continue;
-                    }
-                    'scan: for st2 in [su, sv] {
-                        for &c2 in st2 {
-                            let (x, y) = self.corner_others(c2);
-                            let pz = self.pos[self.corner_vertex(c2) as usize];
-                            let (px2, py) = (self.pos[x as usize], self.pos[y as usize]);
-                            d = tri_dist2_min(q, pz, px2, py, d);
-                            if d <= worst {
-                                break 'scan;
-                            }
+                for (j, o) in old.iter().enumerate() {
+                    if j != i {
+                        d = o.dist2_min(q, d);
+                        if d <= worst {
+                            break;
                         }
                     }
-                    worst = worst.max(d);
                 }
+                worst = worst.max(d);
             }
         }
         worst
@@ -703,6 +803,39 @@ impl State<'_> {
         self.alive[u as usize] = false;
         self.locked[v as usize] |= self.locked[u as usize];
         dist2
+    }
+}
+
+/// A triangle of the old star around an edge (as seen from its vertex `x`,
+/// then `a`, `b`) with its normal `n = (pa - px) x (pb - px)`, `l2 = |n|²`.
+#[derive(Clone, Copy)]
+struct OldTri {
+    px: DVec3,
+    pa: DVec3,
+    pb: DVec3,
+    n: DVec3,
+    l2: f64,
+    a: u32,
+    b: u32,
+    /// Not on the collapsed edge (it survives with `x` moved).
+    survives: bool,
+    /// Its new triangle is the first with the spoke to `a` / `b`.
+    spoke_a: bool,
+    spoke_b: bool,
+}
+
+impl OldTri {
+    /// `min(best, squared distance from q to this triangle)`, as
+    /// [`tri_dist2_min`] with the normal already known.
+    #[inline]
+    fn dist2_min(&self, q: DVec3, best: f64) -> f64 {
+        if self.l2 > 0.0 {
+            let h = self.n.dot(q - self.px);
+            if h * h >= best * self.l2 {
+                return best;
+            }
+        }
+        best.min((closest_point_on_triangle(q, self.px, self.pa, self.pb) - q).length_squared())
     }
 }
 
@@ -891,6 +1024,7 @@ pub(crate) fn run(
     // optional locking of border vertices.
     let mut su = Vec::new();
     let mut sv = Vec::new();
+    let mut old = Vec::new();
     st.rebuild_csr();
     for a in 0..nv as u32 {
         st.gather(a, &mut su);
@@ -999,22 +1133,16 @@ pub(crate) fn run(
             .with_min_len(4096)
             .fold(
                 || (Vec::new(), Vec::new(), Vec::new()),
-                |(mut out, mut star, mut nb): (Vec<Ranked>, Vec<u32>, Vec<u32>), a| {
+                |(mut out, mut star, mut nb): (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>), a| {
                     if !stref.alive[a as usize] {
                         return (out, star, nb);
                     }
                     stref.gather(a, &mut star);
-                    nb.clear();
-                    for &c in star.iter() {
-                        let (x, y) = stref.corner_others(c);
-                        for z in [x, y] {
-                            if z > a && !nb.contains(&z) {
-                                nb.push(z);
-                            }
-                        }
-                    }
-                    for &b in nb.iter() {
-                        if let Some(ev) = stref.evaluate(a, b, &star) {
+                    // Every edge (a, b > a) with its triangles, in one scan.
+                    stref.star_edges(a, &star, &mut nb);
+                    for (b, e) in nb.iter() {
+                        let b = *b;
+                        if let Some(ev) = stref.evaluate(a, b, e) {
                             let key = ev.cands[0].key;
                             let f = stref.factor(a, b);
                             let p = ev.cands[0].p;
@@ -1022,7 +1150,7 @@ pub(crate) fn run(
                             // lazily (below) unless its bound is no larger.
                             let skip = !RANK_COVERAGE
                                 || stref
-                                    .coverage2_bound(a, b, p, &star)
+                                    .coverage2_bound(a, b, p, star.len(), e)
                                     .is_some_and(|ub| ub * f <= key);
                             out.push(Ranked {
                                 key,
@@ -1174,11 +1302,11 @@ pub(crate) fn run(
             }
             st.gather(u, &mut su);
             st.gather(v, &mut sv);
-            let Some(ev) = st.evaluate(u, v, &su) else {
+            let e = st.edge_info(v, &su);
+            let Some(ev) = st.evaluate(u, v, &e) else {
                 goal_idx += 1;
                 continue;
             };
-            let e = st.edge_info(v, &su);
             let mut chosen = None;
             // Nothing around the edge changed since it was ranked: the ranked
             // key already holds the coverage error of the first placement.
@@ -1209,7 +1337,7 @@ pub(crate) fn run(
                             st.coverage2(u, v, c.p, &su, &sv, t)
                         };
                         if INTERIOR {
-                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, t.max(d1)));
+                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, t.max(d1), &mut old));
                         }
                         if d1 > t {
                             c.key = c.key.max(d1 * st.factor(u, v));

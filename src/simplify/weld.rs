@@ -90,13 +90,27 @@ pub(crate) fn weld(
     let mut plocked = Vec::new();
     let mut rep_src: Vec<u32> = Vec::new(); // position vertex -> input vertex
     if tolerance > 0.0 {
-        let inv = 1.0 / tolerance;
+        // Cells of twice the tolerance: per axis only the cell and its
+        // nearer neighbour can hold a point within the tolerance (8 probes
+        // instead of 27 with cells of the tolerance; the result, the first
+        // representative within the tolerance, does not depend on the cells).
+        let inv = 0.5 / tolerance;
         let cell = |p: DVec3| {
             (
                 (p.x * inv).floor() as i64,
                 (p.y * inv).floor() as i64,
                 (p.z * inv).floor() as i64,
             )
+        };
+        // Neighbour cells to probe along one axis: the lower one, the upper
+        // one, or both when the point is (up to rounding) halfway.
+        let span = |x: f64, c: i64| -> (i64, i64) {
+            let f = x * inv - c as f64;
+            match f {
+                f if f < 0.5 - 1e-6 => (-1, 0),
+                f if f > 0.5 + 1e-6 => (0, 1),
+                _ => (-1, 1),
+            }
         };
         let mut heads: HashMap<(u32, i64, i64, i64), u32> = HashMap::default();
         let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
@@ -109,10 +123,11 @@ pub(crate) fn weld(
             let g = groups(i);
             let lk = locked(i);
             let (cx, cy, cz) = cell(p);
+            let (sx, sy, sz) = (span(p.x, cx), span(p.y, cy), span(p.z, cz));
             let mut best = NONE;
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
+            for dx in sx.0..=sx.1 {
+                for dy in sy.0..=sy.1 {
+                    for dz in sz.0..=sz.1 {
                         let mut r = heads
                             .get(&(g, cx + dx, cy + dy, cz + dz))
                             .copied()
