@@ -250,6 +250,10 @@ pub struct Component {
     pub world_bounds: Aabb,
     /// Which input file it came from (index into `Scene::sources`).
     pub source: u32,
+    /// Set by `dedup` when this component is a redundant exact copy of another (same geometry at
+    /// the same place): it stays in the scene for its identity and metadata, but stages that
+    /// write geometry skip it (the kept component draws it).
+    pub alias_of: Option<ComponentId>,
 }
 
 /// A typed property value (IFC property sets arrive as text; readers type what is clearly typed).
@@ -301,6 +305,7 @@ impl Component {
             world,
             world_bounds: Aabb::EMPTY,
             source: 0,
+            alias_of: None,
         }
     }
 
@@ -440,6 +445,7 @@ impl Scene {
                 c.node = c.node.map(|x| NodeId(x.0 + n0));
                 c.mesh = MeshId(c.mesh.0 + m0);
                 c.source += s0;
+                c.alias_of = c.alias_of.map(|a| ComponentId(a.0 + c0));
                 c
             }));
         self.skipped_primitives += other.skipped_primitives;

@@ -496,6 +496,7 @@ impl Reader<'_> {
                         world,
                         world_bounds: Aabb::EMPTY,
                         source: 0,
+                        alias_of: None,
                     },
                     info,
                 );

@@ -991,6 +991,7 @@ fn assemble(
                 world: frame * DMat4::from_translation(local),
                 world_bounds: Aabb::EMPTY,
                 source: 0,
+                alias_of: None,
             },
             info,
         );
