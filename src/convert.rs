@@ -1,14 +1,16 @@
-//! The end-to-end conversion: ingest → place → partition → encode → tileset → report.
+//! The end-to-end conversion: ingest → place → dedup → partition → (HLOD) → encode → tileset →
+//! report.
 //!
 //! Output is built in a temporary folder beside the target and renamed into place at the end, so an
 //! interrupted or failed run never leaves a tileset that looks complete. Tiles are encoded in
 //! parallel, each written and freed at once; file names and contents depend only on the input and
 //! the options, never on the thread count.
 
+use crate::dedup::{deduplicate, DedupOptions, DedupReport};
 use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
 use crate::encode::{encode_content, encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
-use crate::partition::{plan_octree, OctreeOptions, TilePlan};
+use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
 use crate::simplify::hlod::{simplify_children, tile_error};
 use crate::tile_content::TileContent;
@@ -41,6 +43,14 @@ pub struct ConvertOptions {
     pub lod: LodMode,
     /// Options of the QEM simplifier for LOD content (targets are set per tile).
     pub simplify: crate::simplify::SimplifyOptions,
+    /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
+    pub dedup: Option<DedupOptions>,
+    /// Write a shape drawn several times in a tile once, placed per instance
+    /// (`EXT_mesh_gpu_instancing`); off, every copy is written as plain geometry.
+    pub instancing: bool,
+    /// Instance a shape in a tile only when that stores at least this many fewer triangles;
+    /// `None`: [`default_min_instanced_triangles_saved`] of the compression.
+    pub min_instanced_triangles_saved: Option<usize>,
     /// Show progress bars on stderr.
     pub progress: bool,
 }
@@ -55,8 +65,23 @@ impl ConvertOptions {
             compression: Compression::default(),
             lod: LodMode::default(),
             simplify: crate::simplify::SimplifyOptions::default(),
+            dedup: Some(DedupOptions::default()),
+            instancing: true,
+            min_instanced_triangles_saved: None,
             progress: false,
         }
+    }
+}
+
+/// Default of [`ConvertOptions::min_instanced_triangles_saved`], chosen by measurement on the
+/// sample and the shared models (README, dedup section). Draco already compresses a repeated
+/// shape to a few bytes per triangle, so an instanced shape's own node, mesh, accessors and
+/// instance attributes (about 1 KB) only pay off for larger savings; plain geometry costs tens of
+/// bytes per triangle.
+pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
+    match compression {
+        Compression::Draco => 1000,
+        Compression::None => 100,
     }
 }
 
@@ -102,8 +127,14 @@ pub struct OutputReport {
     pub tiles: usize,
     pub tiles_with_content: usize,
     pub max_depth: u32,
+    /// Triangles and vertices drawn (an instanced shape once per instance).
     pub triangles: usize,
     pub vertices: usize,
+    /// Triangles stored in the tiles (an instanced shape once per tile).
+    pub stored_triangles: usize,
+    /// Instanced shapes (counted per tile) and the components drawn through them.
+    pub instanced_shapes: usize,
+    pub instances: usize,
     /// Bytes of the property tables (EXT_structural_metadata) over all tiles.
     pub metadata_bytes: u64,
 }
@@ -116,6 +147,8 @@ pub struct TileReport {
     pub content: Option<String>,
     pub features: usize,
     pub triangles: usize,
+    pub stored_triangles: usize,
+    pub instances: usize,
     pub bytes: u64,
     pub metadata_bytes: u64,
     pub geometric_error_m: f64,
@@ -153,6 +186,7 @@ pub struct GeoReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct Timings {
     pub ingest: f64,
+    pub dedup: f64,
     pub partition: f64,
     pub encode_write: f64,
     pub tileset: f64,
@@ -168,6 +202,9 @@ pub struct Report {
     pub levels: Vec<LevelReport>,
     pub tiles: Vec<TileReport>,
     pub georeference: GeoReport,
+    /// What dedup found (absent when it was turned off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dedup: Option<DedupReport>,
     /// Which metric produced the tiles' geometricError.
     pub geometric_error_metric: String,
     pub options: serde_json::Value,
@@ -329,6 +366,10 @@ pub fn convert_scene(
         }
     };
 
+    let t_dedup_start = Instant::now();
+    let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
+    let t_dedup = t_dedup_start.elapsed().as_secs_f64();
+
     let t1 = Instant::now();
     let mut plan = plan_octree(scene, &opts.octree);
     if opts.lod == LodMode::Hlod {
@@ -362,8 +403,8 @@ pub fn convert_scene(
     };
 
     let mut levels: Vec<LevelReport> = Vec::new();
-    let mut out_tris = 0;
-    let mut out_verts = 0;
+    let (mut out_tris, mut out_verts, mut out_stored, mut out_shapes, mut out_instances) =
+        (0, 0, 0, 0, 0);
     let mut out_bytes = 0u64;
     let mut tiles = Vec::new();
     for (t, st) in plan.tiles.iter().zip(&facts_bytes) {
@@ -375,6 +416,9 @@ pub fn convert_scene(
         );
         out_tris += tris;
         out_verts += verts;
+        out_stored += st.stored_triangles;
+        out_shapes += st.instanced_shapes;
+        out_instances += st.instances;
         out_bytes += bytes;
         tiles.push(TileReport {
             path: t.path.clone(),
@@ -382,6 +426,8 @@ pub fn convert_scene(
             content: st.uri.clone(),
             features: st.features,
             triangles: st.triangles,
+            stored_triangles: st.stored_triangles,
+            instances: st.instances,
             bytes: st.bytes,
             metadata_bytes: st.metadata_bytes,
             geometric_error_m: st.geometric_error_m,
@@ -421,6 +467,9 @@ pub fn convert_scene(
             max_depth: plan.max_depth(),
             triangles: out_tris,
             vertices: out_verts,
+            stored_triangles: out_stored,
+            instanced_shapes: out_shapes,
+            instances: out_instances,
             metadata_bytes: tiles.iter().map(|t| t.metadata_bytes).sum(),
         },
         levels,
@@ -431,6 +480,7 @@ pub fn convert_scene(
             anchor_m: anchor.to_array(),
             anchor_rule,
         },
+        dedup,
         geometric_error_metric: match opts.lod {
             LodMode::Hlod => HLOD_ERROR_METRIC,
             LodMode::None => SIZE_BOUND_ERROR_METRIC,
@@ -442,9 +492,15 @@ pub fn convert_scene(
             "max_depth": opts.octree.max_depth,
             "compression": format!("{:?}", opts.compression).to_lowercase(),
             "lod": opts.lod.name(),
+            "dedup": opts.dedup.is_some(),
+            "dedup_tolerance_m": opts.dedup.as_ref().map(|d| d.tolerance_m),
+            "instancing": opts.instancing,
+            "min_instanced_triangles_saved": opts.min_instanced_triangles_saved
+                .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression)),
         }),
         timings_s: Timings {
             ingest: t_ingest,
+            dedup: t_dedup,
             partition: t_partition,
             encode_write: t_encode,
             tileset: t_tileset,
@@ -485,6 +541,23 @@ pub const SIZE_BOUND_ERROR_METRIC: &str = "size-bound: a tile's geometricError i
 among the components of its descendants (what is missing from the view when the tile is drawn without its children, \
 additive refinement); leaves have 0";
 
+/// A tile's content as the options want it written: instanced or plain.
+fn gather(
+    scene: &Scene,
+    opts: &ConvertOptions,
+    items: &[ContentItem],
+    center: DVec3,
+) -> TileContent {
+    if opts.instancing {
+        let min_saved = opts
+            .min_instanced_triangles_saved
+            .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression));
+        TileContent::gather_instanced(scene, items, center, min_saved)
+    } else {
+        TileContent::gather(scene, items, center)
+    }
+}
+
 /// What writing one tile gave.
 #[derive(Debug, Clone, Default)]
 struct TileStats {
@@ -493,6 +566,9 @@ struct TileStats {
     bytes: u64,
     triangles: usize,
     vertices: usize,
+    stored_triangles: usize,
+    instanced_shapes: usize,
+    instances: usize,
     features: usize,
     metadata_bytes: u64,
     simplified_from_triangles: Option<usize>,
@@ -537,6 +613,9 @@ fn write_tileset(
         st.bytes = enc.glb.len() as u64;
         st.triangles = enc.triangles;
         st.vertices = enc.vertices;
+        st.stored_triangles = enc.stored_triangles;
+        st.instanced_shapes = enc.instanced_shapes;
+        st.instances = enc.instances;
         st.features = enc.features.len();
         st.metadata_bytes = enc.metadata_bytes as u64;
         Ok((enc.bounds, st))
@@ -555,8 +634,7 @@ fn write_tileset(
                     pb.inc(1);
                     return Ok((Aabb::EMPTY, st));
                 }
-                let content =
-                    TileContent::gather(scene, &tile.content, tile.content_bounds.center());
+                let content = gather(scene, opts, &tile.content, tile.content_bounds.center());
                 write(i, &content, st)
             })
             .collect(),
@@ -655,8 +733,12 @@ impl HlodBuilder<'_> {
         let tile = &self.plan.tiles[i];
         let path = || format!("tiles/{}.glb", tile.path);
         let built = if tile.children.is_empty() {
-            let content =
-                TileContent::gather(self.scene, &tile.content, tile.content_bounds.center());
+            let content = gather(
+                self.scene,
+                self.opts,
+                &tile.content,
+                tile.content_bounds.center(),
+            );
             let mut cut_triangles = BTreeMap::new();
             for item in &tile.content {
                 if let Some(t) = &item.triangles {
@@ -666,7 +748,8 @@ impl HlodBuilder<'_> {
             let written = (self.write)(i, &content, TileStats::default())?;
             *self.slots[i].lock().expect("slot") = Some(written);
             BuiltSubtree {
-                content,
+                // Parents simplify one surface: instances go up as plain geometry.
+                content: content.expand(),
                 geometric_error_m: 0.0,
                 coarse_to_full_m: 0.0,
                 cut_triangles,

@@ -269,14 +269,20 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
         };
         let class = &schema["classes"][table["class"].as_str().unwrap_or("")]["properties"];
         let props = table["properties"].as_object().cloned().unwrap_or_default();
-        let Some(id_prop) = props.get("id") else {
+        if !props.contains_key("id") {
             continue;
-        };
+        }
         let count = table["count"].as_u64().unwrap_or(0) as usize;
-        let Some(row) = (0..count).find(|&r| {
-            property_text(&class["id"], id_prop, &schema["enums"], bin, &views, r).as_deref()
-                == Some(id)
-        }) else {
+        let text = |pid: &str, r: usize| {
+            props
+                .get(pid)
+                .and_then(|p| property_text(&class[pid], p, &schema["enums"], bin, &views, r))
+        };
+        // An exact duplicate that was not drawn is found through the row of the kept element.
+        let is_alias =
+            |r: usize| text("aliases", r).is_some_and(|a| a.split_whitespace().any(|x| x == id));
+        let Some(row) = (0..count).find(|&r| text("id", r).as_deref() == Some(id) || is_alias(r))
+        else {
             continue;
         };
         let f = found.get_or_insert_with(|| FeatureSummary {
@@ -285,6 +291,11 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
             tiles: Vec::new(),
         });
         f.tiles.push(uri.clone());
+        if is_alias(row) {
+            if let Some(kept) = text("id", row) {
+                f.properties.insert("Alias of".into(), kept);
+            }
+        }
         for (pid, prop) in &props {
             if let Some(v) = property_text(&class[pid], prop, &schema["enums"], bin, &views, row) {
                 let name = class[pid]["name"].as_str().unwrap_or(pid).to_string();

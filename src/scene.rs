@@ -376,16 +376,20 @@ impl Scene {
         &self.meshes[id.index()]
     }
 
-    /// Total triangles drawn (a mesh used by several components counts once per use).
+    /// Components whose geometry is drawn (aliases of exact duplicates are not).
+    pub fn drawn_components(&self) -> impl Iterator<Item = &Component> {
+        self.components.iter().filter(|c| c.alias_of.is_none())
+    }
+
+    /// Total triangles drawn (a mesh used by several components counts once per use; aliases
+    /// are not drawn).
     pub fn triangle_count(&self) -> usize {
-        self.components
-            .iter()
+        self.drawn_components()
             .map(|c| self.meshes[c.mesh.index()].triangle_count())
             .sum()
     }
     pub fn vertex_count(&self) -> usize {
-        self.components
-            .iter()
+        self.drawn_components()
             .map(|c| self.meshes[c.mesh.index()].vertex_count())
             .sum()
     }

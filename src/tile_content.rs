@@ -5,10 +5,15 @@
 //! the scene frame (z-up, metres) relative to the tile's `center` (f64), so precision is bounded by
 //! the tile's size, not the model's; turning to glTF's y-up is the encoder's business. Identity
 //! survives merging and simplification: `feature_ids[v]` indexes [`TileContent::features`].
+//!
+//! A shape that several whole components of the tile draw (one mesh, shared after dedup or by
+//! glTF-level reuse) can instead be kept once, in its own frame, with a rigid placement per
+//! component ([`InstancedShape`], written with `EXT_mesh_gpu_instancing`); [`TileContent::expand`]
+//! turns instances back into merged geometry for stages that need one surface (HLOD).
 
 use crate::partition::ContentItem;
-use crate::scene::{Aabb, Component, ComponentId, MaterialId, Primitive, Scene};
-use glam::DVec3;
+use crate::scene::{Aabb, Component, ComponentId, MaterialId, MeshId, Primitive, Scene};
+use glam::{DMat3, DMat4, DVec3};
 use std::collections::BTreeMap;
 
 /// One material's merged geometry. `normals` always has one entry per vertex; `uvs` and `colors`
@@ -31,6 +36,48 @@ impl ContentPrimitive {
     }
 }
 
+/// One shape drawn by several components of a tile: its geometry once, and where each copy goes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstancedShape {
+    /// The scene mesh it comes from.
+    pub mesh: MeshId,
+    /// The shape per material, in its own frame (the mesh frame moved to the mesh's box centre, so
+    /// f32 positions stay small); `feature_ids` are unused (all 0): identity is per instance.
+    pub primitives: Vec<ContentPrimitive>,
+    pub instances: Vec<ShapeInstance>,
+}
+
+/// One placed copy of an [`InstancedShape`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShapeInstance {
+    /// Index into [`TileContent::features`].
+    pub feature: u32,
+    /// Shape frame → tile frame (scene axes, relative to [`TileContent::center`]): a rotation and
+    /// translation, or a positive scale (never a mirror or a shear: those are baked instead).
+    pub transform: DMat4,
+}
+
+impl InstancedShape {
+    fn triangle_count(&self) -> usize {
+        self.primitives
+            .iter()
+            .map(|p| p.triangle_count())
+            .sum::<usize>()
+            * self.instances.len()
+    }
+    fn vertex_count(&self) -> usize {
+        self.primitives
+            .iter()
+            .map(|p| p.positions.len())
+            .sum::<usize>()
+            * self.instances.len()
+    }
+    /// Triangles stored once for all instances.
+    pub fn stored_triangle_count(&self) -> usize {
+        self.primitives.iter().map(|p| p.triangle_count()).sum()
+    }
+}
+
 /// A tile's content, ready to simplify or encode.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TileContent {
@@ -40,6 +87,19 @@ pub struct TileContent {
     pub features: Vec<ComponentId>,
     /// One per material, ordered by material id (untextured/unset last).
     pub primitives: Vec<ContentPrimitive>,
+    /// Shapes drawn several times, kept once each (empty unless gathered with instancing).
+    pub instanced: Vec<InstancedShape>,
+}
+
+/// Smallest number of copies of a shape in one tile that are written as instances: below it the
+/// per-instance node, accessors and draw call cost more than the geometry saved.
+pub const MIN_INSTANCES_PER_SHAPE: usize = 2;
+
+/// Whether a component's placement can be an instance transform (translation, rotation, positive
+/// scale): mirrors and shears are baked.
+fn placeable_as_instance(world: &DMat4) -> bool {
+    DMat3::from_mat4(*world).determinant() > 0.0
+        && crate::dedup::instance_trs(world).is_some_and(|(_, _, s)| s.min_element() > 0.0)
 }
 
 fn material_key(m: Option<MaterialId>) -> u32 {
@@ -47,27 +107,194 @@ fn material_key(m: Option<MaterialId>) -> u32 {
 }
 
 impl TileContent {
-    pub fn triangle_count(&self) -> usize {
+    fn plain_triangle_count(&self) -> usize {
         self.primitives.iter().map(|p| p.triangle_count()).sum()
     }
 
+    /// Triangles drawn (an instanced shape counts once per instance).
+    pub fn triangle_count(&self) -> usize {
+        let instanced: usize = self.instanced.iter().map(|s| s.triangle_count()).sum();
+        self.plain_triangle_count() + instanced
+    }
+
+    /// Triangles stored (an instanced shape counts once).
+    pub fn stored_triangle_count(&self) -> usize {
+        let instanced: usize = self
+            .instanced
+            .iter()
+            .map(|s| s.stored_triangle_count())
+            .sum();
+        self.plain_triangle_count() + instanced
+    }
+
+    /// Vertices drawn (an instanced shape counts once per instance).
     pub fn vertex_count(&self) -> usize {
-        self.primitives.iter().map(|p| p.positions.len()).sum()
+        let plain: usize = self.primitives.iter().map(|p| p.positions.len()).sum();
+        plain
+            + self
+                .instanced
+                .iter()
+                .map(|s| s.vertex_count())
+                .sum::<usize>()
+    }
+
+    /// Components drawn through an instanced shape.
+    pub fn instance_count(&self) -> usize {
+        self.instanced.iter().map(|s| s.instances.len()).sum()
     }
 
     pub fn is_empty(&self) -> bool {
         self.triangle_count() == 0
     }
 
-    /// Box of the vertices, scene frame.
+    /// Box of the vertices (every instance placed), scene frame.
     pub fn bounds(&self) -> Aabb {
         let mut b = Aabb::EMPTY;
+        let f64v = |v: &[f32; 3]| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         for p in &self.primitives {
             for v in &p.positions {
-                b.extend(self.center + DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+                b.extend(self.center + f64v(v));
+            }
+        }
+        for shape in &self.instanced {
+            for inst in &shape.instances {
+                for p in &shape.primitives {
+                    for v in &p.positions {
+                        b.extend(self.center + inst.transform.transform_point3(f64v(v)));
+                    }
+                }
             }
         }
         b
+    }
+
+    /// Like [`gather`](Self::gather), but whole components that share a mesh with at least
+    /// `MIN_INSTANCES_PER_SHAPE - 1` other whole components of `content` become instances of one
+    /// [`InstancedShape`] (when their placement is rigid, see `placeable_as_instance`), if that
+    /// stores at least `min_saved_triangles` fewer triangles: a shape costs a node, a mesh,
+    /// accessors and a draw call of its own, which small savings do not pay for.
+    pub fn gather_instanced(
+        scene: &Scene,
+        content: &[ContentItem],
+        center: DVec3,
+        min_saved_triangles: usize,
+    ) -> TileContent {
+        let mut users: BTreeMap<MeshId, Vec<ComponentId>> = BTreeMap::new();
+        for item in content.iter().filter(|i| i.triangles.is_none()) {
+            let c = scene.component(item.component);
+            if placeable_as_instance(&c.world) && scene.mesh(c.mesh).triangle_count() > 0 {
+                users.entry(c.mesh).or_default().push(c.id);
+            }
+        }
+        users.retain(|&mesh, v| {
+            v.len() >= MIN_INSTANCES_PER_SHAPE
+                && (v.len() - 1) * scene.mesh(mesh).triangle_count() >= min_saved_triangles
+        });
+        let instanced: std::collections::HashSet<ComponentId> =
+            users.values().flatten().copied().collect();
+        let plain: Vec<ContentItem> = content
+            .iter()
+            .filter(|i| i.triangles.is_some() || !instanced.contains(&i.component))
+            .cloned()
+            .collect();
+        let mut out = TileContent::gather(scene, &plain, center);
+        for (mesh, comps) in users {
+            let m = scene.mesh(mesh);
+            let origin = m
+                .local_bounds
+                .filter(|b| !b.is_empty())
+                .map_or(DVec3::ZERO, |b| b.center());
+            // The shape in its own frame: the mesh frame moved by -origin.
+            let frame = Component::new("", mesh, DMat4::from_translation(-origin));
+            let primitives =
+                TileContent::gather_component(scene, &frame, DVec3::ZERO, 0).primitives;
+            let to_shape = DMat4::from_translation(origin);
+            let instances = comps
+                .iter()
+                .map(|&c| {
+                    out.features.push(c);
+                    ShapeInstance {
+                        feature: (out.features.len() - 1) as u32,
+                        transform: DMat4::from_translation(-center)
+                            * scene.component(c).world
+                            * to_shape,
+                    }
+                })
+                .collect();
+            out.instanced.push(InstancedShape {
+                mesh,
+                primitives,
+                instances,
+            });
+        }
+        out
+    }
+
+    /// One component's geometry alone (feature `feature`), with the component's own `world`.
+    fn gather_component(
+        scene: &Scene,
+        comp: &Component,
+        center: DVec3,
+        feature: u32,
+    ) -> TileContent {
+        let mut primitives: BTreeMap<u32, ContentPrimitive> = BTreeMap::new();
+        let mesh = scene.mesh(comp.mesh);
+        for prim in &mesh.primitives {
+            let key = material_key(prim.material);
+            let textured = prim
+                .material
+                .map(|m| scene.materials[m.index()].base_color_texture.is_some())
+                .unwrap_or(false);
+            let same_material = mesh
+                .primitives
+                .iter()
+                .filter(|p| material_key(p.material) == key);
+            let with_uv = textured || same_material.clone().any(|p| p.uvs.is_some());
+            let with_color = same_material.clone().any(|p| p.colors.is_some());
+            let out = primitives.entry(key).or_insert_with(|| ContentPrimitive {
+                material: prim.material,
+                ..Default::default()
+            });
+            append_primitive(out, comp, prim, None, feature, center, with_uv, with_color);
+        }
+        TileContent {
+            center,
+            features: vec![comp.id],
+            primitives: primitives
+                .into_values()
+                .filter(|p| !p.indices.is_empty())
+                .collect(),
+            instanced: Vec::new(),
+        }
+    }
+
+    /// Every instance turned into merged geometry (one surface for simplification and error
+    /// measurement); features stay as they are.
+    pub fn expand(mut self) -> TileContent {
+        if self.instanced.is_empty() {
+            return self;
+        }
+        let shapes = std::mem::take(&mut self.instanced);
+        let mut placed: Vec<TileContent> = Vec::new();
+        for shape in &shapes {
+            for inst in &shape.instances {
+                let mut part = TileContent {
+                    center: self.center,
+                    features: self.features.clone(),
+                    primitives: Vec::new(),
+                    instanced: Vec::new(),
+                };
+                for p in &shape.primitives {
+                    let mut q = transformed(p, &inst.transform);
+                    q.feature_ids.iter_mut().for_each(|f| *f = inst.feature);
+                    part.primitives.push(q);
+                }
+                placed.push(part);
+            }
+        }
+        let mut parts: Vec<&TileContent> = vec![&self];
+        parts.extend(placed.iter());
+        TileContent::merge(&parts, self.center)
     }
 
     /// Merges `content` of `scene` (whole components or parts of cut ones) around `center`.
@@ -129,13 +356,16 @@ impl TileContent {
             center,
             features,
             primitives,
+            instanced: Vec::new(),
         }
     }
 
     /// Concatenates several contents (e.g. the children of an HLOD tile) around a new `center`:
     /// positions are re-anchored in f64, primitives of one material merged, features renumbered
-    /// (a component present in several parts keeps one feature).
+    /// in component order (a component present in several parts keeps one feature). Instanced
+    /// shapes of the parts are not taken: [`expand`](Self::expand) them first.
     pub fn merge(parts: &[&TileContent], center: DVec3) -> TileContent {
+        debug_assert!(parts.iter().all(|p| p.instanced.is_empty()));
         let mut features: Vec<ComponentId> = parts
             .iter()
             .flat_map(|p| p.features.iter().copied())
@@ -195,6 +425,7 @@ impl TileContent {
             center,
             features,
             primitives: by_material.into_values().collect(),
+            instanced: Vec::new(),
         }
     }
 
@@ -227,6 +458,27 @@ impl TileContent {
         }
         self.primitives.retain(|p| !p.indices.is_empty());
         self.features = kept;
+    }
+}
+
+/// `p` with positions moved by `m` (a rigid motion, possibly with a positive scale) and normals
+/// turned with it.
+fn transformed(p: &ContentPrimitive, m: &DMat4) -> ContentPrimitive {
+    let normal_matrix = DMat3::from_mat4(*m).inverse().transpose();
+    let f64v = |v: &[f32; 3]| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+    let f32v = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+    ContentPrimitive {
+        positions: p
+            .positions
+            .iter()
+            .map(|v| f32v(m.transform_point3(f64v(v))))
+            .collect(),
+        normals: p
+            .normals
+            .iter()
+            .map(|n| f32v((normal_matrix * f64v(n)).normalize_or(DVec3::Z)))
+            .collect(),
+        ..p.clone()
     }
 }
 
@@ -380,6 +632,47 @@ mod tests {
         // b came first: its vertices carry feature 1 (component 1) after renumbering.
         assert_eq!(m.primitives[0].feature_ids[0], 1);
         assert_eq!(m.primitives[0].feature_ids[3], 0);
+    }
+
+    #[test]
+    fn instances_expand_to_the_plain_geometry() {
+        // Two copies of one mesh, one turned a quarter around z: one shape, two instances.
+        let mut s = one_triangle_scene();
+        s.components[1].world = DMat4::from_translation(DVec3::new(10.0, 0.0, 0.0))
+            * DMat4::from_rotation_z(std::f64::consts::FRAC_PI_2);
+        let items = [0, 1].map(|c| ContentItem {
+            component: ComponentId(c),
+            triangles: None,
+        });
+        let center = DVec3::new(5.0, 0.0, 0.0);
+        let plain = TileContent::gather(&s, &items, center);
+        let inst = TileContent::gather_instanced(&s, &items, center, 0);
+        assert!(inst.primitives.is_empty());
+        assert_eq!(inst.instanced.len(), 1);
+        assert_eq!(inst.instance_count(), 2);
+        assert_eq!(
+            (inst.triangle_count(), inst.stored_triangle_count()),
+            (2, 1)
+        );
+        let b = (inst.bounds(), plain.bounds());
+        assert!((b.0.min - b.1.min).length() < 1e-6 && (b.0.max - b.1.max).length() < 1e-6);
+        let e = inst.expand();
+        assert_eq!(e.features, plain.features);
+        let sorted = |c: &TileContent| {
+            let p = &c.primitives[0];
+            let mut v: Vec<(u32, [i64; 3], [i64; 3])> = (0..p.positions.len())
+                .map(|i| {
+                    let q = |x: [f32; 3]| x.map(|c| (c as f64 * 1e5).round() as i64);
+                    (p.feature_ids[i], q(p.positions[i]), q(p.normals[i]))
+                })
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(sorted(&e), sorted(&plain));
+        // A saving below the threshold keeps plain geometry.
+        let few = TileContent::gather_instanced(&s, &items, center, 2);
+        assert!(few.instanced.is_empty() && few.triangle_count() == 2);
     }
 
     #[test]

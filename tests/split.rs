@@ -179,10 +179,9 @@ fn merge_by_material(input: &Path) -> Vec<u8> {
     let bytes = std::fs::read(input).unwrap();
     let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
     let blob = g.blob.as_deref().unwrap();
-    let mut per_material: std::collections::BTreeMap<
-        usize,
-        (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>),
-    > = Default::default();
+    // Positions, normals, indices per material.
+    type Merged = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>);
+    let mut per_material: std::collections::BTreeMap<usize, Merged> = Default::default();
     fn walk(node: gltf::Node, parent: glam::Mat4, f: &mut dyn FnMut(&gltf::Node, glam::Mat4)) {
         let m = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix());
         f(&node, m);

@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use bimtiles::convert::{convert, ConvertOptions, LodMode};
+use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
@@ -101,6 +102,22 @@ struct ConvertArgs {
     /// refine ADD).
     #[arg(long, value_enum, default_value = "hlod")]
     lod: LodArg,
+    /// Keep every component as read: no exact-duplicate removal, no sharing of congruent shapes.
+    #[arg(long)]
+    no_dedup: bool,
+    /// Largest distance (metres) between corresponding vertices of two components that are
+    /// still the same geometry (dedup).
+    #[arg(long, default_value_t = DedupOptions::default().tolerance_m)]
+    dedup_tolerance_m: f64,
+    /// Write every copy of a repeated shape as plain geometry, for viewers without
+    /// EXT_mesh_gpu_instancing.
+    #[arg(long)]
+    no_instancing: bool,
+    /// Instance a shape in a tile only when that stores at least this many fewer triangles
+    /// (smaller savings do not pay for the shape's own node, accessors and draw call).
+    /// Default: 1000 with Draco, 100 without.
+    #[arg(long)]
+    min_instanced_triangles_saved: Option<usize>,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -226,12 +243,30 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             LodArg::None => LodMode::None,
         },
         simplify: SimplifyOptions::default(),
+        dedup: (!a.no_dedup).then(|| DedupOptions {
+            tolerance_m: a.dedup_tolerance_m,
+            ..DedupOptions::default()
+        }),
+        instancing: !a.no_instancing,
+        min_instanced_triangles_saved: a.min_instanced_triangles_saved,
         progress: !a.quiet,
     };
+    if !(a.dedup_tolerance_m.is_finite() && a.dedup_tolerance_m >= 0.0) {
+        anyhow::bail!(
+            "--dedup-tolerance-m must be a distance in metres, got {}",
+            a.dedup_tolerance_m
+        );
+    }
     let r = convert(&a.inputs, &opts)?;
     if !a.quiet {
+        if let Some(d) = &r.dedup {
+            emit(&format!(
+                "dedup: {} components, {} shapes drawn, {} redundant copies removed, {} congruent copies share a shape ({:.2} s)\n",
+                d.components, d.unique_shapes, d.redundant_removed, d.congruent_rewritten, d.seconds
+            ))?;
+        }
         emit(&format!(
-            "{} -> {}\n\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles, {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
+            "{} -> {}\n\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles ({} stored, {} instances), {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
             r.input.files.join(", "),
             a.out.display(),
             r.input.triangles,
@@ -242,6 +277,8 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             r.output.tiles_with_content,
             r.output.max_depth,
             r.output.triangles,
+            r.output.stored_triangles,
+            r.output.instances,
             human_bytes(r.output.bytes),
             r.timings_s.total,
             r.timings_s.ingest,

@@ -29,8 +29,14 @@ const UNSIGNED_INT: u32 = 5125;
 #[derive(Debug, Clone)]
 pub struct EncodedTile {
     pub glb: Vec<u8>,
+    /// Triangles and vertices drawn (an instanced shape once per instance).
     pub triangles: usize,
     pub vertices: usize,
+    /// Triangles stored (an instanced shape once).
+    pub stored_triangles: usize,
+    /// Instanced shapes and the components drawn through them.
+    pub instanced_shapes: usize,
+    pub instances: usize,
     /// Exact box of the written vertices, in the scene frame.
     pub bounds: Aabb,
     /// The component of each feature ID (`_FEATURE_ID_0` value = index here).
@@ -128,6 +134,9 @@ pub fn encode_content(
         glb,
         triangles: content.triangle_count(),
         vertices: content.vertex_count(),
+        stored_triangles: content.stored_triangle_count(),
+        instanced_shapes: content.instanced.len(),
+        instances: content.instance_count(),
         bounds,
         features: content.features.clone(),
         metadata_bytes,
@@ -167,13 +176,24 @@ impl GltfBuilder {
     }
 
     fn float_accessor<const N: usize>(&mut self, data: &[[f32; N]], with_min_max: bool) -> usize {
+        self.float_accessor_in(data, with_min_max, Some(ARRAY_BUFFER))
+    }
+
+    /// A float accessor in its own bufferView (`target` None for instance attributes, which are
+    /// not vertex buffers).
+    fn float_accessor_in<const N: usize>(
+        &mut self,
+        data: &[[f32; N]],
+        with_min_max: bool,
+        target: Option<u32>,
+    ) -> usize {
         let mut bytes = Vec::with_capacity(data.len() * N * 4);
         for v in data {
             for x in v {
                 bytes.write_f32::<LE>(*x).expect("vec write");
             }
         }
-        let view = self.view(&bytes, Some(ARRAY_BUFFER));
+        let view = self.view(&bytes, target);
         let ty = match N {
             1 => "SCALAR",
             2 => "VEC2",
@@ -218,6 +238,110 @@ impl GltfBuilder {
     }
 }
 
+/// The materials, textures, images and samplers of one GLB, each written once.
+#[derive(Default)]
+struct MaterialTable {
+    materials: Vec<Value>,
+    material_map: BTreeMap<u32, usize>,
+    images: Vec<Value>,
+    image_map: BTreeMap<u32, usize>,
+    samplers: Vec<Sampler>,
+    textures: Vec<(usize, usize)>,
+}
+
+impl MaterialTable {
+    /// The glTF index of scene material `mid`, written (with its image) on first use.
+    fn index(&mut self, scene: &Scene, b: &mut GltfBuilder, mid: MaterialId) -> usize {
+        if let Some(&i) = self.material_map.get(&mid.0) {
+            return i;
+        }
+        let mat = &scene.materials[mid.index()];
+        let tex = mat.base_color_texture.as_ref().map(|t| {
+            let img = *self.image_map.entry(t.image.0).or_insert_with(|| {
+                let im = &scene.images[t.image.index()];
+                let view = b.view(&im.bytes, None);
+                self.images
+                    .push(json!({"bufferView": view, "mimeType": im.mime_type}));
+                self.images.len() - 1
+            });
+            let sampler = self
+                .samplers
+                .iter()
+                .position(|s| *s == t.sampler)
+                .unwrap_or_else(|| {
+                    self.samplers.push(t.sampler);
+                    self.samplers.len() - 1
+                });
+            self.textures
+                .iter()
+                .position(|&x| x == (img, sampler))
+                .unwrap_or_else(|| {
+                    self.textures.push((img, sampler));
+                    self.textures.len() - 1
+                })
+        });
+        self.materials.push(material_json(mat, tex));
+        self.material_map.insert(mid.0, self.materials.len() - 1);
+        self.materials.len() - 1
+    }
+
+    fn write_into(self, root: &mut Value) {
+        if !self.materials.is_empty() {
+            root["materials"] = json!(self.materials);
+        }
+        if !self.images.is_empty() {
+            root["images"] = json!(self.images);
+            root["textures"] = json!(self
+                .textures
+                .iter()
+                .map(|&(source, sampler)| json!({"source": source, "sampler": sampler}))
+                .collect::<Vec<_>>());
+            root["samplers"] = json!(self.samplers.iter().map(sampler_json).collect::<Vec<_>>());
+        }
+    }
+}
+
+/// Writes one primitive (plain or Draco) with its material; with `feature_count`, per-vertex
+/// feature IDs (`EXT_mesh_features`). Returns the primitive and, with Draco, the box of the
+/// decoded positions (glTF y-up, primitive frame).
+fn write_primitive(
+    scene: &Scene,
+    b: &mut GltfBuilder,
+    mats: &mut MaterialTable,
+    m: &ContentPrimitive,
+    feature_count: Option<usize>,
+    property_table: bool,
+    enc: &TileEncoding,
+) -> std::result::Result<(Value, Option<DecodedBox>), String> {
+    let (mut prim, decoded) = match enc.compression {
+        Compression::None => (plain_primitive(b, m, feature_count.is_some()), None),
+        Compression::Draco => {
+            let (p, bx) = draco_primitive(b, m, feature_count, enc)?;
+            (p, Some(bx))
+        }
+    };
+    prim["mode"] = json!(4);
+    if let Some(n) = feature_count {
+        let mut feature_ids = json!({"featureCount": n, "attribute": 0});
+        if property_table {
+            feature_ids["propertyTable"] = json!(0);
+        }
+        prim["extensions"]["EXT_mesh_features"] = json!({"featureIds": [feature_ids]});
+    }
+    if let Some(mid) = m.material {
+        prim["material"] = json!(mats.index(scene, b, mid));
+    }
+    Ok((prim, decoded))
+}
+
+/// Min and max corner of decoded (quantized) positions, glTF y-up.
+type DecodedBox = ([f64; 3], [f64; 3]);
+
+/// A point of glTF (y-up) back in the scene frame (z-up).
+fn z_up(v: DVec3) -> DVec3 {
+    DVec3::new(v.x, -v.z, v.y)
+}
+
 /// Writes the GLB. With Draco, `bounds` grows to hold the *decoded* (quantized) positions too, so
 /// the tile's bounding volume contains what clients draw.
 fn write_glb(
@@ -232,61 +356,131 @@ fn write_glb(
         buffer_views: Vec::new(),
         accessors: Vec::new(),
     };
-    let mut materials: Vec<Value> = Vec::new();
-    let mut material_map: BTreeMap<u32, usize> = BTreeMap::new();
-    let mut images: Vec<Value> = Vec::new();
-    let mut image_map: BTreeMap<u32, usize> = BTreeMap::new();
-    let mut samplers: Vec<Sampler> = Vec::new();
-    let mut textures: Vec<(usize, usize)> = Vec::new();
-    let mut primitives = Vec::new();
+    let mut mats = MaterialTable::default();
     let (center, feature_count) = (content.center, content.features.len());
-    for m in &content.primitives {
-        let material = &m.material;
-        let mut prim = match enc.compression {
-            Compression::None => plain_primitive(&mut b, m),
-            Compression::Draco => draco_primitive(&mut b, m, feature_count, enc, center, bounds)?,
-        };
-        prim["mode"] = json!(4);
+    let mut meshes: Vec<Value> = Vec::new();
+    let mut root_node = json!({"translation": [center.x, center.z, -center.y]});
+    let mut nodes: Vec<Value> = Vec::new();
+    let mut used: Vec<&str> = Vec::new();
+    let mut required: Vec<&str> = Vec::new();
+
+    // The merged geometry: one mesh on the root node, a feature ID per vertex.
+    if !content.primitives.is_empty() {
+        let mut primitives = Vec::new();
+        for m in &content.primitives {
+            let (prim, decoded) = write_primitive(
+                scene,
+                &mut b,
+                &mut mats,
+                m,
+                Some(feature_count),
+                table.is_some(),
+                enc,
+            )?;
+            if let Some((lo, hi)) = decoded {
+                bounds.extend(center + z_up(DVec3::from(lo)));
+                bounds.extend(center + z_up(DVec3::from(hi)));
+            }
+            primitives.push(prim);
+        }
+        meshes.push(json!({"primitives": primitives}));
+        root_node["mesh"] = json!(0);
+        used.push("EXT_mesh_features");
+    }
+
+    // Each instanced shape: a mesh written once, on a child node placing it per instance
+    // (EXT_mesh_gpu_instancing) with a feature ID per instance (EXT_instance_features).
+    for shape in &content.instanced {
+        let mut primitives = Vec::new();
+        let mut decoded_box = Aabb::EMPTY;
+        for m in &shape.primitives {
+            let (prim, decoded) = write_primitive(scene, &mut b, &mut mats, m, None, false, enc)?;
+            if let Some((lo, hi)) = decoded {
+                decoded_box.extend(z_up(DVec3::from(lo)));
+                decoded_box.extend(z_up(DVec3::from(hi)));
+            }
+            primitives.push(prim);
+        }
+        meshes.push(json!({"primitives": primitives}));
+        let mut translations = Vec::with_capacity(shape.instances.len());
+        let mut rotations = Vec::with_capacity(shape.instances.len());
+        let mut scales = Vec::with_capacity(shape.instances.len());
+        let mut fids = Vec::with_capacity(shape.instances.len());
+        for inst in &shape.instances {
+            // The instance transform in glTF's y-up frame.
+            let y_up_transform = Z_UP_TO_Y_UP * inst.transform * Y_UP_TO_Z_UP;
+            let (t, r, s) = crate::dedup::instance_trs(&y_up_transform)
+                .ok_or("an instance transform is not translation-rotation-scale")?;
+            translations.push(t.as_vec3().to_array());
+            rotations.push(r.normalize().as_quat().to_array());
+            scales.push(s.as_vec3().to_array());
+            fids.push([inst.feature as f32]);
+            if !decoded_box.is_empty() {
+                for k in 0..8 {
+                    let corner = DVec3::new(
+                        if k & 1 == 0 {
+                            decoded_box.min.x
+                        } else {
+                            decoded_box.max.x
+                        },
+                        if k & 2 == 0 {
+                            decoded_box.min.y
+                        } else {
+                            decoded_box.max.y
+                        },
+                        if k & 4 == 0 {
+                            decoded_box.min.z
+                        } else {
+                            decoded_box.max.z
+                        },
+                    );
+                    bounds.extend(center + inst.transform.transform_point3(corner));
+                }
+            }
+        }
+        let mut attributes = Map::new();
+        attributes.insert(
+            "TRANSLATION".into(),
+            json!(b.float_accessor_in(&translations, false, None)),
+        );
+        attributes.insert(
+            "ROTATION".into(),
+            json!(b.float_accessor_in(&rotations, false, None)),
+        );
+        // Rigid copies (the usual case) need no SCALE.
+        if scales
+            .iter()
+            .any(|s| s.iter().any(|&x| (x - 1.0).abs() > 1e-6))
+        {
+            attributes.insert(
+                "SCALE".into(),
+                json!(b.float_accessor_in(&scales, false, None)),
+            );
+        }
+        attributes.insert(
+            "_FEATURE_ID_0".into(),
+            json!(b.float_accessor_in(&fids, false, None)),
+        );
         let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
         if table.is_some() {
             feature_ids["propertyTable"] = json!(0);
         }
-        prim["extensions"]["EXT_mesh_features"] = json!({"featureIds": [feature_ids]});
-        if let Some(mid) = material {
-            let next = materials.len();
-            let idx = *material_map.entry(mid.0).or_insert(next);
-            if idx == next {
-                let mat = &scene.materials[mid.index()];
-                let tex = mat.base_color_texture.as_ref().map(|t| {
-                    let img = *image_map.entry(t.image.0).or_insert_with(|| {
-                        let im = &scene.images[t.image.index()];
-                        let view = b.view(&im.bytes, None);
-                        images.push(json!({"bufferView": view, "mimeType": im.mime_type}));
-                        images.len() - 1
-                    });
-                    let sampler = samplers
-                        .iter()
-                        .position(|s| *s == t.sampler)
-                        .unwrap_or_else(|| {
-                            samplers.push(t.sampler);
-                            samplers.len() - 1
-                        });
-                    textures
-                        .iter()
-                        .position(|&x| x == (img, sampler))
-                        .unwrap_or_else(|| {
-                            textures.push((img, sampler));
-                            textures.len() - 1
-                        })
-                });
-                materials.push(material_json(mat, tex));
+        nodes.push(json!({
+            "mesh": meshes.len() - 1,
+            "extensions": {
+                "EXT_mesh_gpu_instancing": {"attributes": attributes},
+                "EXT_instance_features": {"featureIds": [feature_ids]},
             }
-            prim["material"] = json!(idx);
-        }
-        primitives.push(prim);
+        }));
     }
-    let mut used = vec!["EXT_mesh_features"];
-    let mut required = Vec::new();
+    if !nodes.is_empty() {
+        root_node["children"] = json!((1..=nodes.len()).collect::<Vec<_>>());
+        used.extend(["EXT_mesh_gpu_instancing", "EXT_instance_features"]);
+        // No fallback exists for viewers without instancing (they use --no-instancing output).
+        required.push("EXT_mesh_gpu_instancing");
+    }
+    nodes.insert(0, root_node);
+
     let (metadata_ext, metadata_bytes) = match table {
         Some(t) => {
             used.push("EXT_structural_metadata");
@@ -304,8 +498,8 @@ fn write_glb(
         "asset": {"version": "2.0", "generator": enc.generator},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "translation": [center.x, center.z, -center.y]}],
-        "meshes": [{"primitives": primitives}],
+        "nodes": nodes,
+        "meshes": meshes,
         "accessors": b.accessors,
         "bufferViews": b.buffer_views,
         "buffers": [{"byteLength": b.bin.len()}],
@@ -317,23 +511,13 @@ fn write_glb(
     if let Some(ext) = metadata_ext {
         root["extensions"] = json!({"EXT_structural_metadata": ext});
     }
-    if !materials.is_empty() {
-        root["materials"] = json!(materials);
-    }
-    if !images.is_empty() {
-        root["images"] = json!(images);
-        root["textures"] = json!(textures
-            .iter()
-            .map(|&(source, sampler)| json!({"source": source, "sampler": sampler}))
-            .collect::<Vec<_>>());
-        root["samplers"] = json!(samplers.iter().map(sampler_json).collect::<Vec<_>>());
-    }
+    mats.write_into(&mut root);
     let json_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?;
     Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
 }
 
 /// Attributes and indices as plain accessors.
-fn plain_primitive(b: &mut GltfBuilder, m: &ContentPrimitive) -> Value {
+fn plain_primitive(b: &mut GltfBuilder, m: &ContentPrimitive, with_features: bool) -> Value {
     let mut attributes = Map::new();
     attributes.insert(
         "POSITION".into(),
@@ -351,26 +535,26 @@ fn plain_primitive(b: &mut GltfBuilder, m: &ContentPrimitive) -> Value {
     if !m.colors.is_empty() {
         attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
     }
-    let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
-    attributes.insert(
-        "_FEATURE_ID_0".into(),
-        json!(b.float_accessor(&fids, false)),
-    );
+    if with_features {
+        let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
+        attributes.insert(
+            "_FEATURE_ID_0".into(),
+            json!(b.float_accessor(&fids, false)),
+        );
+    }
     let indices = b.index_accessor(&m.indices, m.positions.len());
     json!({"attributes": attributes, "indices": indices})
 }
 
 /// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
-/// decoded data, as KHR_draco_mesh_compression requires.
-#[allow(clippy::too_many_arguments)]
+/// decoded data, as KHR_draco_mesh_compression requires; with `feature_count`, the per-vertex
+/// feature IDs go in too. Also returns the decoded positions' box.
 fn draco_primitive(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
-    feature_count: usize,
+    feature_count: Option<usize>,
     enc: &TileEncoding,
-    center: DVec3,
-    bounds: &mut Aabb,
-) -> std::result::Result<Value, String> {
+) -> std::result::Result<(Value, DecodedBox), String> {
     use super::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
     let positions_y_up = y_up(&m.positions);
     let normals_y_up = y_up(&m.normals);
@@ -412,29 +596,32 @@ fn draco_primitive(
     // Feature IDs are exact integers: u16 while they fit (lossless in Draco), f32 beyond.
     let fid_u16: Vec<u16>;
     let fid_f32: Vec<f32>;
-    if feature_count <= u16::MAX as usize {
-        fid_u16 = m.feature_ids.iter().map(|&f| f as u16).collect();
-        attrs.push(EncodeAttribute::feature_id_u16(&fid_u16));
-        names.push(("_FEATURE_ID_0", UNSIGNED_SHORT, "SCALAR"));
-    } else {
-        fid_f32 = m.feature_ids.iter().map(|&f| f as f32).collect();
-        attrs.push(EncodeAttribute::feature_id_f32(&fid_f32));
-        names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
+    match feature_count {
+        None => {}
+        Some(n) if n <= u16::MAX as usize => {
+            fid_u16 = m.feature_ids.iter().map(|&f| f as u16).collect();
+            attrs.push(EncodeAttribute::feature_id_u16(&fid_u16));
+            names.push(("_FEATURE_ID_0", UNSIGNED_SHORT, "SCALAR"));
+        }
+        Some(_) => {
+            fid_f32 = m.feature_ids.iter().map(|&f| f as f32).collect();
+            attrs.push(EncodeAttribute::feature_id_f32(&fid_f32));
+            names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
+        }
     }
     let encoded =
         encode_mesh(&attrs, &m.indices, &EncodeOptions::default()).map_err(|e| e.to_string())?;
     let view = b.view(&encoded.bytes, None);
     let mut attributes = Map::new();
     let mut draco_ids = Map::new();
+    let mut decoded_box = ([0.0; 3], [0.0; 3]);
     for (k, &(name, ct, ty)) in names.iter().enumerate() {
         let mut a = json!({"componentType": ct, "count": encoded.point_count, "type": ty});
         if name == "POSITION" {
             let (min, max) = &encoded.attribute_min_max[k];
             a["min"] = json!(min);
             a["max"] = json!(max);
-            // Decoded glTF (y-up, relative to the centre) back to the scene frame.
-            bounds.extend(center + DVec3::new(min[0], -max[2], min[1]));
-            bounds.extend(center + DVec3::new(max[0], -min[2], max[1]));
+            decoded_box = ([min[0], min[1], min[2]], [max[0], max[1], max[2]]);
         }
         b.accessors.push(a);
         attributes.insert(name.into(), json!(b.accessors.len() - 1));
@@ -449,11 +636,14 @@ fn draco_primitive(
         json!({"componentType": index_type, "count": encoded.face_count * 3, "type": "SCALAR"}),
     );
     let indices = b.accessors.len() - 1;
-    Ok(json!({
-        "attributes": attributes,
-        "indices": indices,
-        "extensions": {"KHR_draco_mesh_compression": {"bufferView": view, "attributes": draco_ids}}
-    }))
+    Ok((
+        json!({
+            "attributes": attributes,
+            "indices": indices,
+            "extensions": {"KHR_draco_mesh_compression": {"bufferView": view, "attributes": draco_ids}}
+        }),
+        decoded_box,
+    ))
 }
 
 fn material_json(m: &Material, texture: Option<usize>) -> Value {

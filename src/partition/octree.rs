@@ -143,11 +143,11 @@ struct Item {
     bounds: Aabb,
 }
 
-/// Plans the octree for every component of `scene` that has geometry.
+/// Plans the octree for every drawn component of `scene` that has geometry (aliases of exact
+/// duplicates are left out: their geometry is the kept component's).
 pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
     let items: Vec<Item> = scene
-        .components
-        .iter()
+        .drawn_components()
         .filter(|c| !c.world_bounds.is_empty())
         .map(|c| {
             let mesh = scene.mesh(c.mesh);

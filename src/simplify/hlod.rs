@@ -246,6 +246,7 @@ pub fn simplify_children(
         center,
         features: merged.features,
         primitives: prims,
+        instanced: Vec::new(),
     };
     content.compact_features();
     Ok(HlodContent {
@@ -341,6 +342,7 @@ mod tests {
             center: DVec3::ZERO,
             features: vec![ComponentId(feature)],
             primitives: vec![p],
+            instanced: Vec::new(),
         }
     }
 

@@ -32,6 +32,8 @@ pub enum Column {
     Building,
     Site,
     Material,
+    /// Ids of the exact duplicates this element stands for.
+    Aliases,
     /// The n-th property-set entry (`MetadataSchema::pset_keys`).
     Pset(usize),
 }
@@ -70,6 +72,8 @@ pub struct MetadataSchema {
     /// Enum id → value names (index = code; 0 is [`NO_VALUE`]).
     pub enums: BTreeMap<String, Vec<String>>,
     enum_codes: HashMap<String, HashMap<String, u16>>,
+    /// Kept component → ids of its aliases (exact duplicates not drawn), space-separated.
+    aliases: HashMap<ComponentId, String>,
     base: Value,
 }
 
@@ -167,6 +171,7 @@ impl MetadataSchema {
                 Column::Material,
                 ValueType::Enum("material".into()),
             ),
+            ("aliases", Column::Aliases, ValueType::Text),
         ]
         .into_iter()
         .map(|(id, column, value_type)| PropertyDef {
@@ -193,11 +198,22 @@ impl MetadataSchema {
             });
             pset_keys.push((set, name));
         }
+        let mut aliases: HashMap<ComponentId, String> = HashMap::new();
+        for c in &scene.components {
+            if let Some(kept) = c.alias_of {
+                let list = aliases.entry(kept).or_default();
+                if !list.is_empty() {
+                    list.push(' ');
+                }
+                list.push_str(&c.key);
+            }
+        }
         MetadataSchema {
             properties,
             pset_keys,
             enums,
             enum_codes,
+            aliases,
             base,
         }
     }
@@ -229,6 +245,7 @@ impl MetadataSchema {
             Column::Building => self.code("building", info.building.as_deref()),
             Column::Site => self.code("site", info.site.as_deref()),
             Column::Material => self.code("material", info.material.as_deref()),
+            Column::Aliases => text(self.aliases.get(&c).cloned()),
             Column::Pset(k) => {
                 let (set, name) = &self.pset_keys[k];
                 let v = &info

@@ -220,10 +220,8 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
             let bytes = std::fs::read(dir.join(u)).unwrap();
             let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
             let blob = g.blob.as_deref().unwrap();
-            for node in g.document.nodes() {
-                let Some(mesh) = node.mesh() else { continue };
-                let m = Y_UP_TO_Z_UP
-                    * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
+            for (mesh, placement) in drawn_meshes(&g, &glb_json(&bytes), blob) {
+                let m = Y_UP_TO_Z_UP * placement.matrix;
                 for p in mesh.primitives() {
                     let base = positions.len();
                     let (pos, idx) = primitive_geometry(&g, blob, &p);
@@ -259,6 +257,140 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
         }
     }
     (ts, out)
+}
+
+/// The JSON chunk of a GLB, as plain JSON (extensions included).
+pub fn glb_json(bytes: &[u8]) -> Value {
+    let glb = gltf::binary::Glb::from_slice(bytes).expect("a GLB");
+    serde_json::from_slice(&glb.json).expect("GLB JSON")
+}
+
+/// Where a mesh is drawn: the node's world matrix (times the instance transform for
+/// `EXT_mesh_gpu_instancing`, glTF y-up), and the instance's `_FEATURE_ID_0` if it has one.
+pub struct Placement {
+    pub matrix: DMat4,
+    pub instance_feature: Option<u32>,
+}
+
+/// Every (mesh, placement) of the default scene: the node hierarchy walked from the roots, each
+/// instance of an instanced node separately (read here from the accessors, not by our writer).
+pub fn drawn_meshes<'a>(
+    g: &'a gltf::Gltf,
+    doc: &Value,
+    blob: &[u8],
+) -> Vec<(gltf::Mesh<'a>, Placement)> {
+    let mut out = Vec::new();
+    let scene = g
+        .document
+        .default_scene()
+        .or_else(|| g.document.scenes().next());
+    let mut stack: Vec<(gltf::Node, DMat4)> = scene
+        .map(|s| s.nodes().map(|n| (n, DMat4::IDENTITY)).collect())
+        .unwrap_or_default();
+    while let Some((node, parent)) = stack.pop() {
+        let world = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
+        if let Some(mesh) = node.mesh() {
+            match doc["nodes"][node.index()]
+                .pointer("/extensions/EXT_mesh_gpu_instancing/attributes")
+            {
+                Some(attrs) => {
+                    let read = |name: &str| {
+                        attrs
+                            .get(name)
+                            .map(|a| read_accessor(doc, blob, a.as_u64().unwrap() as usize))
+                    };
+                    let t = read("TRANSLATION");
+                    let r = read("ROTATION");
+                    let sc = read("SCALE");
+                    let f = read("_FEATURE_ID_0");
+                    let count = [&t, &r, &sc, &f]
+                        .iter()
+                        .filter_map(|x| x.as_ref())
+                        .map(|x| x.len())
+                        .max()
+                        .unwrap_or(0);
+                    for i in 0..count {
+                        let tr = t
+                            .as_ref()
+                            .map_or(DVec3::ZERO, |v| DVec3::new(v[i][0], v[i][1], v[i][2]));
+                        let rot = r.as_ref().map_or(glam::DQuat::IDENTITY, |v| {
+                            glam::DQuat::from_xyzw(v[i][0], v[i][1], v[i][2], v[i][3])
+                        });
+                        let scale = sc
+                            .as_ref()
+                            .map_or(DVec3::ONE, |v| DVec3::new(v[i][0], v[i][1], v[i][2]));
+                        out.push((
+                            mesh.clone(),
+                            Placement {
+                                matrix: world
+                                    * DMat4::from_scale_rotation_translation(scale, rot, tr),
+                                instance_feature: f.as_ref().map(|v| v[i][0] as u32),
+                            },
+                        ));
+                    }
+                }
+                None => out.push((
+                    mesh,
+                    Placement {
+                        matrix: world,
+                        instance_feature: None,
+                    },
+                )),
+            }
+        }
+        stack.extend(node.children().map(|c| (c, world)));
+    }
+    out
+}
+
+/// The values of a plain (non-Draco) accessor as f64 rows (FLOAT, and unsigned/normalized integer
+/// types), honouring byteOffset and byteStride.
+pub fn read_accessor(doc: &Value, blob: &[u8], index: usize) -> Vec<Vec<f64>> {
+    let a = &doc["accessors"][index];
+    let v =
+        &doc["bufferViews"][a["bufferView"].as_u64().expect("accessor has a bufferView") as usize];
+    let n = match a["type"].as_str().unwrap() {
+        "SCALAR" => 1,
+        "VEC2" => 2,
+        "VEC3" => 3,
+        "VEC4" => 4,
+        t => panic!("accessor type {t}"),
+    };
+    let ct = a["componentType"].as_u64().unwrap();
+    let size = match ct {
+        5126 | 5125 => 4,
+        5123 | 5122 => 2,
+        _ => 1,
+    };
+    let normalized = a["normalized"].as_bool().unwrap_or(false);
+    let stride = v["byteStride"].as_u64().map_or(n * size, |s| s as usize);
+    let base = v["byteOffset"].as_u64().unwrap_or(0) as usize
+        + a["byteOffset"].as_u64().unwrap_or(0) as usize;
+    (0..a["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            (0..n)
+                .map(|k| {
+                    let o = base + i * stride + k * size;
+                    let b = &blob[o..o + size];
+                    let x = match ct {
+                        5126 => f32::from_le_bytes(b.try_into().unwrap()) as f64,
+                        5125 => u32::from_le_bytes(b.try_into().unwrap()) as f64,
+                        5123 => u16::from_le_bytes(b.try_into().unwrap()) as f64,
+                        5122 => i16::from_le_bytes(b.try_into().unwrap()) as f64,
+                        5121 => b[0] as f64,
+                        _ => b[0] as i8 as f64,
+                    };
+                    match (normalized, ct) {
+                        (true, 5123) => x / 65535.0,
+                        (true, 5122) => (x / 32767.0).max(-1.0),
+                        (true, 5121) => x / 255.0,
+                        (true, 5120) => (x / 127.0).max(-1.0),
+                        _ => x,
+                    }
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// Positions and triangle indices of a primitive, decoding Draco when it is compressed.
@@ -313,6 +445,22 @@ impl AsDMat4 for glam::Mat4 {
 /// Checks the structural promises of a written tileset; returns the decoded tiles.
 pub fn check_tileset(dir: &Path, input_triangles: usize) -> Vec<DecodedTile> {
     let (ts, tiles) = decode_tileset(dir);
+    // Exact duplicates removed by dedup are not drawn: what must be drawn is what dedup kept.
+    let input_triangles = match std::fs::read(dir.join("report.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+        .filter(|r| r["dedup"].is_object())
+    {
+        Some(r) => {
+            assert_eq!(
+                r["dedup"]["triangles_before"].as_u64(),
+                Some(input_triangles as u64),
+                "dedup saw the whole input"
+            );
+            r["dedup"]["triangles_after"].as_u64().unwrap() as usize
+        }
+        None => input_triangles,
+    };
     assert_eq!(ts["asset"]["version"], "1.1");
     if let Some(errors) = tileset_schema_errors(&ts) {
         assert!(

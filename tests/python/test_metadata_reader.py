@@ -74,17 +74,33 @@ def decode_table(doc, blob, schema):
     return rows
 
 
+def read_scalars(doc, blob, index):
+    acc = doc["accessors"][index]
+    raw = view_bytes(doc, blob, acc["bufferView"])[acc.get("byteOffset", 0):]
+    fmt = {5126: "f", 5123: "H", 5121: "B"}[acc["componentType"]]
+    return list(struct.unpack_from(f"<{acc['count']}{fmt}", raw))
+
+
 def feature_ids(doc, blob):
-    """Feature IDs of uncompressed primitives (Draco-compressed ones are checked by the Draco test)."""
+    """Feature IDs of uncompressed primitives (Draco-compressed ones are checked by the Draco test)
+    and of GPU instances (EXT_instance_features through an EXT_mesh_gpu_instancing attribute)."""
     out = []
-    for mesh in doc.get("meshes", []):
+    instanced_meshes = set()
+    for n in doc.get("nodes", []):
+        ext = n.get("extensions", {})
+        if "EXT_mesh_gpu_instancing" in ext:
+            instanced_meshes.add(n["mesh"])
+            fid = ext["EXT_instance_features"]["featureIds"][0]
+            out.extend(read_scalars(doc, blob, ext["EXT_mesh_gpu_instancing"]["attributes"][f"_FEATURE_ID_{fid['attribute']}"]))
+    for mi, mesh in enumerate(doc.get("meshes", [])):
         for p in mesh["primitives"]:
             if "KHR_draco_mesh_compression" in p.get("extensions", {}):
                 continue
-            acc = doc["accessors"][p["attributes"]["_FEATURE_ID_0"]]
-            raw = view_bytes(doc, blob, acc["bufferView"])[acc.get("byteOffset", 0):]
-            fmt = {5126: "f", 5123: "H", 5121: "B"}[acc["componentType"]]
-            out.extend(struct.unpack_from(f"<{acc['count']}{fmt}", raw))
+            if mi in instanced_meshes:
+                # Identity is per instance: the shape's vertices carry none.
+                assert "EXT_mesh_features" not in p.get("extensions", {})
+                continue
+            out.extend(read_scalars(doc, blob, p["attributes"]["_FEATURE_ID_0"]))
     return out
 
 
@@ -137,6 +153,7 @@ def test_metadata_names_every_input_element():
             continue
         expected = input_elements(inputs[0])
         seen = {}
+        aliases = {}
         for tile in report["tiles"]:
             if not tile["content"]:
                 continue
@@ -152,9 +169,15 @@ def test_metadata_names_every_input_element():
                 assert fid == int(fid) and 0 <= fid < len(rows), f"feature id {fid} names no row"
             for r in rows:
                 seen.setdefault(r["id"], r)
-        missing = set(expected) - set(seen)
+                # Exact duplicates that were not drawn are listed by the element drawn for them.
+                for alias in (r.get("aliases") or "").split():
+                    assert aliases.setdefault(alias, r["id"]) == r["id"], f"{alias}: alias of two elements"
+        missing = set(expected) - set(seen) - set(aliases)
         assert not missing, f"{d}: {len(missing)} input elements have no feature, e.g. {sorted(missing)[:3]}"
+        assert not set(seen) & set(aliases), f"{d}: elements both drawn and aliased"
         for key, (name, cls, storey) in expected.items():
+            if key in aliases:
+                continue
             r = seen[key]
             assert r.get("name") == name, f"{key}: name {r.get('name')!r} != {name!r}"
             assert r.get("class") == cls, f"{key}: class {r.get('class')!r} != {cls!r}"

@@ -234,13 +234,17 @@ def add_glb_to_stage(stage, parent_path, glb, notes):
     scene = g.get("scenes", [{}])[g.get("scene", 0)] if g.get("scenes") else {"nodes": []}
     tris = 0
 
-    def add_mesh(path, mesh_index):
+    def add_mesh(path, mesh_index, bake=None):
+        """`bake`: an instance matrix applied to the points here (a transformed extent box would
+        over-state the bounds of rotated instances)."""
         nonlocal tris
         for pi, prim in enumerate(g["meshes"][mesh_index]["primitives"]):
             res = primitive_triangles(glb, prim, notes)
             if res is None:
                 continue
             pts, counts, idx = res
+            if bake is not None:
+                pts = [mat_point(bake, p) for p in pts]
             if not counts:
                 continue
             m = UsdGeom.Mesh.Define(stage, f"{path}/p{pi}")
@@ -265,8 +269,7 @@ def add_glb_to_stage(stage, parent_path, glb, notes):
             else:
                 for k, im in enumerate(inst):
                     ix = UsdGeom.Xform.Define(stage, f"{path}/i{k}")
-                    ix.AddTransformOp().Set(to_gf(im))
-                    add_mesh(str(ix.GetPath()), node["mesh"])
+                    add_mesh(str(ix.GetPath()), node["mesh"], bake=im)
         for c in node.get("children", []):
             add_node(path, c, depth + 1)
 
