@@ -188,6 +188,7 @@ async function measure(page, url, opts, path = true) {
   const s = await collect(page);
   const sw1 = await swCounters(page);
   const r = {
+    tilesetJsonMs: s.tilesetReadyMs - s.tilesetRequestedMs,
     firstFrameWithContentMs: s.firstFrameWithContentMs - s.tilesetRequestedMs,
     allTilesLoadedMs: s.allTilesLoadedMs - s.tilesetRequestedMs,
     tileRequests: s.tileRequests,
@@ -230,7 +231,15 @@ async function measure(page, url, opts, path = true) {
     r.nearTilesetMemoryBytes = (await tilesetMemory(page)).tilesetMemoryBytes;
     r.nearJsHeapBytesAfterGc = s2.jsHeapBytesAfterGc;
   }
-  await page.evaluate(() => window.bimtiles.viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY));
+  // Back to the home view and its tiles, so that every measured load starts from the same camera
+  // (a load started at the near end first selects, and waits for, the near view's tiles).
+  await page.evaluate(async () => {
+    const { viewer, tileset } = window.bimtiles;
+    viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY);
+    await viewer.zoomTo(tileset, new Cesium.HeadingPitchRange(0.6, -0.45, 0));
+  });
+  const w3 = await waitLoaded(page, opts.timeout * 1000);
+  if (!w3.ok) throw new Error(`${url}: back at the home view: ${w3.reason}`);
   return r;
 }
 
