@@ -192,6 +192,7 @@ fn fmt_pct(p: Option<f64>) -> String {
 /// Table rows: label, metric key, unit scale, unit suffix, measured on warm loads too.
 const KIB: f64 = 1.0 / 1024.0;
 const ROWS: &[(&str, &str, f64, &str, bool)] = &[
+    ("time to the tileset JSON", "tilesetJsonMs", 1e-3, "s", true),
     ("time to first frame with content", "firstFrameWithContentMs", 1e-3, "s", true),
     ("time to all tiles loaded (first full view)", "allTilesLoadedMs", 1e-3, "s", true),
     ("bytes over the network (compressed, with headers)", "networkBytes", KIB, "KiB", true),
@@ -282,6 +283,9 @@ fn markdown(doc: &Value, models: &[Model], errors: &[(String, String)]) -> Strin
          tileset memory, JS heap after GC, Cesium CPU time per frame. Wall-clock times drift with the load of the \
          2-core machine (shared with other jobs). **FPS and wall frame times mostly measure SwiftShader's fill \
          rate** (software rasteriser, about the same whatever the triangle count), not what a GPU would show.\n\
+         - Every measured load starts from the same home view, after both variants were loaded once (shader \
+         compiles, worker start-up); runs alternate the order of the variants. The server (`bimtiles serve`) \
+         gzips files where that saves at least 10%, for both variants alike.\n\
          - Frame figures come from the camera path after the cold load only (n/a for warm).\n"
     );
     // Across models, as the paper reports its headline numbers.
