@@ -11,7 +11,7 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
-APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium
+APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium fonts-dejavu-core
 
 .PHONY: run test test-browser bench-browser serve deps deps-system deps-node deps-python build bench clean
 
@@ -71,10 +71,17 @@ test-browser: deps build
 	  node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" --out target/test-out/$$s.png $$pick > $$log 2>&1 \
 	    || { cat $$log; exit 1; }; tail -n 1 $$log; done
 
-# Raw model (one-tile tileset) vs our tileset in real CesiumJS: load time, bytes, memory, frame cost.
+# Raw model (one-tile tileset) vs our tileset in real CesiumJS, cold and warm (tile cache) loads:
+# load time, bytes, memory, frame cost -> target/bench/browser.json, then the charts
+# (fig13..fig16 PNGs) and the table (browser.md) drawn from it by examples/bench_charts.rs.
+# BENCH_RUNS=N changes the runs per model; BENCH_ARGS adds options (e.g. --runs-for NAME=1).
+BENCH_RUNS ?= 3
 bench-browser: deps build
 	mkdir -p target/bench
-	node tools/bench_browser.mjs --runs 3 --json target/bench/browser.json $(SAMPLE) $(wildcard $(SHARED)/data/*.glb)
+	@# A model that fails is listed in the table; the charts are drawn from the others, then make fails.
+	node tools/bench_browser.mjs --runs $(BENCH_RUNS) $(BENCH_ARGS) --json target/bench/browser.json \
+	  $(SAMPLE) $(wildcard $(SHARED)/data/*.glb) > target/bench/browser.stdout; rc=$$?; \
+	  $(CARGO) run --release --quiet --example bench_charts -- target/bench/browser.json target/bench && exit $$rc
 
 # Convert the sample and open it in the viewer at http://127.0.0.1:8080/
 serve: deps build

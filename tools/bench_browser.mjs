@@ -12,19 +12,29 @@
 //                      (default: `bimtiles serve {dir} --port 0` when the binary has it, else the
 //                      scratch server /work/scratch/serve/target/release/serve_scratch)
 //   --path-frames N    frames of the scripted far-to-near camera path (default 30)
+//   --runs-for M=N     runs for the model named M (file name without .glb), e.g. a slow big one;
+//                      repeatable as a comma list: "A=1,B=2"
+//   --no-warm          skip the repeat-visit (warm tile cache) loads
 //   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
 //   --timeout S        per-load timeout (default 180)
 //   --json FILE        write the result there too
 //
-// Method (see shared/notes/browser.md): one browser per model; both variants are loaded once and
-// discarded first (shader compiles, worker start-up), then each measured load replaces the tileset
-// in the same page (bimtiles.loadTileset) with a cache-busting query, service worker off, so
-// every byte comes from the server. Figures are medians over the runs. Stable ones: requests,
-// bytes, tiles, triangles, tileset memory, JS heap after GC, Cesium CPU ms per frame. Wall-clock
-// load times drift with the machine's load (reported with the load average).
+// Method (see shared/notes/browser.md): one browser (fresh profile) per model, the viewer page with
+// its service-worker tile cache on; both variants are loaded once and discarded first (shader
+// compiles, worker start-up), then each measured load replaces the tileset in the same page
+// (bimtiles.loadTileset). Each run and variant is a pair of loads of the same URL:
+//   cold  a new query string (?run=N), so neither the service worker's Cache API store nor the
+//         HTTP cache has any of its files: every byte comes from the server (first visit);
+//   warm  the same URL again: tile contents come from the Cache API (repeat visit), tileset JSON
+//         is revalidated (304).
+// Runs alternate the variant order (A/B, B/A...). After the cold load, a scripted camera path
+// from far to near measures frame times and triangles drawn. Figures are medians over the runs.
+// Stable ones: requests, bytes, tiles, triangles, tileset memory, JS heap after GC, Cesium CPU ms
+// per frame. Wall-clock times drift with the machine's load (reported with the load average);
+// FPS mostly measures SwiftShader's fill rate.
 
 import { execFileSync } from "node:child_process";
-import { copyFileSync, cpSync, existsSync, mkdirSync, mkdtempSync, readFileSync, rmSync, statSync, writeFileSync } from "node:fs";
+import { copyFileSync, cpSync, existsSync, mkdirSync, mkdtempSync, readdirSync, readFileSync, rmSync, statSync, writeFileSync } from "node:fs";
 import { loadavg, tmpdir } from "node:os";
 import { basename, dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
@@ -33,13 +43,19 @@ import { collect, launch, startServer, stopServer, waitLoaded, watch } from "./b
 const REPO = resolve(dirname(fileURLToPath(import.meta.url)), "..");
 
 function parseArgs(argv) {
-  const o = { runs: 3, "path-frames": 30, width: 960, height: 540, timeout: 180, models: [] };
+  const o = { runs: 3, "path-frames": 30, width: 960, height: 540, timeout: 180, models: [], warm: true };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
-    if (a.startsWith("--")) o[a.slice(2)] = argv[++i];
+    if (a === "--no-warm") o.warm = false;
+    else if (a.startsWith("--")) o[a.slice(2)] = argv[++i];
     else o.models.push(a);
   }
   for (const k of ["runs", "path-frames", "width", "height", "timeout"]) o[k] = Number(o[k]);
+  o.runsFor = {};
+  for (const kv of (o["runs-for"] || "").split(",").filter(Boolean)) {
+    const [k, v] = kv.split("=");
+    o.runsFor[k] = Number(v);
+  }
   o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
   return o;
 }
@@ -87,6 +103,24 @@ function median(a) {
   return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
 }
 
+function mean(a) {
+  const s = a.filter((x) => typeof x === "number" && Number.isFinite(x));
+  return s.length ? s.reduce((x, y) => x + y, 0) / s.length : null;
+}
+
+function pct(a, p) {
+  const s = a.filter((x) => typeof x === "number" && Number.isFinite(x)).sort((x, y) => x - y);
+  return s.length ? s[Math.min(s.length - 1, Math.floor((p / 100) * s.length))] : null;
+}
+
+/** Bytes of all files under a folder (what a full download of the tileset would be). */
+function dirBytes(dir) {
+  let n = 0;
+  for (const e of readdirSync(dir, { withFileTypes: true }))
+    n += e.isDirectory() ? dirBytes(join(dir, e.name)) : statSync(join(dir, e.name)).size;
+  return n;
+}
+
 async function cameraPath(page, frames) {
   return page.evaluate(async (frames) => {
     const { viewer, tileset } = window.bimtiles;
@@ -124,38 +158,97 @@ async function cameraPath(page, frames) {
   }, frames);
 }
 
-async function measure(page, url, opts) {
+/** Cesium's own memory figures for the loaded tileset (GPU buffers and textures it tracks). */
+async function tilesetMemory(page) {
+  return page.evaluate(() => {
+    const t = window.bimtiles.tileset;
+    const s = t.statistics;
+    return {
+      tilesetMemoryBytes: t.totalMemoryUsageInBytes,
+      geometryBytes: s.geometryByteLength,
+      textureBytes: s.texturesByteLength,
+      batchTableBytes: s.batchTableByteLength,
+    };
+  });
+}
+
+/** Service-worker counters for this page (cumulative: callers take differences). */
+async function swCounters(page) {
+  const s = await page.evaluate(() => (window.bimtiles.swStats ? window.bimtiles.swStats() : null));
+  return s || { hits: 0, misses: 0, networkBytes: 0, invalidations: 0, workerTransferBytes: null };
+}
+
+/** One load of `url` in the page; with `path`, then the far-to-near camera path. */
+async function measure(page, url, opts, path = true) {
+  const sw0 = await swCounters(page);
   const ok = await page.evaluate((u) => window.bimtiles.loadTileset(u), url);
   if (!ok) throw new Error(`cannot load ${url}`);
   const w = await waitLoaded(page, opts.timeout * 1000);
   if (!w.ok) throw new Error(`${url}: ${w.reason}`);
   const s = await collect(page);
+  const sw1 = await swCounters(page);
   const r = {
+    tilesetJsonMs: s.tilesetReadyMs - s.tilesetRequestedMs,
     firstFrameWithContentMs: s.firstFrameWithContentMs - s.tilesetRequestedMs,
     allTilesLoadedMs: s.allTilesLoadedMs - s.tilesetRequestedMs,
     tileRequests: s.tileRequests,
     tileBytes: s.tileBytes,
+    // What the service worker fetched over the network (Resource Timing transferSize: compressed
+    // bodies + headers; the only page in this browser is ours, so the worker's total is this load's),
+    // and how many tile files it served from its Cache API store.
+    // (null when the browser restarted the idle worker in between: its counters started again)
+    networkBytes:
+      sw1.workerTransferBytes === null || sw1.workerTransferBytes < sw0.workerTransferBytes
+        ? null
+        : sw1.workerTransferBytes - sw0.workerTransferBytes,
+    swFetchedBodyBytes: sw1.networkBytes - sw0.networkBytes,
+    cacheHits: sw1.hits - sw0.hits,
+    cacheMisses: sw1.misses - sw0.misses,
     tilesLoaded: s.tilesLoaded,
     trianglesSelected: s.trianglesSelected,
-    tilesetMemoryBytes: s.tilesetMemoryBytes,
     jsHeapBytesAfterGc: s.jsHeapBytesAfterGc,
+    ...(await tilesetMemory(page)),
     tileFailures: s.tileFailures.length,
   };
-  const path = await cameraPath(page, opts["path-frames"]);
-  r.pathCpuFrameMsMedian = median(path.map((p) => p.cpuMs));
-  r.pathWallFrameMsMedian = median(path.map((p) => p.wallMs));
-  r.pathTrianglesMedian = median(path.map((p) => p.triangles));
-  r.pathTrianglesMax = Math.max(...path.map((p) => p.triangles));
-  // At the near end of the path: wait for its tiles, then what was drawn and downloaded in all.
-  const w2 = await waitLoaded(page, opts.timeout * 1000);
-  const s2 = await collect(page);
-  r.nearAllLoaded = w2.ok;
-  r.nearTrianglesSelected = s2.trianglesSelected;
-  r.totalTileBytes = s2.tileBytes;
-  r.totalTileRequests = s2.tileRequests;
-  r.nearTilesetMemoryBytes = s2.tilesetMemoryBytes;
-  await page.evaluate(() => window.bimtiles.viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY));
+  if (path) {
+    const frames = await cameraPath(page, opts["path-frames"]);
+    const wall = frames.map((p) => p.wallMs);
+    const cpu = frames.map((p) => p.cpuMs);
+    r.pathMeanFps = 1000 / mean(wall);
+    r.pathWallFrameMsMean = mean(wall);
+    r.pathWallFrameMsP95 = pct(wall, 95);
+    r.pathCpuFrameMsMean = mean(cpu);
+    r.pathCpuFrameMsP95 = pct(cpu, 95);
+    r.pathTrianglesMedian = median(frames.map((p) => p.triangles));
+    r.pathTrianglesMax = Math.max(...frames.map((p) => p.triangles));
+    // At the near end of the path: wait for its tiles, then what was drawn and downloaded in all.
+    const w2 = await waitLoaded(page, opts.timeout * 1000);
+    const s2 = await collect(page);
+    r.nearAllLoaded = w2.ok ? 1 : 0;
+    r.nearTrianglesSelected = s2.trianglesSelected;
+    r.totalTileBytes = s2.tileBytes;
+    r.totalTileRequests = s2.tileRequests;
+    r.nearTilesetMemoryBytes = (await tilesetMemory(page)).tilesetMemoryBytes;
+    r.nearJsHeapBytesAfterGc = s2.jsHeapBytesAfterGc;
+  }
+  // Back to the home view and its tiles, so that every measured load starts from the same camera
+  // (a load started at the near end first selects, and waits for, the near view's tiles).
+  await page.evaluate(async () => {
+    const { viewer, tileset } = window.bimtiles;
+    viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY);
+    await viewer.zoomTo(tileset, new Cesium.HeadingPitchRange(0.6, -0.45, 0));
+  });
+  const w3 = await waitLoaded(page, opts.timeout * 1000);
+  if (!w3.ok) throw new Error(`${url}: back at the home view: ${w3.reason}`);
   return r;
+}
+
+function medians(runs) {
+  const out = {};
+  if (!runs.length) return out;
+  for (const k of Object.keys(runs[0]))
+    if (typeof runs[0][k] === "number") out[k] = median(runs.map((r) => r[k]));
+  return out;
 }
 
 async function main() {
@@ -178,16 +271,29 @@ async function main() {
     cesium: cesiumVersion,
     viewport: `${opts.width}x${opts.height}`,
     runs: opts.runs,
+    pathFrames: opts["path-frames"],
     bimtiles: { path: opts.bimtiles, modified: statSync(opts.bimtiles).mtime.toISOString() },
     loadAverageAtStart: loadavg().map((x) => +x.toFixed(2)),
     models: {},
   };
+  // Interrupted: stop this model's server and browser and quit (Playwright's own SIGTERM handler
+  // only closes the browser, and the loop would go on with the next model).
+  let current = {};
+  for (const sig of ["SIGINT", "SIGTERM"])
+    process.on(sig, () => {
+      stopServer(current.server && current.server.proc);
+      if (current.browser) rmSync(current.browser.userDataDir, { recursive: true, force: true });
+      if (current.dir) rmSync(current.dir, { recursive: true, force: true });
+      process.exit(130);
+    });
   for (const model of opts.models) {
     const name = basename(model).replace(/\.glb$/i, "");
     const dir = mkdtempSync(join(tmpdir(), "bimtiles-bench-"));
     let server = null;
     let browser = null;
-    const entry = { model, runs: { ours: [], raw: [] } };
+    current = { dir };
+    const runs = opts.runsFor[name] || opts.runs;
+    const entry = { model, runs: runs, loads: { ours: { cold: [], warm: [] }, raw: { cold: [], warm: [] } } };
     result.models[name] = entry;
     try {
       const oursDir = join(dir, "ours");
@@ -201,34 +307,43 @@ async function main() {
       mkdirSync(rawDir);
       copyFileSync(model, join(rawDir, "model.glb"));
       writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
+      // Everything a client could download: the whole tileset folder against the GLB.
+      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(model).size };
 
-      server = await startServer(serveCmd.replace("{dir}", dir));
+      server = current.server = await startServer(serveCmd.replace("{dir}", dir));
       const base = new URL(server.url);
-      browser = await launch(playwright, opts.width, opts.height);
+      browser = current.browser = await launch(playwright, opts.width, opts.height);
       const w = watch(browser.context);
       const page = browser.context.pages()[0] || (await browser.context.newPage());
       const variants = {
         ours: new URL("/tileset/ours/tileset.json", base).href,
         raw: new URL("/tileset/raw/tileset.json", base).href,
       };
-      await page.goto(new URL(`/?cache=0&msaa=1&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      // Service worker on (no cache=0): the first page load installs it and it takes control.
+      await page.goto(new URL(`/?msaa=1&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
+      entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);
+      if (opts.warm && !entry.serviceWorker.serviceWorker)
+        throw new Error(`service worker not in control (${entry.serviceWorker.reason}): warm loads would not be repeat visits`);
       await measure(page, variants.raw + "?warm=1", opts); // warm-up of the other variant
-      for (let run = 0; run < opts.runs; run++) {
+      for (let run = 0; run < runs; run++) {
         const order = run % 2 === 0 ? ["ours", "raw"] : ["raw", "ours"];
         for (const v of order) {
-          const r = await measure(page, `${variants[v]}?run=${run}`, opts);
-          entry.runs[v].push(r);
-          process.stderr.write(`${name} run ${run} ${v}: all tiles ${Math.round(r.allTilesLoadedMs)} ms, ${r.tileBytes} B\n`);
+          const url = `${variants[v]}?run=${run}`;
+          const cold = await measure(page, url, opts, true);
+          entry.loads[v].cold.push(cold);
+          let line = `${name} run ${run} ${v}: cold all tiles ${Math.round(cold.allTilesLoadedMs)} ms, ${cold.tileBytes} B`;
+          if (opts.warm) {
+            const warm = await measure(page, url, opts, false);
+            entry.loads[v].warm.push(warm);
+            line += `; warm ${Math.round(warm.allTilesLoadedMs)} ms, ${warm.networkBytes} B from the server, ${warm.cacheHits} cache hits`;
+          }
+          process.stderr.write(line + "\n");
         }
       }
       entry.median = {};
-      for (const v of ["ours", "raw"]) {
-        entry.median[v] = {};
-        for (const k of Object.keys(entry.runs[v][0]))
-          if (typeof entry.runs[v][0][k] === "number") entry.median[v][k] = median(entry.runs[v].map((r) => r[k]));
-      }
+      for (const v of ["ours", "raw"]) entry.median[v] = { cold: medians(entry.loads[v].cold), warm: medians(entry.loads[v].warm) };
       entry.externalRequests = w.external.length;
       entry.consoleErrors = w.consoleErrors;
     } catch (e) {

@@ -15,6 +15,10 @@ const JSON_CACHE = "bimtiles-json-v1";
 const TILE_EXT = /\.(glb|b3dm|i3dm|pnts|cmpt|subtree|bin|ktx2|png|jpe?g|webp)$/i;
 
 const stats = new Map(); // clientId -> {hits, misses, networkBytes, invalidations}
+// This worker's own fetches are its Resource Timing entries: their transferSize is what really
+// crossed the network (compressed body + headers; a few hundred bytes for a 304, 0 from the
+// HTTP cache), which Content-Length cannot tell. Kept for the whole worker's life.
+if (self.performance && self.performance.setResourceTimingBufferSize) self.performance.setResourceTimingBufferSize(1000000);
 const bypass = new Set(); // clientIds that asked for no caching
 
 function statsFor(id) {
@@ -38,6 +42,10 @@ self.addEventListener("message", (event) => {
     reply = { ok: true };
   } else if (msg.type === "stats") {
     reply = Object.assign({}, statsFor(id));
+    // All clients together (Resource Timing does not say which client a fetch was for).
+    reply.workerTransferBytes = self.performance
+      ? self.performance.getEntriesByType("resource").reduce((n, e) => n + (e.transferSize || 0), 0)
+      : null;
   }
   if (event.ports && event.ports[0]) event.ports[0].postMessage(reply);
 });
