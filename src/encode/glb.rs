@@ -122,8 +122,35 @@ pub fn encode_content(
 ) -> Result<EncodedTile> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
-    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds)
+    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds, None)
         .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    Ok(EncodedTile {
+        glb,
+        triangles: content.triangle_count(),
+        vertices: content.vertex_count(),
+        bounds,
+        features: content.features.clone(),
+        metadata_bytes,
+    })
+}
+
+/// The bytes and MIME type to embed for an image in one tile (e.g. the texture pyramid level
+/// matched to the tile: `crate::texture::TextureLevels`).
+pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> (std::sync::Arc<Vec<u8>>, String) + Sync);
+
+/// [`encode_content`], with the images taken from `images` instead of the scene.
+pub fn encode_content_with_images(
+    scene: &Scene,
+    content: &TileContent,
+    enc: &TileEncoding,
+    metadata: Option<TableMaker>,
+    images: ImageSource,
+) -> Result<EncodedTile> {
+    let mut bounds = content.bounds();
+    let table = metadata.map(|make| make(&content.features));
+    let (glb, metadata_bytes) =
+        write_glb(scene, content, enc, table.as_ref(), &mut bounds, Some(images))
+            .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles: content.triangle_count(),
@@ -226,6 +253,7 @@ fn write_glb(
     enc: &TileEncoding,
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
+    image_source: Option<ImageSource>,
 ) -> std::result::Result<(Vec<u8>, usize), String> {
     let mut b = GltfBuilder {
         bin: Vec::new(),
@@ -260,8 +288,12 @@ fn write_glb(
                 let tex = mat.base_color_texture.as_ref().map(|t| {
                     let img = *image_map.entry(t.image.0).or_insert_with(|| {
                         let im = &scene.images[t.image.index()];
-                        let view = b.view(&im.bytes, None);
-                        images.push(json!({"bufferView": view, "mimeType": im.mime_type}));
+                        let (bytes, mime) = match image_source {
+                            Some(source) => source(t.image),
+                            None => (im.bytes.clone(), im.mime_type.clone()),
+                        };
+                        let view = b.view(&bytes, None);
+                        images.push(json!({"bufferView": view, "mimeType": mime}));
                         images.len() - 1
                     });
                     let sampler = samplers
