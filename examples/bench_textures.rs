@@ -82,7 +82,11 @@ fn main() {
         }
     }
     if let Some((name, im, _)) = largest {
-        println!("Table II equivalent: Haar pyramid of {name} ({}, {} bytes)", im.mime_type, im.bytes.len());
+        println!(
+            "Table II equivalent: Haar pyramid of {name} ({}, {} bytes)",
+            im.mime_type,
+            im.bytes.len()
+        );
         println!(
             "{:<6} {:>11} {:>10} {:>10} {:>10} {:>12}",
             "level", "resolution", "raw KiB", "PNG B", "JPEG85 B", "PSNR dB"
@@ -103,8 +107,16 @@ fn main() {
                 l,
                 format!("{}x{}", p.width, p.height),
                 (p.width * p.height * 4) as f64 / 1024.0,
-                if l == 0 { im.bytes.len() } else { p.bytes.len() },
-                if l == 0 { im.bytes.len() } else { j.bytes.len() },
+                if l == 0 {
+                    im.bytes.len()
+                } else {
+                    p.bytes.len()
+                },
+                if l == 0 {
+                    im.bytes.len()
+                } else {
+                    j.bytes.len()
+                },
                 psnr
             );
         }
@@ -150,7 +162,10 @@ fn main() {
     );
     for (input, _) in &scenes {
         let name = input.file_stem().unwrap().to_string_lossy().to_string();
-        let (on, off) = (work.join(format!("tex-{name}-on")), work.join(format!("tex-{name}-off")));
+        let (on, off) = (
+            work.join(format!("tex-{name}-on")),
+            work.join(format!("tex-{name}-off")),
+        );
         if !convert(&bin, input, &on, "on") || !convert(&bin, input, &off, "off") {
             eprintln!("conversion of {name} failed");
             continue;

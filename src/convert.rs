@@ -5,8 +5,8 @@
 //! parallel, each written and freed at once; file names and contents depend only on the input and
 //! the options, never on the thread count.
 
-use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
 use crate::encode::glb::encode_content_with_images;
+use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
 use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::partition::{plan_octree, OctreeOptions, TilePlan};
@@ -543,11 +543,14 @@ fn write_tileset(
         let uri = format!("tiles/{}.glb", tile.path);
         let path = tmp.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
-        let texture_error = if opts.lod == LodMode::Hlod { st.geometric_error_m } else { 0.0 };
-        let chosen = textures.for_tile(content, texture_error);
-        let image = |id: crate::scene::ImageId| {
-            textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0))
+        let texture_error = if opts.lod == LodMode::Hlod {
+            st.geometric_error_m
+        } else {
+            0.0
         };
+        let chosen = textures.for_tile(content, texture_error);
+        let image =
+            |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
         let enc = encode_content_with_images(scene, content, &encoding, Some(&make_table), &image)
             .map_err(|e| Error::output(&path, e))?;
         std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;

@@ -68,8 +68,14 @@ fn areas(t: &Textured) -> (f64, f64) {
     for tri in t.indices.chunks_exact(3) {
         let p = |i: u32| glam::DVec3::from(t.positions[i as usize].map(|x| x as f64));
         let q = |i: u32| glam::DVec2::from(t.uvs[i as usize].map(|x| x as f64));
-        w += (p(tri[1]) - p(tri[0])).cross(p(tri[2]) - p(tri[0])).length() / 2.0;
-        u += (q(tri[1]) - q(tri[0])).perp_dot(q(tri[2]) - q(tri[0])).abs() / 2.0;
+        w += (p(tri[1]) - p(tri[0]))
+            .cross(p(tri[2]) - p(tri[0]))
+            .length()
+            / 2.0;
+        u += (q(tri[1]) - q(tri[0]))
+            .perp_dot(q(tri[2]) - q(tri[0]))
+            .abs()
+            / 2.0;
     }
     (w, u)
 }
@@ -137,7 +143,12 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
         .as_array()
         .unwrap()
         .iter()
-        .map(|i| (i["width"].as_u64().unwrap() as u32, i["height"].as_u64().unwrap() as u32))
+        .map(|i| {
+            (
+                i["width"].as_u64().unwrap() as u32,
+                i["height"].as_u64().unwrap() as u32,
+            )
+        })
         .collect();
     // Bytes per built level of each stored image (empty when its pyramid was not needed).
     let level_bytes: Vec<Vec<u64>> = tex["images"]
@@ -199,13 +210,15 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
                             .unwrap_or(0)
                     };
                     // Ties within float rounding may go either way.
-                    let tie = |l: usize| {
-                        l + 1 < s.len() && (texel(s[l + 1]) / ge - 1.0).abs() < 1e-6
-                    };
+                    let tie =
+                        |l: usize| l + 1 < s.len() && (texel(s[l + 1]) / ge - 1.0).abs() < 1e-6;
                     let ok = got == expected
                         || (got == expected + 1 && tie(expected))
                         || (got < expected
-                            && bytes.get(got).zip(bytes.get(expected)).is_some_and(|(a, b)| a <= b));
+                            && bytes
+                                .get(got)
+                                .zip(bytes.get(expected))
+                                .is_some_and(|(a, b)| a <= b));
                     ok.then_some(got)
                 })
                 .collect();
@@ -233,7 +246,10 @@ fn same_colours(a: &Run, b: &Run) -> usize {
             continue;
         };
         assert_eq!(ua, ub);
-        let (pa, pb) = (read_textured(&a.dir.join(ua)), read_textured(&b.dir.join(ub)));
+        let (pa, pb) = (
+            read_textured(&a.dir.join(ua)),
+            read_textured(&b.dir.join(ub)),
+        );
         assert_eq!(pa.len(), pb.len());
         for (x, y) in pa.iter().zip(&pb) {
             assert_eq!(x.positions, y.positions, "{ua}: same geometry");
@@ -256,9 +272,10 @@ fn input_images(model: &Path) -> BTreeMap<Vec<u8>, ()> {
     g.document
         .images()
         .filter_map(|i| match i.source() {
-            gltf::image::Source::View { view, .. } => {
-                Some((blob[view.offset()..view.offset() + view.length()].to_vec(), ()))
-            }
+            gltf::image::Source::View { view, .. } => Some((
+                blob[view.offset()..view.offset() + view.length()].to_vec(),
+                (),
+            )),
             _ => None,
         })
         .collect()
@@ -266,7 +283,11 @@ fn input_images(model: &Path) -> BTreeMap<Vec<u8>, ()> {
 
 fn check_model(model: &Path, name: &str, max_tris: &str) {
     let images = input_images(model);
-    let on = run(model, &format!("tex-{name}"), &["--max-tile-triangles", max_tris]);
+    let on = run(
+        model,
+        &format!("tex-{name}"),
+        &["--max-tile-triangles", max_tris],
+    );
     let tex = &on.report["textures"];
     eprintln!(
         "{name}: classes {}, identical {}, crop {}",
@@ -275,7 +296,10 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
     let (coarser, textured) = check_levels(&on, &images);
     eprintln!("{name}: {textured} textured tiles, {coarser} textured primitives of internal tiles at a coarser level");
     assert!(textured > 0, "{name}: textured tiles");
-    assert!(coarser > 0, "{name}: some internal tile carries a coarser level");
+    assert!(
+        coarser > 0,
+        "{name}: some internal tile carries a coarser level"
+    );
     // Without cropping the leaves carry the input's bytes; with it, the same colours.
     let uncropped = run(
         model,
@@ -292,12 +316,12 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
         &format!("tex-{name}-nolod"),
         &["--max-tile-triangles", max_tris, "--texture-lod", "off"],
     );
-    let written = off.report["textures"]["written_per_level"].as_array().unwrap();
+    let written = off.report["textures"]["written_per_level"]
+        .as_array()
+        .unwrap();
     assert_eq!(written.len(), 1, "{name}: one level without texture LOD");
     assert_eq!(written[0]["level"], 0);
-    let view = |dir: &Path| {
-        bimtiles::texture::view::first_view(dir, &Default::default()).unwrap()
-    };
+    let view = |dir: &Path| bimtiles::texture::view::first_view(dir, &Default::default()).unwrap();
     let (v_on, v_off) = (view(&on.dir), view(&off.dir));
     let original = tex["original_bytes"].as_u64().unwrap();
     eprintln!(
@@ -339,7 +363,11 @@ fn lod3_railway_textures_follow_the_tile_error() {
 
 #[test]
 fn sample_texture_classes_and_crop_are_reported() {
-    let r = run(&sample(), "tex-sample-report", &["--max-tile-triangles", "2000"]);
+    let r = run(
+        &sample(),
+        "tex-sample-report",
+        &["--max-tile-triangles", "2000"],
+    );
     let t = &r.report["textures"];
     // facade_photo: bound by two materials (shared, UVs inside [0,1]); floor_tiles: tiling.
     assert_eq!(t["classes"]["shared"], 1);

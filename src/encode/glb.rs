@@ -122,8 +122,9 @@ pub fn encode_content(
 ) -> Result<EncodedTile> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
-    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds, None)
-        .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    let (glb, metadata_bytes) =
+        write_glb(scene, content, enc, table.as_ref(), &mut bounds, None)
+            .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles: content.triangle_count(),
@@ -148,9 +149,15 @@ pub fn encode_content_with_images(
 ) -> Result<EncodedTile> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
-    let (glb, metadata_bytes) =
-        write_glb(scene, content, enc, table.as_ref(), &mut bounds, Some(images))
-            .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    let (glb, metadata_bytes) = write_glb(
+        scene,
+        content,
+        enc,
+        table.as_ref(),
+        &mut bounds,
+        Some(images),
+    )
+    .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles: content.triangle_count(),

@@ -99,8 +99,7 @@ mod tests {
         let (_, mime) = encode_rgba(w, h, px, TextureFormat::Jpeg, "", 85).unwrap();
         assert_eq!(mime, "image/png");
         let opaque: Vec<u8> = (0..w * h).flat_map(|_| [200, 100, 50, 255]).collect();
-        let (jpg, mime) =
-            encode_rgba(w, h, opaque, TextureFormat::Auto, "image/jpeg", 85).unwrap();
+        let (jpg, mime) = encode_rgba(w, h, opaque, TextureFormat::Auto, "image/jpeg", 85).unwrap();
         assert_eq!(mime, "image/jpeg");
         assert_eq!(dimensions(&jpg).unwrap(), (5, 3));
     }

@@ -39,10 +39,20 @@ pub struct CropReport {
 /// image.
 pub fn used_rect(uv_box: ([f32; 2], [f32; 2]), w: u32, h: u32, pad: u32) -> [u32; 4] {
     let (lo, hi) = uv_box;
-    let lo_px = |t: f32, n: u32| ((t as f64 * n as f64).floor() as i64 - pad as i64).clamp(0, n as i64) as u32;
-    let hi_px = |t: f32, n: u32| ((t as f64 * n as f64).ceil() as i64 + pad as i64).clamp(0, n as i64) as u32;
-    let (x0, x1) = (lo_px(lo[0], w), hi_px(hi[0], w).max(lo_px(lo[0], w) + 1).min(w));
-    let (y0, y1) = (lo_px(lo[1], h), hi_px(hi[1], h).max(lo_px(lo[1], h) + 1).min(h));
+    let lo_px = |t: f32, n: u32| {
+        ((t as f64 * n as f64).floor() as i64 - pad as i64).clamp(0, n as i64) as u32
+    };
+    let hi_px = |t: f32, n: u32| {
+        ((t as f64 * n as f64).ceil() as i64 + pad as i64).clamp(0, n as i64) as u32
+    };
+    let (x0, x1) = (
+        lo_px(lo[0], w),
+        hi_px(hi[0], w).max(lo_px(lo[0], w) + 1).min(w),
+    );
+    let (y0, y1) = (
+        lo_px(lo[1], h),
+        hi_px(hi[1], h).max(lo_px(lo[1], h) + 1).min(h),
+    );
     [x0, y0, x1, y1]
 }
 
@@ -95,7 +105,11 @@ fn remap_uvs(scene: &mut Scene, image: ImageId, offset: [u32; 2], size: [u32; 2]
     let uses: Vec<bool> = scene
         .materials
         .iter()
-        .map(|m| m.base_color_texture.as_ref().is_some_and(|t| t.image == image))
+        .map(|m| {
+            m.base_color_texture
+                .as_ref()
+                .is_some_and(|t| t.image == image)
+        })
         .collect();
     for mesh in &mut scene.meshes {
         for p in &mut mesh.primitives {
@@ -132,7 +146,9 @@ mod tests {
         let mut s = 12345u64;
         let px: Vec<u8> = (0..w * h * 4)
             .map(|i| {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 if i % 4 == 3 {
                     255
                 } else {
@@ -149,7 +165,10 @@ mod tests {
         let mut out = Vec::new();
         for t in p.indices.chunks_exact(3) {
             let c: Vec<[f32; 2]> = t.iter().map(|&i| uvs[i as usize]).collect();
-            let m = [(c[0][0] + c[1][0] + c[2][0]) / 3.0, (c[0][1] + c[1][1] + c[2][1]) / 3.0];
+            let m = [
+                (c[0][0] + c[1][0] + c[2][0]) / 3.0,
+                (c[0][1] + c[1][1] + c[2][1]) / 3.0,
+            ];
             for k in &c {
                 out.push([k[0] * 0.99 + m[0] * 0.01, k[1] * 0.99 + m[1] * 0.01]);
             }
@@ -164,7 +183,10 @@ mod tests {
         let mut s = scene_of(
             vec![
                 vec![quad(0, [0.1, 0.2], [0.4, 0.35])],
-                vec![quad(1, [0.5, 0.5], [0.6, 0.7]), quad(2, [0.55, 0.6], [0.8, 0.75])],
+                vec![
+                    quad(1, [0.5, 0.5], [0.6, 0.7]),
+                    quad(2, [0.55, 0.6], [0.8, 0.75]),
+                ],
                 vec![quad(3, [0.0, 0.0], [2.0, 2.0])],
             ],
             vec![
@@ -186,7 +208,10 @@ mod tests {
         // Image 0: u 0.1..0.4 of 200 = 20..80 (0.4f32 is a hair above: 81), v 0.2..0.35 of
         // 120 = 24..42, padded by 4.
         assert_eq!(dimensions(&s.images[0].bytes).unwrap(), (69, 26));
-        assert_eq!(*s.images[2].bytes, *before.images[2].bytes, "repeated: untouched");
+        assert_eq!(
+            *s.images[2].bytes, *before.images[2].bytes,
+            "repeated: untouched"
+        );
         for (mb, ma) in before.meshes.iter().zip(&s.meshes) {
             for (pb, pa) in mb.primitives.iter().zip(&ma.primitives) {
                 let img = |sc: &Scene| {
@@ -205,7 +230,13 @@ mod tests {
 
     #[test]
     fn used_rect_is_padded_and_clamped() {
-        assert_eq!(used_rect(([0.0, 0.0], [1.0, 1.0]), 64, 32, 4), [0, 0, 64, 32]);
-        assert_eq!(used_rect(([0.5, 0.25], [0.5, 0.25]), 64, 32, 2), [30, 6, 34, 10]);
+        assert_eq!(
+            used_rect(([0.0, 0.0], [1.0, 1.0]), 64, 32, 4),
+            [0, 0, 64, 32]
+        );
+        assert_eq!(
+            used_rect(([0.5, 0.25], [0.5, 0.25]), 64, 32, 2),
+            [30, 6, 34, 10]
+        );
     }
 }

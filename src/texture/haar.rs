@@ -318,7 +318,11 @@ mod tests {
                             }
                         }
                         let mean = sum as f64 / (s * s) as f64;
-                        assert_eq!(level.at(x, y)[c as usize] as f64, mean, "level {k} exact mean");
+                        assert_eq!(
+                            level.at(x, y)[c as usize] as f64,
+                            mean,
+                            "level {k} exact mean"
+                        );
                     }
                 }
             }

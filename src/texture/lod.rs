@@ -77,7 +77,12 @@ mod tests {
                 [4.0, 0.0, 4.0],
                 [0.0, 0.0, 4.0],
             ],
-            uvs: vec![[0.0, 0.0], [repeats, 0.0], [repeats, repeats], [0.0, repeats]],
+            uvs: vec![
+                [0.0, 0.0],
+                [repeats, 0.0],
+                [repeats, repeats],
+                [0.0, repeats],
+            ],
             indices: vec![0, 1, 2, 0, 2, 3],
             ..Default::default()
         }
@@ -99,7 +104,11 @@ mod tests {
         let sizes = level_sizes(512, 512); // 10 levels below 512: 256 ... 1
         let (w, u) = areas(&wall(1.0)); // level l: 4 m / (512 >> l) per texel
         let texel = |l: usize| 4.0 / (512 >> l) as f64;
-        assert_eq!(choose_level(&sizes, w, u, 0.0), 0, "leaves: full resolution");
+        assert_eq!(
+            choose_level(&sizes, w, u, 0.0),
+            0,
+            "leaves: full resolution"
+        );
         assert_eq!(choose_level(&sizes, w, u, 0.001), 0, "finer than any level");
         for l in 0..=9 {
             // Exactly the texel size of level l, and just under the next one.

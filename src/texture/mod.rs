@@ -311,9 +311,7 @@ impl<'a> TextureLevels<'a> {
         let mut undecodable = 0;
         for &id in &bound {
             let im = &self.scene.images[id.index()];
-            let (w, h) = self.sizes[id.index()]
-                .as_ref()
-                .map_or((0, 0), |s| s[0]);
+            let (w, h) = self.sizes[id.index()].as_ref().map_or((0, 0), |s| s[0]);
             let built = self.pyramids[id.index()].get();
             if self.sizes[id.index()].is_none() || matches!(built, Some(None)) {
                 undecodable += 1;
@@ -377,12 +375,18 @@ mod tests {
             .flat_map(|y| {
                 (0..w).flat_map(move |x| {
                     let win = (x % 16 < 8) && (y % 20 < 12);
-                    let v = if win { 40 } else { 150 + ((x + 2 * y) % 60) as u8 };
+                    let v = if win {
+                        40
+                    } else {
+                        150 + ((x + 2 * y) % 60) as u8
+                    };
                     [v, v / 2 + 20, 255 - v, 255]
                 })
             })
             .collect();
-        codec::encode_rgba(w, h, px, TextureFormat::Png, "", 0).unwrap().0
+        codec::encode_rgba(w, h, px, TextureFormat::Png, "", 0)
+            .unwrap()
+            .0
     }
 
     #[test]
