@@ -90,6 +90,7 @@ serve: deps build
 
 bench: build
 	$(CARGO) run --release --example bench_tiler -- $(SHARED)/data
+	$(CARGO) run --release --example bench_textures -- $(SHARED)/data
 
 clean:
 	rm -rf target out $(VENV) tools/node_modules

@@ -51,7 +51,10 @@ const RAW_WARM: RGBColor = RGBColor(235, 170, 150);
 const OURS_WARM: RGBColor = RGBColor(140, 185, 230);
 
 fn load_font() -> Res<()> {
-    let mut candidates: Vec<PathBuf> = std::env::var_os("BIMTILES_FONT").map(PathBuf::from).into_iter().collect();
+    let mut candidates: Vec<PathBuf> = std::env::var_os("BIMTILES_FONT")
+        .map(PathBuf::from)
+        .into_iter()
+        .collect();
     candidates.extend(FONT_PATHS.iter().map(PathBuf::from));
     for p in &candidates {
         if let Ok(bytes) = std::fs::read(p) {
@@ -75,9 +78,17 @@ fn bar_panel(
     log: bool,
     fmt: &dyn Fn(f64) -> String,
 ) -> Res<()> {
-    let vals: Vec<f64> = series.iter().flat_map(|s| s.values.iter().flatten().copied()).filter(|v| v.is_finite()).collect();
+    let vals: Vec<f64> = series
+        .iter()
+        .flat_map(|s| s.values.iter().flatten().copied())
+        .filter(|v| v.is_finite())
+        .collect();
     let max = vals.iter().cloned().fold(0.0f64, f64::max).max(1e-9);
-    let min_pos = vals.iter().cloned().filter(|v| *v > 0.0).fold(f64::INFINITY, f64::min);
+    let min_pos = vals
+        .iter()
+        .cloned()
+        .filter(|v| *v > 0.0)
+        .fold(f64::INFINITY, f64::min);
     let n = models.len() as f64;
     let k = series.len() as f64;
     let bar_w = 0.8 / k;
@@ -109,11 +120,17 @@ fn bar_panel(
                 let bars = s.values.iter().enumerate().filter_map(|(mi, v)| {
                     let v = (*v)?;
                     let x0 = mi as f64 - 0.4 + si as f64 * bar_w;
-                    Some(Rectangle::new([(x0, $floor), (x0 + bar_w * 0.92, v.max($floor))], color.filled()))
+                    Some(Rectangle::new(
+                        [(x0, $floor), (x0 + bar_w * 0.92, v.max($floor))],
+                        color.filled(),
+                    ))
                 });
-                chart.draw_series(bars)?.label(s.label.clone()).legend(move |(x, y)| {
-                    Rectangle::new([(x, y - 5), (x + 12, y + 5)], color.filled())
-                });
+                chart
+                    .draw_series(bars)?
+                    .label(s.label.clone())
+                    .legend(move |(x, y)| {
+                        Rectangle::new([(x, y - 5), (x + 12, y + 5)], color.filled())
+                    });
                 // The value over each bar, so the figure can be read without the table.
                 let texts = s.values.iter().enumerate().filter_map(|(mi, v)| {
                     let v = (*v)?;
@@ -121,7 +138,9 @@ fn bar_panel(
                     Some(Text::new(
                         fmt(v),
                         (x, v.max($floor)),
-                        font(12).color(&BLACK).pos(Pos::new(HPos::Center, VPos::Bottom)),
+                        font(12)
+                            .color(&BLACK)
+                            .pos(Pos::new(HPos::Center, VPos::Bottom)),
                     ))
                 });
                 chart.draw_series(texts)?;
@@ -136,13 +155,23 @@ fn bar_panel(
         }};
     }
     let mut builder = ChartBuilder::on(area);
-    builder.caption(title, font(17)).margin(12).x_label_area_size(34).y_label_area_size(70);
+    builder
+        .caption(title, font(17))
+        .margin(12)
+        .x_label_area_size(34)
+        .y_label_area_size(70);
     if log && min_pos.is_finite() {
         let lo = 10f64.powf(min_pos.log10().floor() - 0.3);
         let hi = 10f64.powf(max.log10() + 0.5); // headroom for the value labels and the legend
-        draw!(builder.build_cartesian_2d(-0.5..n - 0.5, (lo..hi).log_scale())?, lo);
+        draw!(
+            builder.build_cartesian_2d(-0.5..n - 0.5, (lo..hi).log_scale())?,
+            lo
+        );
     } else {
-        draw!(builder.build_cartesian_2d(-0.5..n - 0.5, 0.0..max * 1.3)?, 0.0);
+        draw!(
+            builder.build_cartesian_2d(-0.5..n - 0.5, 0.0..max * 1.3)?,
+            0.0
+        );
     }
     Ok(())
 }
@@ -161,15 +190,30 @@ fn sig(v: f64) -> String {
 }
 
 /// A series of one metric, scaled, for every model.
-fn series(models: &[Model], label: &str, color: RGBColor, variant: &str, phase: &str, key: &str, scale: f64) -> Series {
+fn series(
+    models: &[Model],
+    label: &str,
+    color: RGBColor,
+    variant: &str,
+    phase: &str,
+    key: &str,
+    scale: f64,
+) -> Series {
     Series {
         label: label.into(),
         color,
-        values: models.iter().map(|m| m.get(variant, phase, key).map(|v| v * scale)).collect(),
+        values: models
+            .iter()
+            .map(|m| m.get(variant, phase, key).map(|v| v * scale))
+            .collect(),
     }
 }
 
-fn chart(path: &Path, panels: usize, draw: impl Fn(&[DrawingArea<BitMapBackend, Shift>]) -> Res<()>) -> Res<()> {
+fn chart(
+    path: &Path,
+    panels: usize,
+    draw: impl Fn(&[DrawingArea<BitMapBackend, Shift>]) -> Res<()>,
+) -> Res<()> {
     let root = BitMapBackend::new(path, (1500, 560 * panels as u32)).into_drawing_area();
     root.fill(&WHITE)?;
     let areas = root.split_evenly((panels, 1));
@@ -186,32 +230,117 @@ fn pct_change(raw: Option<f64>, ours: Option<f64>) -> Option<f64> {
 }
 
 fn fmt_pct(p: Option<f64>) -> String {
-    p.map(|p| format!("{p:+.1}%")).unwrap_or_else(|| "n/a".into())
+    p.map(|p| format!("{p:+.1}%"))
+        .unwrap_or_else(|| "n/a".into())
 }
 
 /// Table rows: label, metric key, unit scale, unit suffix, measured on warm loads too.
 const KIB: f64 = 1.0 / 1024.0;
 const ROWS: &[(&str, &str, f64, &str, bool)] = &[
     ("time to the tileset JSON", "tilesetJsonMs", 1e-3, "s", true),
-    ("time to first frame with content", "firstFrameWithContentMs", 1e-3, "s", true),
-    ("time to all tiles loaded (first full view)", "allTilesLoadedMs", 1e-3, "s", true),
-    ("bytes over the network (compressed, with headers)", "networkBytes", KIB, "KiB", true),
-    ("tile file bytes for the first view (decoded)", "tileBytes", KIB, "KiB", true),
+    (
+        "time to first frame with content",
+        "firstFrameWithContentMs",
+        1e-3,
+        "s",
+        true,
+    ),
+    (
+        "time to all tiles loaded (first full view)",
+        "allTilesLoadedMs",
+        1e-3,
+        "s",
+        true,
+    ),
+    (
+        "bytes over the network (compressed, with headers)",
+        "networkBytes",
+        KIB,
+        "KiB",
+        true,
+    ),
+    (
+        "tile file bytes for the first view (decoded)",
+        "tileBytes",
+        KIB,
+        "KiB",
+        true,
+    ),
     ("tile requests", "tileRequests", 1.0, "", true),
     ("tile cache hits", "cacheHits", 1.0, "", true),
-    ("Cesium tileset memory (all)", "tilesetMemoryBytes", KIB, "KiB", true),
-    ("  geometry (GPU buffers)", "geometryBytes", KIB, "KiB", true),
+    (
+        "Cesium tileset memory (all)",
+        "tilesetMemoryBytes",
+        KIB,
+        "KiB",
+        true,
+    ),
+    (
+        "  geometry (GPU buffers)",
+        "geometryBytes",
+        KIB,
+        "KiB",
+        true,
+    ),
     ("  textures", "textureBytes", KIB, "KiB", true),
     ("  property tables", "batchTableBytes", KIB, "KiB", true),
-    ("JS heap after GC (whole page)", "jsHeapBytesAfterGc", KIB, "KiB", true),
-    ("triangles drawn (first view)", "trianglesSelected", 1.0, "", true),
+    (
+        "JS heap after GC (whole page)",
+        "jsHeapBytesAfterGc",
+        KIB,
+        "KiB",
+        true,
+    ),
+    (
+        "triangles drawn (first view)",
+        "trianglesSelected",
+        1.0,
+        "",
+        true,
+    ),
     ("path: mean FPS", "pathMeanFps", 1.0, "fps", false),
-    ("path: mean frame time (wall)", "pathWallFrameMsMean", 1.0, "ms", false),
-    ("path: p95 frame time (wall)", "pathWallFrameMsP95", 1.0, "ms", false),
-    ("path: p95 Cesium CPU time per frame", "pathCpuFrameMsP95", 1.0, "ms", false),
-    ("path: max triangles drawn", "pathTrianglesMax", 1.0, "", false),
-    ("near end: tile file bytes in all", "totalTileBytes", KIB, "KiB", false),
-    ("near end: Cesium tileset memory", "nearTilesetMemoryBytes", KIB, "KiB", false),
+    (
+        "path: mean frame time (wall)",
+        "pathWallFrameMsMean",
+        1.0,
+        "ms",
+        false,
+    ),
+    (
+        "path: p95 frame time (wall)",
+        "pathWallFrameMsP95",
+        1.0,
+        "ms",
+        false,
+    ),
+    (
+        "path: p95 Cesium CPU time per frame",
+        "pathCpuFrameMsP95",
+        1.0,
+        "ms",
+        false,
+    ),
+    (
+        "path: max triangles drawn",
+        "pathTrianglesMax",
+        1.0,
+        "",
+        false,
+    ),
+    (
+        "near end: tile file bytes in all",
+        "totalTileBytes",
+        KIB,
+        "KiB",
+        false,
+    ),
+    (
+        "near end: Cesium tileset memory",
+        "nearTilesetMemoryBytes",
+        KIB,
+        "KiB",
+        false,
+    ),
 ];
 
 fn num(v: Option<f64>, scale: f64) -> String {
@@ -242,10 +371,18 @@ fn targets(m: &Model) -> Vec<(&'static str, Option<bool>, String)> {
     // "No worse" with a 10% band: wall frame times here vary that much between identical runs.
     let p95 = ch("pathWallFrameMsP95");
     vec![
-        ("load time to first full view down >= 80%", down(load, 80.0), fmt_pct(load)),
+        (
+            "load time to first full view down >= 80%",
+            down(load, 80.0),
+            fmt_pct(load),
+        ),
         ("bytes down >= 80%", down(bytes, 80.0), fmt_pct(bytes)),
         ("tileset memory down >= 60%", down(mem, 60.0), fmt_pct(mem)),
-        ("p95 frame time no worse (within +10%)", p95.map(|p| p <= 10.0), fmt_pct(p95)),
+        (
+            "p95 frame time no worse (within +10%)",
+            p95.map(|p| p <= 10.0),
+            fmt_pct(p95),
+        ),
     ]
 }
 
@@ -294,11 +431,17 @@ fn markdown(doc: &Value, models: &[Model], errors: &[(String, String)]) -> Strin
     let _ = writeln!(s, "|---|---|---|---|---|");
     for m in models {
         let t = targets(m);
-        let cells: Vec<String> = t.iter().map(|(_, ok, d)| format!("{} ({d})", mark(*ok))).collect();
+        let cells: Vec<String> = t
+            .iter()
+            .map(|(_, ok, d)| format!("{} ({d})", mark(*ok)))
+            .collect();
         let _ = writeln!(s, "| {} | {} |", m.name, cells.join(" | "));
     }
     let avg = |k: &str, phase: &str| {
-        let v: Vec<f64> = models.iter().filter_map(|m| pct_change(m.get("raw", phase, k), m.get("ours", phase, k))).collect();
+        let v: Vec<f64> = models
+            .iter()
+            .filter_map(|m| pct_change(m.get("raw", phase, k), m.get("ours", phase, k)))
+            .collect();
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
     let _ = writeln!(
@@ -324,13 +467,24 @@ fn markdown(doc: &Value, models: &[Model], errors: &[(String, String)]) -> Strin
             num(disk("ours"), KIB),
             fmt_pct(pct_change(disk("raw"), disk("ours")))
         );
-        let _ = writeln!(s, "| metric | raw cold | ours cold | change | raw warm | ours warm | change |");
+        let _ = writeln!(
+            s,
+            "| metric | raw cold | ours cold | change | raw warm | ours warm | change |"
+        );
         let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
         for (label, key, scale, unit, warm) in ROWS {
-            let lab = if unit.is_empty() { label.to_string() } else { format!("{label} ({unit})") };
+            let lab = if unit.is_empty() {
+                label.to_string()
+            } else {
+                format!("{label} ({unit})")
+            };
             let rc = m.get("raw", "cold", key);
             let oc = m.get("ours", "cold", key);
-            let (rw, ow) = if *warm { (m.get("raw", "warm", key), m.get("ours", "warm", key)) } else { (None, None) };
+            let (rw, ow) = if *warm {
+                (m.get("raw", "warm", key), m.get("ours", "warm", key))
+            } else {
+                (None, None)
+            };
             let _ = writeln!(
                 s,
                 "| {lab} | {} | {} | {} | {} | {} | {} |",
@@ -352,9 +506,15 @@ fn markdown(doc: &Value, models: &[Model], errors: &[(String, String)]) -> Strin
 
 fn main() -> Res<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let input = PathBuf::from(args.first().map(String::as_str).unwrap_or("target/bench/browser.json"));
+    let input = PathBuf::from(
+        args.first()
+            .map(String::as_str)
+            .unwrap_or("target/bench/browser.json"),
+    );
     let out = PathBuf::from(args.get(1).map(String::as_str).unwrap_or("target/bench"));
-    let doc: Value = serde_json::from_slice(&std::fs::read(&input).map_err(|e| format!("{}: {e}", input.display()))?)?;
+    let doc: Value = serde_json::from_slice(
+        &std::fs::read(&input).map_err(|e| format!("{}: {e}", input.display()))?,
+    )?;
     std::fs::create_dir_all(&out)?;
 
     let mut models = Vec::new();
@@ -364,7 +524,12 @@ fn main() -> Res<()> {
             errors.push((name.clone(), e.to_string()));
             continue;
         }
-        models.push(Model { name: name.clone(), median: m["median"].clone(), disk: m["diskBytes"].clone(), runs: m["runs"].as_u64().unwrap_or(0) });
+        models.push(Model {
+            name: name.clone(),
+            median: m["median"].clone(),
+            disk: m["diskBytes"].clone(),
+            runs: m["runs"].as_u64().unwrap_or(0),
+        });
     }
     std::fs::write(out.join("browser.md"), markdown(&doc, &models, &errors))?;
     if models.is_empty() {
@@ -381,17 +546,54 @@ fn main() -> Res<()> {
             vec![
                 series(&models, "raw, cold", RAW, "raw", "cold", key, ms),
                 series(&models, "ours, cold", OURS, "ours", "cold", key, ms),
-                series(&models, "raw, warm (tile cache)", RAW_WARM, "raw", "warm", key, ms),
-                series(&models, "ours, warm (tile cache)", OURS_WARM, "ours", "warm", key, ms),
+                series(
+                    &models,
+                    "raw, warm (tile cache)",
+                    RAW_WARM,
+                    "raw",
+                    "warm",
+                    key,
+                    ms,
+                ),
+                series(
+                    &models,
+                    "ours, warm (tile cache)",
+                    OURS_WARM,
+                    "ours",
+                    "warm",
+                    key,
+                    ms,
+                ),
             ]
         };
-        bar_panel(&a[0], "Time until all tiles of the first view are loaded (median)", "seconds (log)", &names, &four("allTilesLoadedMs"), true, &sig)?;
-        bar_panel(&a[1], "Time to the first frame with content (median)", "seconds (log)", &names, &four("firstFrameWithContentMs"), true, &sig)
+        bar_panel(
+            &a[0],
+            "Time until all tiles of the first view are loaded (median)",
+            "seconds (log)",
+            &names,
+            &four("allTilesLoadedMs"),
+            true,
+            &sig,
+        )?;
+        bar_panel(
+            &a[1],
+            "Time to the first frame with content (median)",
+            "seconds (log)",
+            &names,
+            &four("firstFrameWithContentMs"),
+            true,
+            &sig,
+        )
     })?;
 
     // Fig 14: data size.
     chart(&out.join("fig14_bytes.png"), 3, |a| {
-        let disk = |v: &str| models.iter().map(|m| m.disk[v].as_f64().map(|b| b * mib)).collect();
+        let disk = |v: &str| {
+            models
+                .iter()
+                .map(|m| m.disk[v].as_f64().map(|b| b * mib))
+                .collect()
+        };
         bar_panel(
             &a[0],
             "Bytes over the network for the first full view: first visit (cold) and repeat visit (warm, tile cache)",
@@ -426,8 +628,16 @@ fn main() -> Res<()> {
             "MB (log)",
             &names,
             &[
-                Series { label: "raw GLB".into(), color: RAW, values: disk("raw") },
-                Series { label: "our tileset".into(), color: OURS, values: disk("ours") },
+                Series {
+                    label: "raw GLB".into(),
+                    color: RAW,
+                    values: disk("raw"),
+                },
+                Series {
+                    label: "our tileset".into(),
+                    color: OURS,
+                    values: disk("ours"),
+                },
             ],
             true,
             &sig,
@@ -456,10 +666,42 @@ fn main() -> Res<()> {
             "MB",
             &names,
             &[
-                series(&models, "raw, cold", RAW, "raw", "cold", "jsHeapBytesAfterGc", mib),
-                series(&models, "ours, cold", OURS, "ours", "cold", "jsHeapBytesAfterGc", mib),
-                series(&models, "raw, warm", RAW_WARM, "raw", "warm", "jsHeapBytesAfterGc", mib),
-                series(&models, "ours, warm", OURS_WARM, "ours", "warm", "jsHeapBytesAfterGc", mib),
+                series(
+                    &models,
+                    "raw, cold",
+                    RAW,
+                    "raw",
+                    "cold",
+                    "jsHeapBytesAfterGc",
+                    mib,
+                ),
+                series(
+                    &models,
+                    "ours, cold",
+                    OURS,
+                    "ours",
+                    "cold",
+                    "jsHeapBytesAfterGc",
+                    mib,
+                ),
+                series(
+                    &models,
+                    "raw, warm",
+                    RAW_WARM,
+                    "raw",
+                    "warm",
+                    "jsHeapBytesAfterGc",
+                    mib,
+                ),
+                series(
+                    &models,
+                    "ours, warm",
+                    OURS_WARM,
+                    "ours",
+                    "warm",
+                    "jsHeapBytesAfterGc",
+                    mib,
+                ),
             ],
             false,
             &sig,
@@ -474,12 +716,42 @@ fn main() -> Res<()> {
                 series(&models, "ours", OURS, "ours", "cold", key, 1.0),
             ]
         };
-        bar_panel(&a[0], "Mean frame rate over the far-to-near camera path (SwiftShader: mostly fill rate)", "FPS", &names, &two("pathMeanFps"), false, &sig)?;
-        bar_panel(&a[1], "p95 frame time over the path (wall clock)", "ms", &names, &two("pathWallFrameMsP95"), false, &sig)?;
-        bar_panel(&a[2], "p95 Cesium CPU time per frame over the path (preUpdate to postRender)", "ms", &names, &two("pathCpuFrameMsP95"), false, &sig)
+        bar_panel(
+            &a[0],
+            "Mean frame rate over the far-to-near camera path (SwiftShader: mostly fill rate)",
+            "FPS",
+            &names,
+            &two("pathMeanFps"),
+            false,
+            &sig,
+        )?;
+        bar_panel(
+            &a[1],
+            "p95 frame time over the path (wall clock)",
+            "ms",
+            &names,
+            &two("pathWallFrameMsP95"),
+            false,
+            &sig,
+        )?;
+        bar_panel(
+            &a[2],
+            "p95 Cesium CPU time per frame over the path (preUpdate to postRender)",
+            "ms",
+            &names,
+            &two("pathCpuFrameMsP95"),
+            false,
+            &sig,
+        )
     })?;
 
-    for f in ["fig13_load_time.png", "fig14_bytes.png", "fig15_memory.png", "fig16_frame_rate.png", "browser.md"] {
+    for f in [
+        "fig13_load_time.png",
+        "fig14_bytes.png",
+        "fig15_memory.png",
+        "fig16_frame_rate.png",
+        "browser.md",
+    ] {
         println!("{}", out.join(f).display());
     }
     if !errors.is_empty() {

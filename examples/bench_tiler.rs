@@ -4,7 +4,8 @@
 //! Runs `target/release/bimtiles convert` on every GLB in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
 //! process (so peak memory is that conversion's), and prints one row per model from its
-//! `report.json`. Also writes `target/bench/tiler.json`.
+//! `report.json`, then a dedup/instancing table (issue 5) from the same reports. Also writes
+//! `target/bench/tiler.json`.
 //!
 //! Usage: cargo run --release --example bench_tiler -- [DATA_DIR] [--budgets 10000,40000]
 
@@ -194,6 +195,10 @@ fn main() {
                 "geometry_bytes_draco": draco_geometry, "geometry_bytes_uncompressed": plain_geometry,
                 "draco_geometry_ratio": draco_geometry as f64 / plain_geometry.max(1) as f64,
                 "encode_write_s_uncompressed": encode_plain_s,
+                "dedup": r["dedup"], "instances": r["output"]["instances"],
+                "instanced_shapes": r["output"]["instanced_shapes"],
+                "stored_triangles": r["output"]["stored_triangles"],
+                "output_triangles": r["output"]["triangles"],
             });
             // Draco's own cost: encode+write with Draco minus without.
             let draco_s =
@@ -217,6 +222,44 @@ fn main() {
             let _ = std::fs::remove_dir_all(&out);
             rows.push(row);
         }
+    }
+    // Dedup (paper III.A): what it found, what it saves, what it costs, per conversion above.
+    println!(
+        "\n{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>10} {:>8} {:>7} {:>9} {:>10}",
+        "model",
+        "budget",
+        "components",
+        "shapes",
+        "congruent",
+        "removed",
+        "instances",
+        "stored/drawn",
+        "bytes in",
+        "saved %",
+        "dedup s",
+        "% of total"
+    );
+    for r in &rows {
+        let d = &r["dedup"];
+        if !d.is_object() {
+            continue;
+        }
+        let f = |v: &Value| v.as_f64().unwrap_or(0.0);
+        println!(
+            "{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>10.3} {:>8.2} {:>7.1} {:>9.3} {:>10.1}",
+            r["model"].as_str().unwrap_or(""),
+            r["budget"],
+            d["components"],
+            d["unique_shapes"],
+            d["congruent_rewritten"],
+            d["redundant_removed"],
+            r["instances"],
+            f(&r["stored_triangles"]) / f(&r["output_triangles"]).max(1.0),
+            f(&d["bytes_before"]) / 1e6,
+            (1.0 - f(&d["bytes_after"]) / f(&d["bytes_before"]).max(1.0)) * 100.0,
+            f(&d["seconds"]),
+            f(&d["seconds"]) / f(&r["seconds"]).max(1e-9) * 100.0
+        );
     }
     std::fs::write(
         work.join("tiler.json"),

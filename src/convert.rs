@@ -7,8 +7,9 @@
 //! the options, never on the thread count.
 
 use crate::dedup::{deduplicate, DedupOptions, DedupReport};
+use crate::encode::glb::encode_content_with_images;
 use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
-use crate::encode::{encode_content, encode_tile, Compression, TileEncoding};
+use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
@@ -53,6 +54,8 @@ pub struct ConvertOptions {
     pub min_instanced_triangles_saved: Option<usize>,
     /// Show progress bars on stderr.
     pub progress: bool,
+    /// Texture elimination, pyramids and level matching (paper III.D–III.F).
+    pub texture: crate::texture::TextureOptions,
 }
 
 impl ConvertOptions {
@@ -69,6 +72,7 @@ impl ConvertOptions {
             instancing: true,
             min_instanced_triangles_saved: None,
             progress: false,
+            texture: Default::default(),
         }
     }
 }
@@ -210,6 +214,9 @@ pub struct Report {
     pub options: serde_json::Value,
     pub timings_s: Timings,
     pub peak_memory_bytes: u64,
+    /// Texture classification, bytes before and per pyramid level, bytes written per level.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub textures: Option<crate::texture::TextureReport>,
 }
 
 /// Peak resident memory of this process so far (Linux `VmHWM`), 0 where unknown.
@@ -370,6 +377,7 @@ pub fn convert_scene(
     let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
     let t_dedup = t_dedup_start.elapsed().as_secs_f64();
 
+    let textures_prepared = crate::texture::prepare(scene, &opts.texture);
     let t1 = Instant::now();
     let mut plan = plan_octree(scene, &opts.octree);
     if opts.lod == LodMode::Hlod {
@@ -393,7 +401,8 @@ pub fn convert_scene(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
-    let result = write_tileset(scene, &plan, opts, &tmp, origin, anchor);
+    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture);
+    let result = write_tileset(scene, &plan, opts, &tmp, origin, anchor, &texture_levels);
     let (facts_bytes, t_encode, t_tileset) = match result {
         Ok(x) => x,
         Err(e) => {
@@ -497,6 +506,7 @@ pub fn convert_scene(
             "instancing": opts.instancing,
             "min_instanced_triangles_saved": opts.min_instanced_triangles_saved
                 .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression)),
+            "texture": opts.texture,
         }),
         timings_s: Timings {
             ingest: t_ingest,
@@ -507,6 +517,8 @@ pub fn convert_scene(
             total: 0.0,
         },
         peak_memory_bytes: 0,
+        textures: (textures_prepared.images_bound > 0)
+            .then(|| texture_levels.report(textures_prepared)),
     };
     report.timings_s.total = t0.elapsed().as_secs_f64();
     report.peak_memory_bytes = peak_memory_bytes();
@@ -583,6 +595,7 @@ fn write_tileset(
     tmp: &Path,
     origin: GeoOrigin,
     anchor: DVec3,
+    textures: &crate::texture::TextureLevels,
 ) -> Result<(Vec<TileStats>, f64, f64)> {
     let tiles_dir = tmp.join("tiles");
     std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
@@ -605,7 +618,16 @@ fn write_tileset(
         let tile = &plan.tiles[i];
         let uri = format!("tiles/{}.glb", tile.path);
         let path = tmp.join(&uri);
-        let enc = encode_content(scene, content, &encoding, Some(&make_table))
+        // The texture level matched to the tile's error (REPLACE content; ADD content is full).
+        let texture_error = if opts.lod == LodMode::Hlod {
+            st.geometric_error_m
+        } else {
+            0.0
+        };
+        let chosen = textures.for_tile(content, texture_error);
+        let image =
+            |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
+        let enc = encode_content_with_images(scene, content, &encoding, Some(&make_table), &image)
             .map_err(|e| Error::output(&path, e))?;
         std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
         pb.inc(1);

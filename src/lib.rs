@@ -3,7 +3,8 @@
 //! The pipeline follows the modules in order, data flowing one way:
 //! `ingest` (readers) → `scene` (the model) → `dedup` (repeated shapes shared, duplicates
 //! aliased) → `partition` (octree plan) → `tile_content` (a tile's merged geometry) →
-//! `simplify` (QEM, HLOD) → `encode` (GLB) → `tileset` (tileset.json, georeferencing);
+//! `simplify` (QEM, HLOD) → `texture` (redundant textures removed, Haar pyramid level per tile)
+//! → `encode` (GLB) → `tileset` (tileset.json, georeferencing);
 //! `convert` runs it end to end, `inspect` reads a
 //! result back and `serve` shows it in a local CesiumJS viewer.
 
@@ -17,6 +18,7 @@ pub mod partition;
 pub mod scene;
 pub mod serve;
 pub mod simplify;
+pub mod texture;
 pub mod tile_content;
 pub mod tileset;
 

@@ -7,6 +7,7 @@ use bimtiles::encode::Compression;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::simplify::SimplifyOptions;
+use bimtiles::texture::{TextureFormat, TextureOptions};
 use bimtiles::tileset::georef::GeoOrigin;
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
@@ -118,6 +119,20 @@ struct ConvertArgs {
     /// Default: 1000 with Draco, 100 without.
     #[arg(long)]
     min_instanced_triangles_saved: Option<usize>,
+    /// Texture level per tile matched to its geometric error (Haar wavelet pyramid): on or off
+    /// (every tile gets the full-resolution images).
+    #[arg(long, value_enum, default_value = "on")]
+    texture_lod: OnOff,
+    /// Crop the area of standalone and shared textures that no UV reaches (UVs remapped).
+    #[arg(long, value_enum, default_value = "on")]
+    texture_crop: OnOff,
+    /// Encoding of coarser texture levels: auto (PNG stays PNG, JPEG stays JPEG), png or jpeg.
+    #[arg(long, value_enum, default_value = "auto")]
+    texture_format: TextureFormatArg,
+    /// JPEG quality (1-100) of re-encoded JPEG texture levels.
+    #[arg(long, default_value_t = bimtiles::texture::DEFAULT_JPEG_QUALITY,
+          value_parser = clap::value_parser!(u8).range(1..=100))]
+    jpeg_quality: u8,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -130,6 +145,19 @@ struct ConvertArgs {
 enum LodArg {
     Hlod,
     None,
+}
+
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum OnOff {
+    On,
+    Off,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum TextureFormatArg {
+    Auto,
+    Png,
+    Jpeg,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -250,6 +278,16 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         instancing: !a.no_instancing,
         min_instanced_triangles_saved: a.min_instanced_triangles_saved,
         progress: !a.quiet,
+        texture: TextureOptions {
+            lod: a.texture_lod == OnOff::On,
+            crop: a.texture_crop == OnOff::On,
+            format: match a.texture_format {
+                TextureFormatArg::Auto => TextureFormat::Auto,
+                TextureFormatArg::Png => TextureFormat::Png,
+                TextureFormatArg::Jpeg => TextureFormat::Jpeg,
+            },
+            jpeg_quality: a.jpeg_quality,
+        },
     };
     if !(a.dedup_tolerance_m.is_finite() && a.dedup_tolerance_m >= 0.0) {
         anyhow::bail!(

@@ -126,10 +126,40 @@ pub fn encode_content(
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
 ) -> Result<EncodedTile> {
+    encode_content_from(scene, content, enc, metadata, None)
+}
+
+/// The bytes and MIME type to embed for an image in one tile (e.g. the texture pyramid level
+/// matched to the tile: `crate::texture::TextureLevels`).
+pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> (std::sync::Arc<Vec<u8>>, String) + Sync);
+
+/// [`encode_content`], with the images taken from `images` instead of the scene.
+pub fn encode_content_with_images(
+    scene: &Scene,
+    content: &TileContent,
+    enc: &TileEncoding,
+    metadata: Option<TableMaker>,
+    images: ImageSource,
+) -> Result<EncodedTile> {
+    encode_content_from(scene, content, enc, metadata, Some(images))
+}
+
+fn encode_content_from(
+    scene: &Scene,
+    content: &TileContent,
+    enc: &TileEncoding,
+    metadata: Option<TableMaker>,
+    images: Option<ImageSource>,
+) -> Result<EncodedTile> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
-    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds)
-        .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    let mats = MaterialTable {
+        image_source: images,
+        ..MaterialTable::default()
+    };
+    let (glb, metadata_bytes) =
+        write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)
+            .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
     Ok(EncodedTile {
         glb,
         triangles: content.triangle_count(),
@@ -240,7 +270,9 @@ impl GltfBuilder {
 
 /// The materials, textures, images and samplers of one GLB, each written once.
 #[derive(Default)]
-struct MaterialTable {
+struct MaterialTable<'a> {
+    /// Where image bytes come from (default: the scene's own).
+    image_source: Option<ImageSource<'a>>,
     materials: Vec<Value>,
     material_map: BTreeMap<u32, usize>,
     images: Vec<Value>,
@@ -249,7 +281,7 @@ struct MaterialTable {
     textures: Vec<(usize, usize)>,
 }
 
-impl MaterialTable {
+impl MaterialTable<'_> {
     /// The glTF index of scene material `mid`, written (with its image) on first use.
     fn index(&mut self, scene: &Scene, b: &mut GltfBuilder, mid: MaterialId) -> usize {
         if let Some(&i) = self.material_map.get(&mid.0) {
@@ -257,11 +289,16 @@ impl MaterialTable {
         }
         let mat = &scene.materials[mid.index()];
         let tex = mat.base_color_texture.as_ref().map(|t| {
+            let source = self.image_source;
             let img = *self.image_map.entry(t.image.0).or_insert_with(|| {
                 let im = &scene.images[t.image.index()];
-                let view = b.view(&im.bytes, None);
+                let (bytes, mime) = match source {
+                    Some(source) => source(t.image),
+                    None => (im.bytes.clone(), im.mime_type.clone()),
+                };
+                let view = b.view(&bytes, None);
                 self.images
-                    .push(json!({"bufferView": view, "mimeType": im.mime_type}));
+                    .push(json!({"bufferView": view, "mimeType": mime}));
                 self.images.len() - 1
             });
             let sampler = self
@@ -350,13 +387,13 @@ fn write_glb(
     enc: &TileEncoding,
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
+    mut mats: MaterialTable,
 ) -> std::result::Result<(Vec<u8>, usize), String> {
     let mut b = GltfBuilder {
         bin: Vec::new(),
         buffer_views: Vec::new(),
         accessors: Vec::new(),
     };
-    let mut mats = MaterialTable::default();
     let (center, feature_count) = (content.center, content.features.len());
     let mut meshes: Vec<Value> = Vec::new();
     let mut root_node = json!({"translation": [center.x, center.z, -center.y]});

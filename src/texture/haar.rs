@@ -1,0 +1,381 @@
+//! Haar wavelet pyramid of a texture (paper III.E, formulas (3) and (4)).
+//!
+//! One step is a row transform followed by a column transform. Each transform takes a pair of
+//! neighbours (a, b) to a low band `(a + b) / 2` and a high band `(a - b) / 2`; the paper's
+//! formulas write the outputs in place, lows in the first half of the row (column) and highs in
+//! the second half. After both transforms the four quarter-size bands are LL (the image at half
+//! resolution: each texel the mean of a 2x2 block), LH, HL and HH (horizontal, vertical and
+//! diagonal detail). The next level is the LL band of this one.
+//!
+//! Sizes: an odd width (height) is handled by **edge replication**: the last column (row) is
+//! paired with itself, so its high coefficient is 0 and its low coefficient is its own value; the
+//! band is `ceil(w / 2)` wide. Any size works, non-powers of two included, down to 1x1.
+//!
+//! Colour and alpha: all four RGBA channels are transformed alike, as f32. Inputs are 8-bit
+//! integers, so every coefficient of the first 8 levels is a dyadic rational that f32 holds
+//! exactly: [`synthesize`] rebuilds a level from its LL band and detail bands *exactly* (tested).
+//!
+//! What is shipped: only the LL bands, rounded to 8 bits, each as a self-contained image (a tile
+//! must be viewable alone, and glTF has no wavelet texture). The detail bands are not written;
+//! [`analyze`]/[`synthesize`] exist to keep the transform honest (the LL we ship is the one the
+//! full transform gives, and the transform is invertible). [`next_level`] computes the LL band
+//! alone in one pass, holding only the source and the quarter-size result, which is what the
+//! pipeline uses (memory: the 8-bit source plus an f32 level of the same byte size).
+
+/// An RGBA image with f32 samples, interleaved, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Planes {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<f32>,
+}
+
+impl Planes {
+    /// From 8-bit RGBA.
+    pub fn from_rgba8(width: u32, height: u32, rgba: &[u8]) -> Planes {
+        assert_eq!(rgba.len(), width as usize * height as usize * 4);
+        Planes {
+            width,
+            height,
+            data: rgba.iter().map(|&x| x as f32).collect(),
+        }
+    }
+
+    /// Rounded (half up) and clamped to 8 bits.
+    pub fn to_rgba8(&self) -> Vec<u8> {
+        self.data
+            .iter()
+            .map(|&x| (x + 0.5).floor().clamp(0.0, 255.0) as u8)
+            .collect()
+    }
+
+    /// The four samples of texel (x, y).
+    pub fn at(&self, x: u32, y: u32) -> &[f32] {
+        let i = (y as usize * self.width as usize + x as usize) * 4;
+        &self.data[i..i + 4]
+    }
+}
+
+/// Size of the next level: half, rounded up (edge replication).
+pub fn half(n: u32) -> u32 {
+    n.div_ceil(2).max(1)
+}
+
+/// Sizes of every level from `(w, h)` down to 1x1, level 0 first.
+pub fn level_sizes(width: u32, height: u32) -> Vec<(u32, u32)> {
+    let mut out = vec![(width.max(1), height.max(1))];
+    while let Some(&(w, h)) = out.last() {
+        if w <= 1 && h <= 1 {
+            break;
+        }
+        out.push((half(w), half(h)));
+    }
+    out
+}
+
+/// One level of the transform: LL (the next level) and the detail bands, each
+/// `half(w) x half(h)` RGBA.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bands {
+    /// Size of the level these bands came from (to drop replicated edges when rebuilding).
+    pub width: u32,
+    pub height: u32,
+    pub ll: Planes,
+    /// Row high, column low (horizontal detail).
+    pub hl: Vec<f32>,
+    /// Row low, column high (vertical detail).
+    pub lh: Vec<f32>,
+    /// Row high, column high (diagonal detail).
+    pub hh: Vec<f32>,
+}
+
+/// Formula (3) on one row: lows then highs, `half(n)` of each, edge-replicated.
+fn row_transform(src: &[f32], n: usize, low: &mut [f32], high: &mut [f32]) {
+    let m = n.div_ceil(2);
+    for j in 0..m {
+        let (ia, ib) = (2 * j, (2 * j + 1).min(n - 1));
+        for c in 0..4 {
+            let (a, b) = (src[ia * 4 + c], src[ib * 4 + c]);
+            low[j * 4 + c] = (a + b) / 2.0;
+            high[j * 4 + c] = (a - b) / 2.0;
+        }
+    }
+}
+
+/// The full transform of one level (row transform, then column transform).
+pub fn analyze(p: &Planes) -> Bands {
+    let (w, h) = (p.width as usize, p.height as usize);
+    let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+    // Row transform of every row: L (w2 wide) and H (w2 wide), h rows each.
+    let mut lo = vec![0.0f32; w2 * h * 4];
+    let mut hi = vec![0.0f32; w2 * h * 4];
+    for y in 0..h {
+        let src = &p.data[y * w * 4..(y + 1) * w * 4];
+        let (l, r) = (y * w2 * 4, (y + 1) * w2 * 4);
+        row_transform(src, w, &mut lo[l..r], &mut hi[l..r]);
+    }
+    // Column transform (formula (4)) of both: rows 2i and 2i+1 (replicated at the bottom).
+    let column = |band: &[f32]| {
+        let mut low = vec![0.0f32; w2 * h2 * 4];
+        let mut high = vec![0.0f32; w2 * h2 * 4];
+        for i in 0..h2 {
+            let (ra, rb) = (2 * i, (2 * i + 1).min(h - 1));
+            for k in 0..w2 * 4 {
+                let (a, b) = (band[ra * w2 * 4 + k], band[rb * w2 * 4 + k]);
+                low[i * w2 * 4 + k] = (a + b) / 2.0;
+                high[i * w2 * 4 + k] = (a - b) / 2.0;
+            }
+        }
+        (low, high)
+    };
+    let (ll, lh) = column(&lo);
+    let (hl, hh) = column(&hi);
+    Bands {
+        width: p.width,
+        height: p.height,
+        ll: Planes {
+            width: w2 as u32,
+            height: h2 as u32,
+            data: ll,
+        },
+        hl,
+        lh,
+        hh,
+    }
+}
+
+/// The inverse of [`analyze`]: a = low + high, b = low - high, columns then rows; the replicated
+/// last row/column is dropped. Exact for the coefficients of 8-bit images (see the module notes).
+pub fn synthesize(b: &Bands) -> Planes {
+    let (w, h) = (b.width as usize, b.height as usize);
+    let (w2, h2) = (b.ll.width as usize, b.ll.height as usize);
+    let uncolumn = |low: &[f32], high: &[f32]| {
+        let mut out = vec![0.0f32; w2 * h * 4];
+        for i in 0..h2 {
+            for k in 0..w2 * 4 {
+                let (l, d) = (low[i * w2 * 4 + k], high[i * w2 * 4 + k]);
+                out[2 * i * w2 * 4 + k] = l + d;
+                if 2 * i + 1 < h {
+                    out[(2 * i + 1) * w2 * 4 + k] = l - d;
+                }
+            }
+        }
+        out
+    };
+    let lo = uncolumn(&b.ll.data, &b.lh);
+    let hi = uncolumn(&b.hl, &b.hh);
+    let mut data = vec![0.0f32; w * h * 4];
+    for y in 0..h {
+        for j in 0..w2 {
+            for c in 0..4 {
+                let (l, d) = (lo[(y * w2 + j) * 4 + c], hi[(y * w2 + j) * 4 + c]);
+                data[(y * w + 2 * j) * 4 + c] = l + d;
+                if 2 * j + 1 < w {
+                    data[(y * w + 2 * j + 1) * 4 + c] = l - d;
+                }
+            }
+        }
+    }
+    Planes {
+        width: b.width,
+        height: b.height,
+        data,
+    }
+}
+
+/// The LL band of `p` alone, in one pass: for each output texel, the row transform's low band of
+/// rows 2i and 2i+1, then the column transform's low band, the same float operations in the same
+/// order as [`analyze`] (so the same values, bit for bit).
+pub fn next_level(p: &Planes) -> Planes {
+    ll_pass(p.width, p.height, &p.data)
+}
+
+/// [`next_level`] straight from 8-bit RGBA (the f32 level 0 is never built: u8 → f32 is exact,
+/// so the result is the same bit for bit, in a quarter of the memory).
+pub fn next_level_rgba8(width: u32, height: u32, rgba: &[u8]) -> Planes {
+    assert_eq!(rgba.len(), width as usize * height as usize * 4);
+    ll_pass(width, height, rgba)
+}
+
+fn ll_pass<T: Copy + Into<f32>>(width: u32, height: u32, src: &[T]) -> Planes {
+    let (w, h) = (width as usize, height as usize);
+    let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+    let mut data = vec![0.0f32; w2 * h2 * 4];
+    let at = |x: usize, y: usize, c: usize| -> f32 { src[(y * w + x) * 4 + c].into() };
+    for i in 0..h2 {
+        let (ra, rb) = (2 * i, (2 * i + 1).min(h - 1));
+        for j in 0..w2 {
+            let (ca, cb) = (2 * j, (2 * j + 1).min(w - 1));
+            for c in 0..4 {
+                let l0 = (at(ca, ra, c) + at(cb, ra, c)) / 2.0;
+                let l1 = (at(ca, rb, c) + at(cb, rb, c)) / 2.0;
+                data[(i * w2 + j) * 4 + c] = (l0 + l1) / 2.0;
+            }
+        }
+    }
+    Planes {
+        width: w2 as u32,
+        height: h2 as u32,
+        data,
+    }
+}
+
+/// Peak signal-to-noise ratio (dB) between two 8-bit images of one size over all four channels;
+/// infinite when they are equal.
+pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    if a.is_empty() {
+        return f64::INFINITY;
+    }
+    let se: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
+        .sum();
+    let mse = se / a.len() as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic pseudo-random RGBA (with a varying alpha).
+    fn noise(w: u32, h: u32, seed: u64) -> Vec<u8> {
+        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+        (0..w * h * 4)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 56) as u8
+            })
+            .collect()
+    }
+
+    #[test]
+    fn level_sizes_halve_rounding_up() {
+        assert_eq!(
+            level_sizes(600, 800),
+            vec![
+                (600, 800),
+                (300, 400),
+                (150, 200),
+                (75, 100),
+                (38, 50),
+                (19, 25),
+                (10, 13),
+                (5, 7),
+                (3, 4),
+                (2, 2),
+                (1, 1)
+            ]
+        );
+        assert_eq!(level_sizes(1, 1), vec![(1, 1)]);
+        assert_eq!(level_sizes(3, 1), vec![(3, 1), (2, 1), (1, 1)]);
+    }
+
+    #[test]
+    fn rebuild_from_coarser_ll_and_details_is_exact() {
+        // Odd, even, non-power-of-two and 1-pixel sizes; several levels deep.
+        for &(w, h) in &[(8, 8), (7, 5), (600, 3), (1, 9), (13, 1), (37, 22)] {
+            let orig = Planes::from_rgba8(w, h, &noise(w, h, (w * 31 + h) as u64));
+            let mut level = orig.clone();
+            for _ in 0..4 {
+                let bands = analyze(&level);
+                assert_eq!(synthesize(&bands), level, "{w}x{h}: exact rebuild");
+                // The one-pass LL is the full transform's LL, bit for bit.
+                assert_eq!(next_level(&level), bands.ll);
+                if level == orig {
+                    let px = orig.to_rgba8();
+                    assert_eq!(next_level_rgba8(w, h, &px), bands.ll);
+                }
+                level = bands.ll;
+            }
+        }
+    }
+
+    #[test]
+    fn ll_is_the_exact_box_mean_on_divisible_sizes() {
+        let (w, h) = (32u32, 16u32);
+        let px = noise(w, h, 7);
+        let mut level = Planes::from_rgba8(w, h, &px);
+        for k in 1..=4u32 {
+            level = next_level(&level);
+            let s = 1u32 << k;
+            assert_eq!((level.width, level.height), (w / s, h / s));
+            for y in 0..h / s {
+                for x in 0..w / s {
+                    for c in 0..4 {
+                        let mut sum = 0u64;
+                        for yy in y * s..(y + 1) * s {
+                            for xx in x * s..(x + 1) * s {
+                                sum += px[((yy * w + xx) * 4 + c) as usize] as u64;
+                            }
+                        }
+                        let mean = sum as f64 / (s * s) as f64;
+                        assert_eq!(
+                            level.at(x, y)[c as usize] as f64,
+                            mean,
+                            "level {k} exact mean"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// An independent reference for odd sizes: pad by replicating the last row/column to an even
+    /// size, then average 2x2 blocks, in f64.
+    fn box_reference(w: u32, h: u32, px: &[f64]) -> (u32, u32, Vec<f64>) {
+        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+        let get = |x: u32, y: u32, c: u32| px[((y.min(h - 1) * w + x.min(w - 1)) * 4 + c) as usize];
+        let mut out = Vec::new();
+        for y in 0..h2 {
+            for x in 0..w2 {
+                for c in 0..4 {
+                    out.push(
+                        (get(2 * x, 2 * y, c)
+                            + get(2 * x + 1, 2 * y, c)
+                            + get(2 * x, 2 * y + 1, c)
+                            + get(2 * x + 1, 2 * y + 1, c))
+                            / 4.0,
+                    );
+                }
+            }
+        }
+        (w2, h2, out)
+    }
+
+    #[test]
+    fn pyramid_matches_a_padded_box_filter_on_odd_sizes() {
+        let (w, h) = (45u32, 27u32);
+        let px = noise(w, h, 3);
+        let mut level = Planes::from_rgba8(w, h, &px);
+        let (mut rw, mut rh, mut r): (u32, u32, Vec<f64>) =
+            (w, h, px.iter().map(|&x| x as f64).collect());
+        for _ in 0..5 {
+            level = next_level(&level);
+            (rw, rh, r) = box_reference(rw, rh, &r);
+            assert_eq!((level.width, level.height), (rw, rh));
+            let reference: Vec<u8> = r
+                .iter()
+                .map(|&x| (x + 0.5).floor().clamp(0.0, 255.0) as u8)
+                .collect();
+            assert_eq!(psnr(&level.to_rgba8(), &reference), f64::INFINITY);
+        }
+    }
+
+    #[test]
+    fn psnr_of_known_error() {
+        let a = vec![10u8; 100];
+        let mut b = a.clone();
+        assert_eq!(psnr(&a, &b), f64::INFINITY);
+        b[0] = 20; // mse = 1
+        assert!((psnr(&a, &b) - 48.1308).abs() < 1e-3);
+    }
+}

@@ -1,0 +1,452 @@
+//! Textures (paper III.D–III.F): redundant texture elimination, a Haar wavelet pyramid per image,
+//! and the pyramid level matched to each tile's level of detail.
+//!
+//! Before tiling, [`prepare`] runs three passes over the scene, in order:
+//! 1. identical images stored once ([`identical`]);
+//! 2. classification into repeated / shared / standalone ([`classify`]);
+//! 3. cropping of the area no UV reaches, UVs remapped ([`crop`]).
+//!
+//! While tiles are written, [`TextureLevels`] gives each tile, per image, the pyramid level of
+//! [`lod`] (from the tile's geometricError and its triangles' texel size) and the encoded bytes of
+//! that level ([`haar`] + [`codec`]). A pyramid is built once per image, on the first tile that
+//! needs a coarser level, and kept encoded (one decoded image per worker thread at a time). Level
+//! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
+//! re-encoded. [`view`] measures what a client loads for a first whole-model view.
+
+pub mod classify;
+pub mod codec;
+pub mod crop;
+pub mod haar;
+pub mod identical;
+pub mod lod;
+pub mod view;
+
+pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
+
+use crate::scene::{ImageId, Scene};
+use crate::tile_content::TileContent;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
+/// What the texture stage does.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TextureOptions {
+    /// Match each tile's texture level to its geometric error (off: every tile gets level 0).
+    pub lod: bool,
+    /// Crop the area of standalone/shared images that no UV reaches.
+    pub crop: bool,
+    /// Encoding of re-encoded levels.
+    pub format: TextureFormat,
+    pub jpeg_quality: u8,
+}
+
+impl Default for TextureOptions {
+    fn default() -> Self {
+        TextureOptions {
+            lod: true,
+            crop: true,
+            format: TextureFormat::default(),
+            jpeg_quality: DEFAULT_JPEG_QUALITY,
+        }
+    }
+}
+
+/// What the passes before tiling found and did.
+#[derive(Debug, Clone, Serialize)]
+pub struct Prepared {
+    /// Images materials bind, and their encoded bytes, as read.
+    pub images_bound: usize,
+    pub original_bytes: u64,
+    pub identical: identical::IdenticalReport,
+    /// Classes of the images still bound after identical ones were merged.
+    pub classes: classify::ClassCounts,
+    pub crop: crop::CropReport,
+    #[serde(skip)]
+    pub uses: Vec<classify::ImageUse>,
+}
+
+/// Identical images merged, images classified, unused areas cropped (with `opts.crop`).
+pub fn prepare(scene: &mut Scene, opts: &TextureOptions) -> Prepared {
+    let bound = classify::bound_images(scene);
+    let original_bytes = bound
+        .iter()
+        .map(|i| scene.images[i.index()].bytes.len() as u64)
+        .sum();
+    let identical = identical::merge_identical(scene);
+    let uses = classify::classify(scene);
+    let classes = classify::counts(
+        &classify::bound_images(scene)
+            .iter()
+            .map(|i| uses[i.index()].clone())
+            .collect::<Vec<_>>(),
+    );
+    let crop = if opts.crop {
+        crop::crop_unused(scene, &uses)
+    } else {
+        crop::CropReport::default()
+    };
+    Prepared {
+        images_bound: bound.len(),
+        original_bytes,
+        identical,
+        classes,
+        crop,
+        uses,
+    }
+}
+
+/// One encoded pyramid level.
+#[derive(Debug, Clone)]
+pub struct EncodedLevel {
+    pub width: u32,
+    pub height: u32,
+    pub bytes: Arc<Vec<u8>>,
+    pub mime: String,
+}
+
+/// The pyramid of one image: level 0 is the image as given (its bytes untouched), then the LL
+/// band of each Haar step, encoded, down to 1x1.
+pub fn build_pyramid(
+    image: &crate::scene::Image,
+    format: TextureFormat,
+    jpeg_quality: u8,
+) -> Result<Vec<EncodedLevel>, String> {
+    let img = codec::decode(&image.bytes)?.to_rgba8();
+    let (w, h) = img.dimensions();
+    let mut out = vec![EncodedLevel {
+        width: w,
+        height: h,
+        bytes: image.bytes.clone(),
+        mime: image.mime_type.clone(),
+    }];
+    if w <= 1 && h <= 1 {
+        return Ok(out);
+    }
+    let mut level = haar::next_level_rgba8(w, h, img.as_raw());
+    drop(img);
+    loop {
+        let (bytes, mime) = codec::encode_rgba(
+            level.width,
+            level.height,
+            level.to_rgba8(),
+            format,
+            &image.mime_type,
+            jpeg_quality,
+        )?;
+        out.push(EncodedLevel {
+            width: level.width,
+            height: level.height,
+            bytes: Arc::new(bytes),
+            mime: mime.into(),
+        });
+        if level.width <= 1 && level.height <= 1 {
+            return Ok(out);
+        }
+        level = haar::next_level(&level);
+    }
+}
+
+/// Bytes written into tiles at one pyramid level.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LevelWritten {
+    pub level: usize,
+    /// Images embedded at this level, over all tiles.
+    pub embeddings: u64,
+    pub bytes: u64,
+}
+
+/// One pyramid level summed over the images whose pyramid was built.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LevelTotal {
+    pub level: usize,
+    pub images: usize,
+    pub texels: u64,
+    pub bytes: u64,
+}
+
+/// One image, in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImageReport {
+    pub image: u32,
+    pub name: Option<String>,
+    pub class: classify::TextureClass,
+    pub width: u32,
+    pub height: u32,
+    /// Bytes of level 0 (after cropping).
+    pub bytes: u64,
+    /// (width, height, bytes) of each built level, level 0 first; empty when no tile needed a
+    /// coarser level.
+    pub levels: Vec<(u32, u32, u64)>,
+}
+
+/// What `report.json` says about textures.
+#[derive(Debug, Clone, Serialize)]
+pub struct TextureReport {
+    pub options: TextureOptions,
+    #[serde(flatten)]
+    pub prepared: Prepared,
+    /// Encoded bytes of the distinct images still bound after merging and cropping.
+    pub stored_bytes: u64,
+    /// Images whose pixels could not be decoded (always written at level 0).
+    pub undecodable: usize,
+    /// Pyramid levels summed over the images whose pyramid was built.
+    pub pyramid_levels: Vec<LevelTotal>,
+    /// Image bytes embedded in tiles, per level.
+    pub written_per_level: Vec<LevelWritten>,
+    pub written_bytes: u64,
+    pub images: Vec<ImageReport>,
+}
+
+/// Per-image pyramids, built lazily and shared by all tiles, and the level choice per tile.
+pub struct TextureLevels<'a> {
+    scene: &'a Scene,
+    opts: TextureOptions,
+    /// Level sizes per image (from the header), `None` if unreadable.
+    sizes: Vec<Option<Vec<(u32, u32)>>>,
+    pyramids: Vec<OnceLock<Option<Vec<EncodedLevel>>>>,
+    written: Mutex<BTreeMap<usize, LevelWritten>>,
+}
+
+/// The level chosen for each image of one tile.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TileTextures(pub BTreeMap<ImageId, usize>);
+
+impl<'a> TextureLevels<'a> {
+    pub fn new(scene: &'a Scene, opts: &TextureOptions) -> TextureLevels<'a> {
+        let bound = classify::bound_images(scene);
+        let sizes = (0..scene.images.len())
+            .map(|i| {
+                bound.binary_search(&ImageId(i as u32)).ok()?;
+                let (w, h) = codec::dimensions(&scene.images[i].bytes).ok()?;
+                Some(haar::level_sizes(w, h))
+            })
+            .collect();
+        TextureLevels {
+            scene,
+            opts: opts.clone(),
+            sizes,
+            pyramids: (0..scene.images.len()).map(|_| OnceLock::new()).collect(),
+            written: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    /// The level of each image a tile samples, for its geometric error (0 for leaves).
+    pub fn for_tile(&self, content: &TileContent, geometric_error_m: f64) -> TileTextures {
+        let mut areas: BTreeMap<ImageId, (f64, f64)> = BTreeMap::new();
+        for p in &content.primitives {
+            let Some(t) = p
+                .material
+                .and_then(|m| self.scene.materials[m.index()].base_color_texture.as_ref())
+            else {
+                continue;
+            };
+            let (w, u) = lod::areas(p);
+            let a = areas.entry(t.image).or_default();
+            a.0 += w;
+            a.1 += u;
+        }
+        TileTextures(
+            areas
+                .into_iter()
+                .map(|(id, (w, u))| {
+                    let level = match (&self.sizes[id.index()], self.opts.lod) {
+                        (Some(sizes), true) => lod::choose_level(sizes, w, u, geometric_error_m),
+                        _ => 0,
+                    };
+                    (id, level)
+                })
+                .collect(),
+        )
+    }
+
+    /// The pyramid of `id`, built on first use; `None` if the image cannot be decoded.
+    fn pyramid(&self, id: ImageId) -> Option<&Vec<EncodedLevel>> {
+        self.pyramids[id.index()]
+            .get_or_init(|| {
+                build_pyramid(
+                    &self.scene.images[id.index()],
+                    self.opts.format,
+                    self.opts.jpeg_quality,
+                )
+                .ok()
+            })
+            .as_ref()
+    }
+
+    /// The encoded bytes and MIME type of `id` at `level` (level 0: the scene's bytes as they
+    /// are), or of a finer level when that one is smaller; counted as written into one tile.
+    pub fn fetch(&self, id: ImageId, level: usize) -> (Arc<Vec<u8>>, String) {
+        let im = &self.scene.images[id.index()];
+        let (bytes, mime, level) = match level {
+            0 => (im.bytes.clone(), im.mime_type.clone(), 0),
+            l => match self.pyramid(id) {
+                Some(p) => {
+                    // A finer level that encodes smaller is shipped instead (more detail for
+                    // fewer bytes: averaging flat-colour art adds colours PNG compresses worse).
+                    let l = (0..=l.min(p.len() - 1))
+                        .rev()
+                        .min_by_key(|&k| p[k].bytes.len())
+                        .expect("level 0 exists");
+                    (p[l].bytes.clone(), p[l].mime.clone(), l)
+                }
+                None => (im.bytes.clone(), im.mime_type.clone(), 0),
+            },
+        };
+        let mut w = self.written.lock().expect("tally");
+        let e = w.entry(level).or_insert_with(|| LevelWritten {
+            level,
+            ..Default::default()
+        });
+        e.embeddings += 1;
+        e.bytes += bytes.len() as u64;
+        (bytes, mime)
+    }
+
+    /// The report, once every tile is written.
+    pub fn report(self, prepared: Prepared) -> TextureReport {
+        let bound = classify::bound_images(self.scene);
+        let mut totals: Vec<LevelTotal> = Vec::new();
+        let mut images = Vec::new();
+        let mut undecodable = 0;
+        for &id in &bound {
+            let im = &self.scene.images[id.index()];
+            let (w, h) = self.sizes[id.index()].as_ref().map_or((0, 0), |s| s[0]);
+            let built = self.pyramids[id.index()].get();
+            if self.sizes[id.index()].is_none() || matches!(built, Some(None)) {
+                undecodable += 1;
+            }
+            let levels: Vec<(u32, u32, u64)> = built
+                .and_then(|p| p.as_ref())
+                .map(|p| {
+                    p.iter()
+                        .map(|l| (l.width, l.height, l.bytes.len() as u64))
+                        .collect()
+                })
+                .unwrap_or_default();
+            for (l, &(lw, lh, b)) in levels.iter().enumerate() {
+                if totals.len() <= l {
+                    totals.push(LevelTotal {
+                        level: l,
+                        ..Default::default()
+                    });
+                }
+                totals[l].images += 1;
+                totals[l].texels += lw as u64 * lh as u64;
+                totals[l].bytes += b;
+            }
+            images.push(ImageReport {
+                image: id.0,
+                name: im.name.clone(),
+                class: prepared.uses[id.index()].class,
+                width: w,
+                height: h,
+                bytes: im.bytes.len() as u64,
+                levels,
+            });
+        }
+        let written_per_level: Vec<LevelWritten> = self
+            .written
+            .into_inner()
+            .expect("tally")
+            .into_values()
+            .collect();
+        TextureReport {
+            options: self.opts,
+            stored_bytes: images.iter().map(|i| i.bytes).sum(),
+            undecodable,
+            pyramid_levels: totals,
+            written_bytes: written_per_level.iter().map(|l| l.bytes).sum(),
+            written_per_level,
+            images,
+            prepared,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::classify::tests::{quad, scene_of, textured_material};
+    use super::*;
+
+    fn facade_png(w: u32, h: u32) -> Vec<u8> {
+        // Smooth bands plus a grid of "windows": structure in both directions, like a facade.
+        let px: Vec<u8> = (0..h)
+            .flat_map(|y| {
+                (0..w).flat_map(move |x| {
+                    let win = (x % 16 < 8) && (y % 20 < 12);
+                    let v = if win {
+                        40
+                    } else {
+                        150 + ((x + 2 * y) % 60) as u8
+                    };
+                    [v, v / 2 + 20, 255 - v, 255]
+                })
+            })
+            .collect();
+        codec::encode_rgba(w, h, px, TextureFormat::Png, "", 0)
+            .unwrap()
+            .0
+    }
+
+    #[test]
+    fn pyramid_levels_agree_with_an_area_downsample() {
+        let image = classify::tests::image(facade_png(256, 192));
+        let p = build_pyramid(&image, TextureFormat::Png, 85).unwrap();
+        assert_eq!(p.len(), haar::level_sizes(256, 192).len());
+        assert!(Arc::ptr_eq(&p[0].bytes, &image.bytes), "level 0 untouched");
+        let orig = codec::decode(&image.bytes).unwrap().to_rgba8();
+        for (l, lv) in p.iter().enumerate().skip(1).take(5) {
+            let got = codec::decode(&lv.bytes).unwrap().to_rgba8();
+            assert_eq!(got.dimensions(), (256 >> l, 192 >> l));
+            // image's own area-averaging downsample (an independent implementation).
+            let reference = image::imageops::thumbnail(&orig, 256 >> l, 192 >> l);
+            let db = haar::psnr(got.as_raw(), reference.as_raw());
+            assert!(db > 45.0, "level {l}: PSNR {db:.1} dB");
+            assert!(lv.bytes.len() < p[l - 1].bytes.len() || lv.bytes.len() < 200);
+        }
+    }
+
+    #[test]
+    fn tiles_get_levels_by_error_and_bytes_are_counted() {
+        // A 1 m x 1 m quad (the unit quad of the helper) mapped to a whole 256 x 192 image:
+        // texel 1/256 m across.
+        let mut s = scene_of(
+            vec![vec![quad(0, [0.0, 0.0], [1.0, 1.0])]],
+            vec![textured_material(0)],
+            1,
+        );
+        s.images[0].bytes = Arc::new(facade_png(256, 192));
+        let content = TileContent::gather(
+            &s,
+            &[crate::partition::ContentItem {
+                component: crate::scene::ComponentId(0),
+                triangles: None,
+            }],
+            glam::DVec3::ZERO,
+        );
+        let levels = TextureLevels::new(&s, &TextureOptions::default());
+        assert_eq!(levels.for_tile(&content, 0.0).0[&ImageId(0)], 0);
+        // sqrt(1 / (256 * 192)) = 4.5 mm per texel at level 0, 9 mm at 1, 18 mm at 2.
+        assert_eq!(levels.for_tile(&content, 0.01).0[&ImageId(0)], 1);
+        assert_eq!(levels.for_tile(&content, 0.02).0[&ImageId(0)], 2);
+        let (b0, _) = levels.fetch(ImageId(0), 0);
+        let (b2, mime) = levels.fetch(ImageId(0), 2);
+        assert_eq!(mime, "image/png");
+        assert_eq!(codec::dimensions(&b2).unwrap(), (64, 48));
+        let off = TextureLevels::new(
+            &s,
+            &TextureOptions {
+                lod: false,
+                ..Default::default()
+            },
+        );
+        assert_eq!(off.for_tile(&content, 0.02).0[&ImageId(0)], 0);
+        let prepared = prepare(&mut s.clone(), &TextureOptions::default());
+        let r = levels.report(prepared);
+        assert_eq!(r.written_bytes, (b0.len() + b2.len()) as u64);
+        assert_eq!(r.written_per_level.len(), 2);
+        assert_eq!(r.pyramid_levels[2].texels, 64 * 48);
+        assert_eq!(r.prepared.classes.standalone, 1);
+    }
+}
