@@ -364,3 +364,40 @@ fn no_instancing_writes_plain_geometry_and_default_output_is_valid() {
     assert!(report["output"]["instances"].as_u64().unwrap() > 0);
     tileset_checks(&out, &report);
 }
+
+#[test]
+fn removed_duplicates_stay_queryable_as_aliases() {
+    let out = tmpdir("instancing-aliases").join("tiles");
+    convert(&sample(), &out, &["--max-tile-triangles", "4000"]);
+    let expect: Value = serde_json::from_slice(
+        &std::fs::read(repo().join("samples/sample_building.expect.json")).unwrap(),
+    )
+    .unwrap();
+    let feature = |id: &str| -> Value {
+        let o = run(&["inspect", out.to_str().unwrap(), "--feature", id, "--json"]);
+        assert!(
+            o.status.success(),
+            "inspect --feature {id}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    for pair in expect["exact_duplicate_pairs"].as_array().unwrap() {
+        let ids = [
+            pair["kept"].as_str().unwrap(),
+            pair["duplicate"].as_str().unwrap(),
+        ];
+        let [a, b] = ids.map(feature);
+        // One of the two is drawn; the other is found through it, as its alias.
+        let alias_of = |f: &Value| f["properties"]["Alias of"].as_str().map(str::to_string);
+        match (alias_of(&a), alias_of(&b)) {
+            (None, Some(kept)) => assert_eq!(kept, ids[0]),
+            (Some(kept), None) => assert_eq!(kept, ids[1]),
+            other => panic!("{ids:?}: expected exactly one alias, got {other:?}"),
+        }
+        assert_eq!(
+            a["tiles"], b["tiles"],
+            "the alias is drawn where its element is"
+        );
+    }
+}
