@@ -1,7 +1,7 @@
 //! `make bench`: conversion throughput and peak memory of the real binary, per model, and Draco's
 //! geometry compression ratio and encode throughput (each model converted with and without Draco).
 //!
-//! Runs `target/release/bimtiles convert` on every GLB in the data folder given (default
+//! Runs `target/release/bimtiles convert` on every GLB and IFC file in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
 //! process (so peak memory is that conversion's), and prints one row per model from its
 //! `report.json`, then a dedup/instancing table (issue 5) from the same reports. Also writes
@@ -112,7 +112,7 @@ fn main() {
         let mut glbs: Vec<PathBuf> = std::fs::read_dir(&data)
             .unwrap()
             .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e == "glb"))
+            .filter(|p| p.extension().is_some_and(|e| e == "glb" || e == "ifc"))
             .collect();
         glbs.sort();
         inputs.extend(glbs);
@@ -168,7 +168,11 @@ fn main() {
     let mut rows = Vec::new();
     for input in &inputs {
         for &budget in &budgets {
-            let name = input.file_stem().unwrap().to_string_lossy().to_string();
+            // IFC files share their stem with the GLB exports of the same model.
+            let name = match input.extension().is_some_and(|e| e == "ifc") {
+                true => input.file_name().unwrap().to_string_lossy().to_string(),
+                false => input.file_stem().unwrap().to_string_lossy().to_string(),
+            };
             let out = work.join(format!("out-{name}-{budget}"));
             let Some(r) = convert(&bin, input, &out, budget, "draco") else {
                 continue;
@@ -225,7 +229,7 @@ fn main() {
     }
     // Dedup (paper III.A): what it found, what it saves, what it costs, per conversion above.
     println!(
-        "\n{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>10} {:>8} {:>7} {:>9} {:>10}",
+        "\n{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>12} {:>8} {:>7} {:>9} {:>10}",
         "model",
         "budget",
         "components",
@@ -234,7 +238,7 @@ fn main() {
         "removed",
         "instances",
         "stored/drawn",
-        "bytes in",
+        "scene MB",
         "saved %",
         "dedup s",
         "% of total"
@@ -246,14 +250,14 @@ fn main() {
         }
         let f = |v: &Value| v.as_f64().unwrap_or(0.0);
         println!(
-            "{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>10.3} {:>8.2} {:>7.1} {:>9.3} {:>10.1}",
+            "{:<26} {:>6} {:>10} {:>7} {:>9} {:>8} {:>9} {:>12.3} {:>8.2} {:>7.1} {:>9.3} {:>10.1}",
             r["model"].as_str().unwrap_or(""),
-            r["budget"],
-            d["components"],
-            d["unique_shapes"],
-            d["congruent_rewritten"],
-            d["redundant_removed"],
-            r["instances"],
+            f(&r["budget"]),
+            f(&d["components"]),
+            f(&d["unique_shapes"]),
+            f(&d["congruent_rewritten"]),
+            f(&d["redundant_removed"]),
+            f(&r["instances"]),
             f(&r["stored_triangles"]) / f(&r["output_triangles"]).max(1.0),
             f(&d["bytes_before"]) / 1e6,
             (1.0 - f(&d["bytes_after"]) / f(&d["bytes_before"]).max(1.0)) * 100.0,
