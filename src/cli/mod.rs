@@ -119,6 +119,11 @@ struct ConvertArgs {
     /// Default: 1000 with Draco, 100 without.
     #[arg(long)]
     min_instanced_triangles_saved: Option<usize>,
+    /// One primitive per material in every tile. Default with Draco: plain-coloured materials
+    /// that differ only in base colour share one primitive, the colours per vertex (fewer draw
+    /// calls and Draco streams); without compression materials are kept apart.
+    #[arg(long)]
+    keep_materials: bool,
     /// Texture level per tile matched to its geometric error (Haar wavelet pyramid): on or off
     /// (every tile gets the full-resolution images).
     #[arg(long, value_enum, default_value = "on")]
@@ -277,6 +282,7 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         }),
         instancing: !a.no_instancing,
         min_instanced_triangles_saved: a.min_instanced_triangles_saved,
+        merge_plain_materials: a.keep_materials.then_some(false),
         progress: !a.quiet,
         texture: TextureOptions {
             lod: a.texture_lod == OnOff::On,
