@@ -233,7 +233,7 @@ pub fn main() -> Result<()> {
         } => {
             set_threads(threads)?;
             let (inputs, opts) = planned(&dir, quiet)?;
-            let s = bimtiles::shard::build_job(&dir, job, &inputs, &opts)?;
+            let s = bimtiles::shard::build_job(&opts.out_dir, job, &inputs, &opts)?;
             if !quiet {
                 emit(&format!(
                     "job {}: {} tiles in {:.2} s\n",
@@ -249,7 +249,7 @@ pub fn main() -> Result<()> {
         } => {
             set_threads(threads)?;
             let (inputs, opts) = planned(&dir, quiet)?;
-            let r = bimtiles::shard::merge(&dir, &inputs, &opts)?;
+            let r = bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)?;
             if !quiet {
                 emit(&format!(
                     "merged {}: {} tiles, {} triangles, {}\n",
@@ -378,12 +378,20 @@ fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptio
     let a = PlanArgs::try_parse_from(std::iter::once("plan".to_string()).chain(args))
         .map_err(|e| anyhow::anyhow!("{}: the plan's command: {e}", dir.display()))?;
     let mut opts = convert_options(&a.convert)?;
-    opts.out_dir = dir.to_path_buf();
+    opts.out_dir = std::path::absolute(dir).context("cannot resolve the build folder")?;
     opts.force = false;
     opts.progress = !quiet;
-    let files: Vec<PathBuf> = a.convert.inputs.iter().map(|p| cwd.join(p)).collect();
-    let manifest = a.convert.manifest.as_ref().map(|m| cwd.join(m));
-    Ok((InputSet::new(&files, manifest.as_deref()), opts))
+    // Where the plan was made, so that relative input paths (and the report's names for them)
+    // are the plan's; a machine without that folder needs absolute input paths in the plan.
+    std::env::set_current_dir(&cwd).with_context(|| {
+        format!(
+            "{}: the plan was made in {}, which is not here (plan with absolute input paths)",
+            dir.display(),
+            cwd.display()
+        )
+    })?;
+    let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
+    Ok((inputs, opts))
 }
 
 fn run_convert(a: ConvertArgs) -> Result<()> {
