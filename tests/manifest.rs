@@ -160,3 +160,38 @@ fn bad_manifests_get_one_line_errors_and_no_output() {
     let o = run(&["convert", "--manifest", dir.join("none.json").to_str().unwrap(), "--out", dir.join("o").to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("none.json: no such manifest file"));
 }
+
+/// `schemas/manifest.schema.json` accepts the manifests the reader accepts and refuses what it
+/// refuses (structure only: files and path escapes are the reader's).
+#[test]
+fn manifest_schema_agrees_with_the_reader() {
+    let schema: Value =
+        serde_json::from_slice(&std::fs::read(repo().join("schemas/manifest.schema.json")).unwrap()).unwrap();
+    let v = jsonschema::options()
+        .with_draft(jsonschema::Draft::Draft202012)
+        .build(&schema)
+        .expect("schema compiles");
+    let good = [
+        r#"{"models":[{"path":"a.glb"}]}"#,
+        r#"{"origin":{"longitude_deg":8,"latitude_deg":49},"models":[{"name":"x","path":"a.glb","east_m":1,"heading_deg":90}]}"#,
+        r#"{"models":[{"path":"a.ifc","longitude_deg":8,"latitude_deg":49,"height_m":110}]}"#,
+    ];
+    let bad = [
+        r#"{"models":[]}"#,
+        r#"{"models":[{"path":"a.glb","colour":1}]}"#,
+        r#"{"models":[{"path":"a.glb","east_m":1,"longitude_deg":8,"latitude_deg":49}]}"#,
+        r#"{"models":[{"path":"a.glb","longitude_deg":8}]}"#,
+        r#"{"models":[{"path":"a.glb","name":"a/b"}]}"#,
+        r#"{"origin":{"longitude_deg":8},"models":[{"path":"a.glb"}]}"#,
+    ];
+    let dir = tmpdir("manifest-schema");
+    std::fs::write(dir.join("a.glb"), std::fs::read(sample()).unwrap()).unwrap();
+    std::fs::write(dir.join("a.ifc"), b"not read").unwrap();
+    for (json, ok) in good.iter().map(|j| (j, true)).chain(bad.iter().map(|j| (j, false))) {
+        let doc: Value = serde_json::from_str(json).unwrap();
+        assert_eq!(v.is_valid(&doc), ok, "schema on {json}");
+        std::fs::write(dir.join("m.json"), json).unwrap();
+        let read = bimtiles::ingest::manifest::Manifest::read(&dir.join("m.json"));
+        assert_eq!(read.is_ok(), ok, "reader on {json}: {:?}", read.err());
+    }
+}
