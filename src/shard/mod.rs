@@ -435,3 +435,46 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
     write_renamed(&dir.join("report.json"), &json)?;
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whatever N, the top levels and the jobs' subtrees cover every tile exactly once, a top
+    /// tile's children are top tiles or subtree roots, and the jobs carry every triangle.
+    #[test]
+    fn split_covers_the_tree_once() {
+        let mut scene = crate::ingest::read_embedded_sample().unwrap();
+        let mut opts = ConvertOptions::new("unused");
+        opts.octree.max_tile_triangles = 1500;
+        let prep = prepare(&mut scene, &opts);
+        let plan = &prep.plan;
+        assert!(plan.tiles.len() > 10);
+        for n in 1..=7 {
+            let (top, jobs) = split(plan, n);
+            assert_eq!(jobs.len(), n);
+            if n == 1 {
+                assert!(top.is_empty() && jobs[0] == vec![0]);
+            }
+            let mut seen = vec![0; plan.tiles.len()];
+            for &t in &top {
+                seen[t] += 1;
+            }
+            let roots: Vec<usize> = jobs.iter().flatten().copied().collect();
+            for &r in &roots {
+                let mut stack = vec![r];
+                while let Some(j) = stack.pop() {
+                    seen[j] += 1;
+                    stack.extend(&plan.tiles[j].children);
+                }
+            }
+            assert!(seen.iter().all(|&s| s == 1), "n={n}: {seen:?}");
+            for &t in &top {
+                for c in &plan.tiles[t].children {
+                    assert!(top.contains(c) || roots.contains(c));
+                }
+            }
+            assert!(jobs.iter().filter(|j| !j.is_empty()).count() == n.min(roots.len()));
+        }
+    }
+}
