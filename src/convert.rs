@@ -709,7 +709,12 @@ impl<'a> TileWriter<'a> {
         self.pb.finish_and_clear();
     }
 
-    fn write(&self, i: usize, content: &TileContent, mut st: TileStats) -> Result<(Aabb, TileStats)> {
+    fn write(
+        &self,
+        i: usize,
+        content: &TileContent,
+        mut st: TileStats,
+    ) -> Result<(Aabb, TileStats)> {
         let (scene, opts, textures) = (self.scene, self.opts, self.textures);
         let tile = &self.plan.tiles[i];
         let uri = format!("tiles/{}.glb", tile.path);
@@ -724,10 +729,12 @@ impl<'a> TileWriter<'a> {
         let image =
             |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
         let make_table = |features: &[crate::scene::ComponentId]| {
-            self.schema.property_table(scene, features, "../schema.json")
+            self.schema
+                .property_table(scene, features, "../schema.json")
         };
-        let enc = encode_content_with_images(scene, content, &self.encoding, Some(&make_table), &image)
-            .map_err(|e| Error::output(&path, e))?;
+        let enc =
+            encode_content_with_images(scene, content, &self.encoding, Some(&make_table), &image)
+                .map_err(|e| Error::output(&path, e))?;
         write_renamed(&path, &enc.glb)?;
         self.pb.inc(1);
         st.uri = Some(uri);
@@ -774,7 +781,8 @@ impl<'a> TileWriter<'a> {
                             self.pb.inc(1);
                             return Ok((i, Aabb::EMPTY, st));
                         }
-                        let content = gather(scene, opts, &tile.content, tile.content_bounds.center());
+                        let content =
+                            gather(scene, opts, &tile.content, tile.content_bounds.center());
                         let (b, st) = write(i, &content, st)?;
                         Ok((i, b, st))
                     })

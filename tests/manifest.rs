@@ -47,12 +47,20 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
     std::fs::write(dir.join("campus.json"), manifest.to_string()).unwrap();
     let out = dir.join("out");
     let o = run(&[
-        "convert", "--manifest", dir.join("campus.json").to_str().unwrap(),
-        "--out", out.to_str().unwrap(), "--quiet", "--compression", "none",
-        "--max-tile-triangles", "3000",
+        "convert",
+        "--manifest",
+        dir.join("campus.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--compression",
+        "none",
+        "--max-tile-triangles",
+        "3000",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let sample_scene = bimtiles::ingest::read_input(&sample()).unwrap();
     let one = sample_scene.triangle_count();
     assert_eq!(report["input"]["triangles"].as_u64(), Some(2 * one as u64));
@@ -67,21 +75,37 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
     for building in ["north", "south"] {
         let id = format!("{building}/{key}");
         let o = run(&["inspect", out.to_str().unwrap(), "--feature", &id, "--json"]);
-        assert!(o.status.success(), "{id}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.status.success(),
+            "{id}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         let f: Value = serde_json::from_slice(&o.stdout).unwrap();
         assert_eq!(f["properties"]["Building"], building, "{f}");
         assert!(
-            f["properties"]["Hierarchy path"].as_str().unwrap().starts_with(&format!("{building}/")),
+            f["properties"]["Hierarchy path"]
+                .as_str()
+                .unwrap()
+                .starts_with(&format!("{building}/")),
             "{f}"
         );
     }
     let o = run(&["inspect", out.to_str().unwrap(), "--feature", key]);
-    assert!(!o.status.success(), "a clashing id is only found with its building's prefix");
+    assert!(
+        !o.status.success(),
+        "a clashing id is only found with its building's prefix"
+    );
 
     // Place: the input's extreme vertex along (1,2,3) of each copy, expected in ECEF from the
     // manifest alone, is a vertex of the leaf tiles (to the mm).
-    let ts: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
-    let root: Vec<f64> = ts["root"]["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let ts: Value =
+        serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    let root: Vec<f64> = ts["root"]["transform"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
     let root = DMat4::from_cols_array(&root.try_into().unwrap());
     let leaves: Vec<DVec3> = tiles
         .iter()
@@ -94,16 +118,30 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
         .into_iter()
         .max_by(|a, b| a.dot(d).total_cmp(&b.dot(d)))
         .unwrap();
-    let origin = GeoOrigin { longitude_deg: 8.4116, latitude_deg: 49.0124, height_m: 115.0 };
+    let origin = GeoOrigin {
+        longitude_deg: 8.4116,
+        latitude_deg: 49.0124,
+        height_m: 115.0,
+    };
     let north = origin.enu_to_ecef()
         * DMat4::from_translation(DVec3::new(5.0, 60.0, 1.5))
         * DMat4::from_rotation_z(-30f64.to_radians());
-    let here = GeoOrigin { longitude_deg: 8.4120, latitude_deg: 49.0121, height_m: 116.0 };
+    let here = GeoOrigin {
+        longitude_deg: 8.4120,
+        latitude_deg: 49.0121,
+        height_m: 116.0,
+    };
     let south = here.enu_to_ecef() * DMat4::from_rotation_z(45f64.to_radians());
     for (what, m) in [("north", north), ("south", south)] {
         let want = m.transform_point3(extreme);
-        let got = leaves.iter().map(|p| (*p - want).length()).fold(f64::INFINITY, f64::min);
-        assert!(got < 0.001, "{what}: nearest decoded vertex {got} m from {want}");
+        let got = leaves
+            .iter()
+            .map(|p| (*p - want).length())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            got < 0.001,
+            "{what}: nearest decoded vertex {got} m from {want}"
+        );
     }
 }
 
@@ -125,9 +163,20 @@ fn shared_models_in_one_campus() {
         .enumerate()
         .map(|(i, m)| serde_json::json!({"path": link(m, &dir), "east_m": 80.0 * i as f64, "heading_deg": 15.0 * i as f64}))
         .collect();
-    std::fs::write(dir.join("campus.json"), serde_json::json!({"models": entries}).to_string()).unwrap();
+    std::fs::write(
+        dir.join("campus.json"),
+        serde_json::json!({"models": entries}).to_string(),
+    )
+    .unwrap();
     let out = dir.join("out");
-    let o = run(&["convert", "--manifest", dir.join("campus.json").to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("campus.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let total: usize = models
         .iter()
@@ -144,20 +193,45 @@ fn bad_manifests_get_one_line_errors_and_no_output() {
     let dir = tmpdir("manifest-bad");
     let name = link(&sample(), &dir);
     for (json, want) in [
-        (r#"{"models":[{"path":"missing.glb"}]}"#.to_string(), "no such model file"),
-        (r#"{"models":[{"path":"../x/sample_building.glb"}]}"#.to_string(), "inside the manifest"),
-        (format!(r#"{{"models":[{{"path":"{name}","height":3}}]}}"#), "unknown field `height`"),
+        (
+            r#"{"models":[{"path":"missing.glb"}]}"#.to_string(),
+            "no such model file",
+        ),
+        (
+            r#"{"models":[{"path":"../x/sample_building.glb"}]}"#.to_string(),
+            "inside the manifest",
+        ),
+        (
+            format!(r#"{{"models":[{{"path":"{name}","height":3}}]}}"#),
+            "unknown field `height`",
+        ),
         ("{\"models\": [".to_string(), "not a valid manifest"),
     ] {
         std::fs::write(dir.join("bad.json"), &json).unwrap();
         let out = dir.join("out");
-        let o = run(&["convert", "--manifest", dir.join("bad.json").to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
+        let o = run(&[
+            "convert",
+            "--manifest",
+            dir.join("bad.json").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{json}");
-        assert!(err.contains("bad.json") && err.contains(want) && err.trim().lines().count() == 1, "{json}: {err}");
+        assert!(
+            err.contains("bad.json") && err.contains(want) && err.trim().lines().count() == 1,
+            "{json}: {err}"
+        );
         assert!(!out.exists(), "no output for a bad manifest");
     }
-    let o = run(&["convert", "--manifest", dir.join("none.json").to_str().unwrap(), "--out", dir.join("o").to_str().unwrap()]);
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("none.json").to_str().unwrap(),
+        "--out",
+        dir.join("o").to_str().unwrap(),
+    ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("none.json: no such manifest file"));
 }
 
@@ -165,8 +239,10 @@ fn bad_manifests_get_one_line_errors_and_no_output() {
 /// refuses (structure only: files and path escapes are the reader's).
 #[test]
 fn manifest_schema_agrees_with_the_reader() {
-    let schema: Value =
-        serde_json::from_slice(&std::fs::read(repo().join("schemas/manifest.schema.json")).unwrap()).unwrap();
+    let schema: Value = serde_json::from_slice(
+        &std::fs::read(repo().join("schemas/manifest.schema.json")).unwrap(),
+    )
+    .unwrap();
     let v = jsonschema::options()
         .with_draft(jsonschema::Draft::Draft202012)
         .build(&schema)
@@ -187,7 +263,11 @@ fn manifest_schema_agrees_with_the_reader() {
     let dir = tmpdir("manifest-schema");
     std::fs::write(dir.join("a.glb"), std::fs::read(sample()).unwrap()).unwrap();
     std::fs::write(dir.join("a.ifc"), b"not read").unwrap();
-    for (json, ok) in good.iter().map(|j| (j, true)).chain(bad.iter().map(|j| (j, false))) {
+    for (json, ok) in good
+        .iter()
+        .map(|j| (j, true))
+        .chain(bad.iter().map(|j| (j, false)))
+    {
         let doc: Value = serde_json::from_str(json).unwrap();
         assert_eq!(v.is_valid(&doc), ok, "schema on {json}");
         std::fs::write(dir.join("m.json"), json).unwrap();

@@ -27,7 +27,11 @@ fn sample_campus(dir: &Path) -> PathBuf {
 
 fn ok(args: &[&str]) {
     let o = run(args);
-    assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }
 
 /// Every file of a tileset folder but report.json and the sharding state, with its bytes.
@@ -36,7 +40,12 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
         for e in std::fs::read_dir(&d).unwrap().flatten() {
-            let rel = e.path().strip_prefix(dir).unwrap().to_string_lossy().to_string();
+            let rel = e
+                .path()
+                .strip_prefix(dir)
+                .unwrap()
+                .to_string_lossy()
+                .to_string();
             if e.path().is_dir() {
                 if rel != "jobs" {
                     stack.push(e.path());
@@ -52,7 +61,8 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
 /// report.json without what measures the run (timings, memory) or counts what the writing
 /// process itself embedded (texture tallies).
 fn report_content(dir: &Path) -> Value {
-    let mut r: Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    let mut r: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
     let o = r.as_object_mut().unwrap();
     o.remove("timings_s");
     o.remove("peak_memory_bytes");
@@ -60,7 +70,12 @@ fn report_content(dir: &Path) -> Value {
         d.remove("seconds");
     }
     if let Some(t) = o.get_mut("textures").and_then(Value::as_object_mut) {
-        for k in ["written_per_level", "written_bytes", "pyramid_levels", "images"] {
+        for k in [
+            "written_per_level",
+            "written_bytes",
+            "pyramid_levels",
+            "images",
+        ] {
             t.remove(k);
         }
     }
@@ -69,12 +84,25 @@ fn report_content(dir: &Path) -> Value {
 
 fn assert_identical(convert: &Path, sharded: &Path) {
     let (a, b) = (files(convert), files(sharded));
-    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>(), "same files");
+    assert_eq!(
+        a.keys().collect::<Vec<_>>(),
+        b.keys().collect::<Vec<_>>(),
+        "same files"
+    );
     assert!(a.keys().filter(|k| k.starts_with("tiles/")).count() > 1);
     for (name, bytes) in &a {
-        assert!(bytes == &b[name], "{name} differs between {} and {}", convert.display(), sharded.display());
+        assert!(
+            bytes == &b[name],
+            "{name} differs between {} and {}",
+            convert.display(),
+            sharded.display()
+        );
     }
-    assert_eq!(report_content(convert), report_content(sharded), "report.json content");
+    assert_eq!(
+        report_content(convert),
+        report_content(sharded),
+        "report.json content"
+    );
 }
 
 /// plan / build-job (reverse order, or `order`) / merge into `dir`.
@@ -87,7 +115,13 @@ fn sharded(inputs: &[&str], dir: &Path, jobs: usize, extra: &[&str]) -> Value {
     args.extend_from_slice(extra);
     ok(&args);
     for k in (0..jobs).rev() {
-        ok(&["build-job", dir.to_str().unwrap(), "--job", &k.to_string(), "--quiet"]);
+        ok(&[
+            "build-job",
+            dir.to_str().unwrap(),
+            "--job",
+            &k.to_string(),
+            "--quiet",
+        ]);
     }
     ok(&["merge", dir.to_str().unwrap(), "--quiet"]);
     serde_json::from_slice(&std::fs::read(dir.join("plan.json")).unwrap()).unwrap()
@@ -98,9 +132,19 @@ fn sample_campus_sharded_is_byte_identical_to_convert() {
     let dir = tmpdir("shard-sample");
     let m = sample_campus(&dir);
     let m = m.to_str().unwrap();
-    for (name, extra) in [("hlod", vec!["--max-tile-triangles", "3000"]), ("add", vec!["--max-tile-triangles", "3000", "--lod", "none"])] {
+    for (name, extra) in [
+        ("hlod", vec!["--max-tile-triangles", "3000"]),
+        ("add", vec!["--max-tile-triangles", "3000", "--lod", "none"]),
+    ] {
         let conv = dir.join(format!("convert-{name}"));
-        let mut args = vec!["convert", "--manifest", m, "--out", conv.to_str().unwrap(), "--quiet"];
+        let mut args = vec![
+            "convert",
+            "--manifest",
+            m,
+            "--out",
+            conv.to_str().unwrap(),
+            "--quiet",
+        ];
         args.extend_from_slice(&extra);
         ok(&args);
         for jobs in [1, 4] {
@@ -125,10 +169,30 @@ fn killed_job_is_refused_and_a_rerun_completes() {
     let m = m.to_str().unwrap();
     let extra = ["--max-tile-triangles", "3000"];
     let conv = dir.join("convert");
-    ok(&["convert", "--manifest", m, "--out", conv.to_str().unwrap(), "--quiet", extra[0], extra[1]]);
+    ok(&[
+        "convert",
+        "--manifest",
+        m,
+        "--out",
+        conv.to_str().unwrap(),
+        "--quiet",
+        extra[0],
+        extra[1],
+    ]);
     let out = dir.join("shard");
     let d = out.to_str().unwrap();
-    ok(&["plan", "--manifest", m, "--out", d, "--jobs", "3", "--quiet", extra[0], extra[1]]);
+    ok(&[
+        "plan",
+        "--manifest",
+        m,
+        "--out",
+        d,
+        "--jobs",
+        "3",
+        "--quiet",
+        extra[0],
+        extra[1],
+    ]);
     for k in ["2", "0"] {
         ok(&["build-job", d, "--job", k, "--quiet"]);
     }
@@ -137,22 +201,37 @@ fn killed_job_is_refused_and_a_rerun_completes() {
     std::fs::write(out.join("jobs/.job-1.bin.tmp-4242"), b"BIMTJOB1 half").unwrap();
     let o = run(&["merge", d, "--quiet"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("jobs 1)") && err.trim().lines().count() == 1, "{err}");
-    assert!(!out.join("tileset.json").exists(), "no tileset from an incomplete build");
+    assert!(
+        !o.status.success() && err.contains("jobs 1)") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(
+        !out.join("tileset.json").exists(),
+        "no tileset from an incomplete build"
+    );
     // A damaged result under the final name is refused too.
     let good = std::fs::read(out.join("jobs/job-0.bin")).unwrap();
     std::fs::write(out.join("jobs/job-1.bin"), &good[..good.len() / 2]).unwrap();
     let o = run(&["merge", d, "--quiet"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("job-1.bin") && err.contains("truncated"), "{err}");
+    assert!(
+        !o.status.success() && err.contains("job-1.bin") && err.contains("truncated"),
+        "{err}"
+    );
     std::fs::write(out.join("jobs/job-1.bin"), &good).unwrap();
     let o = run(&["merge", d, "--quiet"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("another plan or job"), "{err}");
+    assert!(
+        !o.status.success() && err.contains("another plan or job"),
+        "{err}"
+    );
     // Rerunning only job 1 completes the build; the leftovers are gone.
     ok(&["build-job", d, "--job", "1", "--quiet"]);
     ok(&["merge", d, "--quiet"]);
-    assert!(!out.join("tiles/.r1.glb.tmp-4242").exists() && !out.join("jobs/.job-1.bin.tmp-4242").exists());
+    assert!(
+        !out.join("tiles/.r1.glb.tmp-4242").exists()
+            && !out.join("jobs/.job-1.bin.tmp-4242").exists()
+    );
     assert_identical(&conv, &out);
 }
 
@@ -171,11 +250,23 @@ fn real_campus_sharded_is_byte_identical() {
         .arg(sh.join("data/AC20-FZK-Haus.glb"))
         .output()
         .expect("python3");
-    assert!(o.status.success(), "make_campus.py: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "make_campus.py: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let c = campus.to_str().unwrap();
     let extra = ["--max-tile-triangles", "8000"];
     let conv = dir.join("convert");
-    ok(&["convert", c, "--out", conv.to_str().unwrap(), "--quiet", extra[0], extra[1]]);
+    ok(&[
+        "convert",
+        c,
+        "--out",
+        conv.to_str().unwrap(),
+        "--quiet",
+        extra[0],
+        extra[1],
+    ]);
     let out = dir.join("shard-4");
     sharded(&[c], &out, 4, &extra);
     assert_identical(&conv, &out);

@@ -374,7 +374,8 @@ fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptio
     let file = bimtiles::shard::read_plan(dir)?;
     let bad = || anyhow::anyhow!("{}: the plan's command is unreadable", dir.display());
     let cwd = PathBuf::from(file.command["cwd"].as_str().ok_or_else(bad)?);
-    let args: Vec<String> = serde_json::from_value(file.command["args"].clone()).map_err(|_| bad())?;
+    let args: Vec<String> =
+        serde_json::from_value(file.command["args"].clone()).map_err(|_| bad())?;
     let a = PlanArgs::try_parse_from(std::iter::once("plan".to_string()).chain(args))
         .map_err(|e| anyhow::anyhow!("{}: the plan's command: {e}", dir.display()))?;
     let mut opts = convert_options(&a.convert)?;

@@ -88,8 +88,8 @@ impl Manifest {
                 format!("cannot read the manifest: {e}")
             })
         })?;
-        let m: Manifest = serde_json::from_str(&text)
-            .map_err(|e| bad(format!("not a valid manifest: {e}")))?;
+        let m: Manifest =
+            serde_json::from_str(&text).map_err(|e| bad(format!("not a valid manifest: {e}")))?;
         m.check(path)
     }
 
@@ -127,7 +127,10 @@ impl Manifest {
             }
             let file = folder.join(rel);
             if !file.is_file() {
-                return Err(bad(format!("{what}: no such model file {}", file.display())));
+                return Err(bad(format!(
+                    "{what}: no such model file {}",
+                    file.display()
+                )));
             }
             let name = match &e.name {
                 Some(n) if n.trim().is_empty() || n.contains('/') => {
@@ -303,15 +306,30 @@ mod tests {
         for (json, want) in [
             (r#"{"models":[{"path":"../a.glb"}]}"#, "inside the manifest"),
             (r#"{"models":[{"path":"b.glb"}]}"#, "no such model file"),
-            (r#"{"models":[{"path":"a.glb","colour":1}]}"#, "unknown field"),
-            (r#"{"models":[{"path":"a.glb","east_m":1,"longitude_deg":8,"latitude_deg":49}]}"#, "not both"),
-            (r#"{"models":[{"path":"a.glb"},{"path":"a.glb"}]}"#, "used twice"),
-            (r#"{"models":[{"path":"a.glb","longitude_deg":8}]}"#, "both longitude_deg"),
+            (
+                r#"{"models":[{"path":"a.glb","colour":1}]}"#,
+                "unknown field",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb","east_m":1,"longitude_deg":8,"latitude_deg":49}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb"},{"path":"a.glb"}]}"#,
+                "used twice",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb","longitude_deg":8}]}"#,
+                "both longitude_deg",
+            ),
             (r#"{"models":[]}"#, "no models"),
             (r#"{"models":[{"path":"a.glb"}"#, "not a valid manifest"),
         ] {
             let e = check(json).unwrap_err();
-            assert!(e.contains(want) && e.contains("m.json") && !e.contains('\n'), "{json}: {e}");
+            assert!(
+                e.contains(want) && e.contains("m.json") && !e.contains('\n'),
+                "{json}: {e}"
+            );
         }
     }
 }

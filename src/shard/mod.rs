@@ -24,8 +24,8 @@
 pub(crate) mod wire;
 
 use crate::convert::{
-    make_report, peak_memory_bytes, prepare, read_scene, write_renamed, ConvertOptions,
-    Prepared, Report, TileWriter, Timings,
+    make_report, peak_memory_bytes, prepare, read_scene, write_renamed, ConvertOptions, Prepared,
+    Report, TileWriter, Timings,
 };
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
@@ -402,7 +402,9 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
                 if std::fs::metadata(&tile).map(|m| m.len()).ok() != Some(st.bytes) {
                     return Err(Error::input(
                         &tile,
-                        format!("missing or not the size job {k} wrote (run build-job --job {k} again)"),
+                        format!(
+                            "missing or not the size job {k} wrote (run build-job --job {k} again)"
+                        ),
                     ));
                 }
             }

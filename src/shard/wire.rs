@@ -91,7 +91,10 @@ impl W {
             self.n(s.instances.len());
             for i in &s.instances {
                 self.u32(i.feature);
-                i.transform.to_cols_array().into_iter().for_each(|x| self.f64(x));
+                i.transform
+                    .to_cols_array()
+                    .into_iter()
+                    .for_each(|x| self.f64(x));
             }
         }
     }
@@ -159,10 +162,14 @@ impl R<'_> {
         Ok(a)
     }
     fn u64(&mut self) -> Res<u64> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
+        Ok(u64::from_le_bytes(
+            self.take(8)?.try_into().expect("8 bytes"),
+        ))
     }
     fn u32(&mut self) -> Res<u32> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
+        Ok(u32::from_le_bytes(
+            self.take(4)?.try_into().expect("4 bytes"),
+        ))
     }
     /// A count, checked against what is left (each element at least `min_bytes`).
     fn n(&mut self, min_bytes: usize) -> Res<usize> {
@@ -247,7 +254,11 @@ impl R<'_> {
     }
     fn stats(&mut self) -> Res<TileStats> {
         Ok(TileStats {
-            uri: if self.flag()? { Some(self.str()?) } else { None },
+            uri: if self.flag()? {
+                Some(self.str()?)
+            } else {
+                None
+            },
             geometric_error_m: self.f64()?,
             bytes: self.u64()?,
             triangles: self.u64()? as usize,
@@ -262,8 +273,16 @@ impl R<'_> {
             } else {
                 None
             },
-            full_to_coarse_m: if self.flag()? { Some(self.f64()?) } else { None },
-            coarse_to_full_bound_m: if self.flag()? { Some(self.f64()?) } else { None },
+            full_to_coarse_m: if self.flag()? {
+                Some(self.f64()?)
+            } else {
+                None
+            },
+            coarse_to_full_bound_m: if self.flag()? {
+                Some(self.f64()?)
+            } else {
+                None
+            },
         })
     }
 }
