@@ -1,9 +1,10 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{convert, ConvertOptions, LodMode};
+use bimtiles::convert::{convert_input_set, ConvertOptions, LodMode};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
+use bimtiles::ingest::InputSet;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::simplify::SimplifyOptions;
@@ -27,6 +28,36 @@ struct Cli {
 enum Command {
     /// Convert models into a 3D Tiles 1.1 tileset.
     Convert(ConvertArgs),
+    /// Sharded build, step 1: plan the octree and split it into N subtree jobs (DIR/plan.json).
+    /// Takes the options of `convert`; `--out` is the build folder DIR.
+    Plan(PlanArgs),
+    /// Sharded build, step 2: build one job's subtrees into DIR (any order, any machine that sees
+    /// DIR and the inputs).
+    BuildJob {
+        /// The build folder written by `bimtiles plan`.
+        dir: PathBuf,
+        /// Which job (0 to N-1).
+        #[arg(long)]
+        job: usize,
+        /// Worker threads (default: all cores). The output does not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// No progress bar and no summary.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Sharded build, step 3: check every job's result, build the top levels and write
+    /// tileset.json, schema.json and report.json (byte-identical to `convert`'s tileset).
+    Merge {
+        /// The build folder written by `bimtiles plan`.
+        dir: PathBuf,
+        /// Worker threads (default: all cores). The output does not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// No progress bar and no summary.
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Simplify a model with our QEM and write it as one GLB (to compare simplifiers).
     Simplify {
         /// Input model (.glb, .gltf, .ifc).
@@ -80,6 +111,10 @@ enum Command {
 struct ConvertArgs {
     /// Input models (.glb, .gltf). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
+    /// A campus manifest (JSON): models placed by longitude/latitude/height/heading or by an
+    /// east/north/up offset, converted into one tileset (README "Many buildings").
+    #[arg(long, conflicts_with = "inputs")]
+    manifest: Option<PathBuf>,
     /// Output folder (must not exist, unless --force).
     #[arg(long, short)]
     out: PathBuf,
@@ -146,6 +181,16 @@ struct ConvertArgs {
     quiet: bool,
 }
 
+#[derive(Parser)]
+#[command(name = "bimtiles plan")]
+struct PlanArgs {
+    #[command(flatten)]
+    convert: ConvertArgs,
+    /// Number of subtree jobs.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    jobs: u64,
+}
+
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum LodArg {
     Hlod,
@@ -184,6 +229,43 @@ pub fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Convert(a) => run_convert(a),
+        Command::Plan(a) => run_plan(a),
+        Command::BuildJob {
+            dir,
+            job,
+            threads,
+            quiet,
+        } => {
+            set_threads(threads)?;
+            let (inputs, opts) = planned(&dir, quiet)?;
+            let s = bimtiles::shard::build_job(&opts.out_dir, job, &inputs, &opts)?;
+            if !quiet {
+                emit(&format!(
+                    "job {}: {} tiles in {:.2} s\n",
+                    s.job, s.tiles, s.seconds
+                ))?;
+            }
+            Ok(())
+        }
+        Command::Merge {
+            dir,
+            threads,
+            quiet,
+        } => {
+            set_threads(threads)?;
+            let (inputs, opts) = planned(&dir, quiet)?;
+            let r = bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)?;
+            if !quiet {
+                emit(&format!(
+                    "merged {}: {} tiles, {} triangles, {}\n",
+                    dir.display(),
+                    r.output.tiles,
+                    r.output.triangles,
+                    human_bytes(r.output.bytes)
+                ))?;
+            }
+            Ok(())
+        }
         Command::Serve {
             dir,
             port,
@@ -251,13 +333,85 @@ pub fn main() -> Result<()> {
     }
 }
 
-fn run_convert(a: ConvertArgs) -> Result<()> {
-    if let Some(n) = a.threads {
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n.max(1))
             .build_global()
             .context("cannot set up worker threads")?;
     }
+    Ok(())
+}
+
+/// `bimtiles plan`: the arguments after `plan` are kept in plan.json (with the working folder), so
+/// that build-job and merge re-create the same inputs and options.
+fn run_plan(a: PlanArgs) -> Result<()> {
+    set_threads(a.convert.threads)?;
+    let opts = convert_options(&a.convert)?;
+    let argv: Vec<String> = std::env::args().collect();
+    let at = argv.iter().position(|s| s == "plan").unwrap_or(argv.len());
+    let cwd = std::env::current_dir().context("cannot read the working folder")?;
+    let command = serde_json::json!({
+        "cwd": cwd,
+        "args": &argv[(at + 1).min(argv.len())..],
+    });
+    let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
+    let p = bimtiles::shard::plan(&inputs, &opts, a.jobs as usize, command)?;
+    if !a.convert.quiet {
+        emit(&format!(
+            "{}: {} tiles, {} built by merge, {} jobs (triangles per job: {})\n",
+            a.convert.out.display(),
+            p.tiles,
+            p.top.len(),
+            p.jobs.len(),
+            p.jobs
+                .iter()
+                .map(|j| j.triangles.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))?;
+    }
+    Ok(())
+}
+
+/// The inputs and options a plan was made with (paths relative to the folder `plan` ran in).
+fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptions)> {
+    let file = bimtiles::shard::read_plan(dir)?;
+    let bad = || anyhow::anyhow!("{}: the plan's command is unreadable", dir.display());
+    let cwd = PathBuf::from(file.command["cwd"].as_str().ok_or_else(bad)?);
+    let args: Vec<String> =
+        serde_json::from_value(file.command["args"].clone()).map_err(|_| bad())?;
+    let a = PlanArgs::try_parse_from(std::iter::once("plan".to_string()).chain(args))
+        .map_err(|e| anyhow::anyhow!("{}: the plan's command: {e}", dir.display()))?;
+    let mut opts = convert_options(&a.convert)?;
+    opts.out_dir = std::path::absolute(dir).context("cannot resolve the build folder")?;
+    opts.force = false;
+    opts.progress = !quiet;
+    // Where the plan was made, so that relative input paths (and the report's names for them)
+    // are the plan's; a machine without that folder needs absolute input paths in the plan.
+    std::env::set_current_dir(&cwd).with_context(|| {
+        format!(
+            "{}: the plan was made in {}, which is not here (plan with absolute input paths)",
+            dir.display(),
+            cwd.display()
+        )
+    })?;
+    let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
+    Ok((inputs, opts))
+}
+
+fn run_convert(a: ConvertArgs) -> Result<()> {
+    set_threads(a.threads)?;
+    let opts = convert_options(&a)?;
+    let inputs = InputSet::new(&a.inputs, a.manifest.as_deref());
+    let r = convert_input_set(&inputs, &opts)?;
+    if !a.quiet {
+        print_summary(&a, &r)?;
+    }
+    Ok(())
+}
+
+fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
     let opts = ConvertOptions {
         out_dir: a.out.clone(),
         force: a.force,
@@ -301,8 +455,11 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             a.dedup_tolerance_m
         );
     }
-    let r = convert(&a.inputs, &opts)?;
-    if !a.quiet {
+    Ok(opts)
+}
+
+fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
+    {
         if let Some(d) = &r.dedup {
             emit(&format!(
                 "dedup: {} components, {} shapes drawn, {} redundant copies removed, {} congruent copies share a shape ({:.2} s)\n",
