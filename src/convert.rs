@@ -401,7 +401,7 @@ pub fn convert_scene(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
-    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture);
+    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture).shared_in(&tmp);
     let result = write_tileset(scene, &plan, opts, &tmp, origin, anchor, &texture_levels);
     let (facts_bytes, t_encode, t_tileset) = match result {
         Ok(x) => x,
@@ -625,8 +625,9 @@ fn write_tileset(
             0.0
         };
         let chosen = textures.for_tile(content, texture_error);
-        let image =
-            |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
+        let image = |id: crate::scene::ImageId| {
+            textures.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0))
+        };
         let enc = encode_content_with_images(scene, content, &encoding, Some(&make_table), &image)
             .map_err(|e| Error::output(&path, e))?;
         std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;

@@ -133,6 +133,13 @@ struct ConvertArgs {
     #[arg(long, default_value_t = bimtiles::texture::DEFAULT_JPEG_QUALITY,
           value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: u8,
+    /// Embed each tile's textures in its GLB instead of writing each image level once under
+    /// tiles/textures/ and referencing it from the tiles.
+    #[arg(long)]
+    embed_textures: bool,
+    /// Embed the texture levels smaller than this many bytes even when sharing texture files.
+    #[arg(long, default_value_t = bimtiles::texture::DEFAULT_EMBED_BELOW_BYTES)]
+    embed_textures_below: usize,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -281,6 +288,8 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         texture: TextureOptions {
             lod: a.texture_lod == OnOff::On,
             crop: a.texture_crop == OnOff::On,
+            embed: a.embed_textures,
+            embed_below_bytes: a.embed_textures_below,
             format: match a.texture_format {
                 TextureFormatArg::Auto => TextureFormat::Auto,
                 TextureFormatArg::Png => TextureFormat::Png,

@@ -129,9 +129,22 @@ pub fn encode_content(
     encode_content_from(scene, content, enc, metadata, None)
 }
 
-/// The bytes and MIME type to embed for an image in one tile (e.g. the texture pyramid level
-/// matched to the tile: `crate::texture::TextureLevels`).
-pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> (std::sync::Arc<Vec<u8>>, String) + Sync);
+/// How one tile carries an image (e.g. the texture pyramid level matched to the tile:
+/// `crate::texture::TextureLevels`).
+#[derive(Debug, Clone)]
+pub enum TileImage {
+    /// The bytes go into the GLB's BIN chunk (a bufferView).
+    Embedded {
+        bytes: std::sync::Arc<Vec<u8>>,
+        mime: String,
+    },
+    /// A file shared by the tiles of the tileset, referenced by a URI relative to the GLB (glTF
+    /// 2.0 §3.3.3: relative URIs resolve against the glTF's own location).
+    External { uri: String, mime: String },
+}
+
+/// Gives the image of one tile, or why it cannot.
+pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, String> + Sync);
 
 /// [`encode_content`], with the images taken from `images` instead of the scene.
 pub fn encode_content_with_images(
@@ -283,24 +296,39 @@ struct MaterialTable<'a> {
 
 impl MaterialTable<'_> {
     /// The glTF index of scene material `mid`, written (with its image) on first use.
-    fn index(&mut self, scene: &Scene, b: &mut GltfBuilder, mid: MaterialId) -> usize {
+    fn index(
+        &mut self,
+        scene: &Scene,
+        b: &mut GltfBuilder,
+        mid: MaterialId,
+    ) -> std::result::Result<usize, String> {
         if let Some(&i) = self.material_map.get(&mid.0) {
-            return i;
+            return Ok(i);
         }
         let mat = &scene.materials[mid.index()];
-        let tex = mat.base_color_texture.as_ref().map(|t| {
-            let source = self.image_source;
-            let img = *self.image_map.entry(t.image.0).or_insert_with(|| {
-                let im = &scene.images[t.image.index()];
-                let (bytes, mime) = match source {
-                    Some(source) => source(t.image),
-                    None => (im.bytes.clone(), im.mime_type.clone()),
-                };
-                let view = b.view(&bytes, None);
-                self.images
-                    .push(json!({"bufferView": view, "mimeType": mime}));
-                self.images.len() - 1
-            });
+        let mut tex = None;
+        if let Some(t) = mat.base_color_texture.as_ref() {
+            let img = match self.image_map.get(&t.image.0) {
+                Some(&i) => i,
+                None => {
+                    let im = &scene.images[t.image.index()];
+                    let image = match self.image_source {
+                        Some(source) => source(t.image)?,
+                        None => TileImage::Embedded {
+                            bytes: im.bytes.clone(),
+                            mime: im.mime_type.clone(),
+                        },
+                    };
+                    self.images.push(match image {
+                        TileImage::Embedded { bytes, mime } => {
+                            json!({"bufferView": b.view(&bytes, None), "mimeType": mime})
+                        }
+                        TileImage::External { uri, mime } => json!({"uri": uri, "mimeType": mime}),
+                    });
+                    self.image_map.insert(t.image.0, self.images.len() - 1);
+                    self.images.len() - 1
+                }
+            };
             let sampler = self
                 .samplers
                 .iter()
@@ -309,17 +337,19 @@ impl MaterialTable<'_> {
                     self.samplers.push(t.sampler);
                     self.samplers.len() - 1
                 });
-            self.textures
-                .iter()
-                .position(|&x| x == (img, sampler))
-                .unwrap_or_else(|| {
-                    self.textures.push((img, sampler));
-                    self.textures.len() - 1
-                })
-        });
+            tex = Some(
+                self.textures
+                    .iter()
+                    .position(|&x| x == (img, sampler))
+                    .unwrap_or_else(|| {
+                        self.textures.push((img, sampler));
+                        self.textures.len() - 1
+                    }),
+            );
+        }
         self.materials.push(material_json(mat, tex));
         self.material_map.insert(mid.0, self.materials.len() - 1);
-        self.materials.len() - 1
+        Ok(self.materials.len() - 1)
     }
 
     fn write_into(self, root: &mut Value) {
@@ -366,7 +396,7 @@ fn write_primitive(
         prim["extensions"]["EXT_mesh_features"] = json!({"featureIds": [feature_ids]});
     }
     if let Some(mid) = m.material {
-        prim["material"] = json!(mats.index(scene, b, mid));
+        prim["material"] = json!(mats.index(scene, b, mid)?);
     }
     Ok((prim, decoded))
 }
