@@ -85,7 +85,7 @@ impl ConvertOptions {
 pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
     match compression {
         Compression::Draco => 1000,
-        Compression::None => 100,
+        Compression::None | Compression::Quantized => 100,
     }
 }
 
@@ -824,7 +824,9 @@ impl HlodBuilder<'_> {
             );
             // Quantization moves decoded vertices by up to this much on top.
             let quantization_m = match self.opts.compression {
-                Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+                Compression::Draco | Compression::Quantized => {
+                    DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt()
+                }
                 Compression::None => 0.0,
             };
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);

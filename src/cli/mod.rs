@@ -95,7 +95,9 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
     max_tile_bytes: usize,
-    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression) or none.
+    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
+    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs) or none
+    /// (32-bit floats).
     #[arg(long, value_enum, default_value = "draco")]
     compression: CompressionArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
@@ -170,6 +172,7 @@ enum TextureFormatArg {
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum CompressionArg {
     Draco,
+    Quantized,
     None,
 }
 
@@ -271,6 +274,7 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         },
         compression: match a.compression {
             CompressionArg::Draco => Compression::Draco,
+            CompressionArg::Quantized => Compression::Quantized,
             CompressionArg::None => Compression::None,
         },
         lod: match a.lod {
