@@ -91,7 +91,7 @@ impl ConvertOptions {
 pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
     match compression {
         Compression::Draco => 1000,
-        Compression::None => 100,
+        Compression::None | Compression::Quantized => 100,
     }
 }
 
@@ -467,7 +467,7 @@ pub fn convert_scene(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
-    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture);
+    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture).shared_in(&tmp);
     let result = (|| {
         let t = Instant::now();
         let writer = TileWriter::new(
@@ -762,8 +762,9 @@ impl<'a> TileWriter<'a> {
         let merged = self.appearance.merge(scene, content);
         let content = merged.as_ref().unwrap_or(content);
         let chosen = textures.for_tile(content, texture_error);
-        let image =
-            |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
+        let image = |id: crate::scene::ImageId| {
+            textures.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0))
+        };
         let make_table = |features: &[crate::scene::ComponentId]| {
             self.schema
                 .property_table(scene, features, "../schema.json")
@@ -1056,7 +1057,9 @@ impl HlodBuilder<'_> {
             );
             // Quantization moves decoded vertices by up to this much on top.
             let quantization_m = match self.opts.compression {
-                Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+                Compression::Draco | Compression::Quantized => {
+                    DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt()
+                }
                 Compression::None => 0.0,
             };
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);

@@ -130,7 +130,9 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
     max_tile_bytes: usize,
-    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression) or none.
+    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
+    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs) or none
+    /// (32-bit floats).
     #[arg(long, value_enum, default_value = "draco")]
     compression: CompressionArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
@@ -173,6 +175,13 @@ struct ConvertArgs {
     #[arg(long, default_value_t = bimtiles::texture::DEFAULT_JPEG_QUALITY,
           value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: u8,
+    /// Embed each tile's textures in its GLB instead of writing each image level once under
+    /// tiles/textures/ and referencing it from the tiles.
+    #[arg(long)]
+    embed_textures: bool,
+    /// Embed the texture levels smaller than this many bytes even when sharing texture files.
+    #[arg(long, default_value_t = bimtiles::texture::DEFAULT_EMBED_BELOW_BYTES)]
+    embed_textures_below: usize,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -213,6 +222,7 @@ enum TextureFormatArg {
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum CompressionArg {
     Draco,
+    Quantized,
     None,
 }
 
@@ -423,6 +433,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         },
         compression: match a.compression {
             CompressionArg::Draco => Compression::Draco,
+            CompressionArg::Quantized => Compression::Quantized,
             CompressionArg::None => Compression::None,
         },
         lod: match a.lod {
@@ -441,6 +452,8 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         texture: TextureOptions {
             lod: a.texture_lod == OnOff::On,
             crop: a.texture_crop == OnOff::On,
+            embed: a.embed_textures,
+            embed_below_bytes: a.embed_textures_below,
             format: match a.texture_format {
                 TextureFormatArg::Auto => TextureFormat::Auto,
                 TextureFormatArg::Png => TextureFormat::Png,

@@ -317,7 +317,7 @@ pub fn build_job(
         std::fs::remove_file(&result).map_err(|e| Error::output(&result, e))?;
     }
     let plan = &l.prep.plan;
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture);
+    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture).shared_in(dir);
     let count = roots.iter().map(|&r| subtree_tiles(plan, r)).sum();
     let writer = TileWriter::new(
         &l.scene,
@@ -358,7 +358,7 @@ pub fn missing_jobs(dir: &Path) -> Result<Vec<usize>> {
 /// Leftover temporary files of killed processes (`.NAME.tmp-PID`) under `dir`'s tiles and jobs.
 fn leftover_temp_files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
-    for sub in ["tiles", JOBS_DIR] {
+    for sub in ["tiles", crate::texture::external::TEXTURE_DIR, JOBS_DIR] {
         if let Ok(rd) = std::fs::read_dir(dir.join(sub)) {
             for e in rd.flatten() {
                 let name = e.file_name().to_string_lossy().to_string();
@@ -425,7 +425,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
     }
     let plan = &l.prep.plan;
     let all_roots: Vec<usize> = l.roots.iter().flatten().copied().collect();
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture);
+    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture).shared_in(dir);
     let t = Instant::now();
     let writer = TileWriter::new(
         &l.scene,

@@ -427,10 +427,19 @@ pub fn primitive_geometry(
         );
     }
     let r = p.reader(|_| Some(blob));
-    (
-        r.read_positions().unwrap().collect(),
-        r.read_indices().unwrap().into_u32().collect(),
-    )
+    let indices = r.read_indices().unwrap().into_u32().collect();
+    let acc = p.get(&gltf::Semantic::Positions).unwrap();
+    if acc.data_type() == gltf::accessor::DataType::F32 {
+        return (r.read_positions().unwrap().collect(), indices);
+    }
+    // KHR_mesh_quantization: integer positions (normalized or not), the node transform
+    // dequantizes them.
+    let doc = serde_json::to_value(g.document.clone().into_json()).unwrap();
+    let pos = read_accessor(&doc, blob, acc.index())
+        .into_iter()
+        .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32])
+        .collect();
+    (pos, indices)
 }
 
 pub trait AsDMat4 {
