@@ -176,7 +176,7 @@ struct ConvertArgs {
           value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: u8,
     /// Embed each tile's textures in its GLB instead of writing each image level once under
-    /// tiles/textures/ and referencing it from the tiles.
+    /// textures/ and referencing it from the tiles.
     #[arg(long)]
     embed_textures: bool,
     /// Embed the texture levels smaller than this many bytes even when sharing texture files.

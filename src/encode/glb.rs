@@ -90,10 +90,15 @@ const NORMAL_BITS: u8 = 8;
 /// Draco bits for colours: 8 bits per channel, as images have.
 const COLOR_BITS: u8 = 8;
 
-/// Draco bits for texture coordinates: a step of at most 1/1024 of one texture repeat over the
-/// primitive's UV range (tiling UVs span many repeats): half a texel of a 512-pixel texture, at
-/// least 10 bits.
-fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
+/// Texels per texture repeat assumed when the image's size is unknown (no texture, unreadable
+/// header): a step of 1/1024 is half a texel of a 512-pixel texture.
+const DEFAULT_UV_TEXELS: u32 = 512;
+
+/// Draco bits for texture coordinates: a step of at most half a texel of the bound image
+/// (`texels` along its longer side, full resolution) over the primitive's UV range (tiling UVs
+/// span many repeats), so a texel lookup moves by at most half a texel. Measured on
+/// LoD3_Railway (64-512 px textures): UVs are 46 % of its Draco bytes and each bit 3.5 %.
+fn uv_bits(uvs: &[[f32; 2]], texels: u32) -> u8 {
     let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
     for t in uvs {
         for k in 0..2 {
@@ -102,7 +107,16 @@ fn uv_bits(uvs: &[[f32; 2]]) -> u8 {
         }
     }
     let range = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) as f64;
-    ((range * 1024.0).log2().ceil() as u8).clamp(10, 20)
+    // step = range / (2^bits - 1) <= 1 / (2 texels), to within a factor 2^bits / (2^bits - 1).
+    ((range * 2.0 * texels.max(1) as f64).log2().ceil() as u8).clamp(6, 20)
+}
+
+/// Texels along the longer side of the base colour image of `material` at full resolution.
+fn texture_texels(scene: &Scene, material: Option<MaterialId>) -> u32 {
+    material
+        .and_then(|m| scene.materials[m.index()].base_color_texture.as_ref())
+        .and_then(|t| crate::texture::codec::dimensions(&scene.images[t.image.index()].bytes).ok())
+        .map_or(DEFAULT_UV_TEXELS, |(w, h)| w.max(h))
 }
 
 /// Makes the property table of a tile's features (in feature-ID order).
@@ -437,7 +451,8 @@ fn write_primitive(
             (p, frame.map(|f| f.decoded_box(&m.positions)))
         }
         Compression::Draco => {
-            let (p, bx) = draco_primitive(b, m, feature_count, enc)?;
+            let texels = texture_texels(scene, m.material);
+            let (p, bx) = draco_primitive(b, m, feature_count, enc, texels)?;
             (p, Some(bx))
         }
     };
@@ -821,6 +836,7 @@ fn draco_primitive(
     m: &ContentPrimitive,
     feature_count: Option<usize>,
     enc: &TileEncoding,
+    uv_texels: u32,
 ) -> std::result::Result<(Value, DecodedBox), String> {
     use super::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
     let positions_y_up = y_up(&m.positions);
@@ -849,7 +865,7 @@ fn draco_primitive(
     if !m.uvs.is_empty() {
         attrs.push(EncodeAttribute::tex_coord(
             m.uvs.as_flattened(),
-            uv_bits(&m.uvs),
+            uv_bits(&m.uvs, uv_texels),
         ));
         names.push(("TEXCOORD_0", FLOAT, "VEC2"));
     }

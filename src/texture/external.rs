@@ -1,12 +1,12 @@
 //! Texture files shared by the tiles of a tileset (issue 6, paper III.F's loading claim): each
 //! distinct image level (after identical images are merged and unused areas cropped) is written
-//! once under `<tileset>/tiles/textures/` and tiles reference it by a relative `uri` (glTF 2.0 §3.3.3:
+//! once under `<tileset>/textures/` and tiles reference it by a relative `uri` (glTF 2.0 §3.3.3:
 //! relative URIs resolve against the GLB's own location; CesiumJS derives them from the tile's
 //! URL and caches images by their resolved URL, so a file is fetched once however many tiles use
 //! it). File names are the 64-bit FNV-1a hash of the bytes: deterministic, stable between runs,
-//! and the same bytes reached from two images or levels make one file. The folder sits beside the
-//! tile GLBs so a URI never climbs out of a GLB's folder (`..`): tools that confine a glTF's
-//! resources to its own folder, as our gltf-validator runner does, resolve them.
+//! and the same bytes reached from two images or levels make one file. `tiles/` keeps holding
+//! only tile GLBs; a tile reaches the files as `../textures/<name>` (our gltf-validator runner
+//! is given the tileset folder as the root such URIs may reach).
 
 use super::view::{self, FirstView, ViewOptions};
 use serde_json::Value;
@@ -15,9 +15,9 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 /// Folder of the shared files, in the tileset's folder.
-pub const TEXTURE_DIR: &str = "tiles/textures";
+pub const TEXTURE_DIR: &str = "textures";
 /// How a tile GLB (in `tiles/`) reaches that folder.
-const FROM_TILES: &str = "textures/";
+const FROM_TILES: &str = "../textures/";
 
 /// Writes shared texture files, each once.
 #[derive(Debug)]
@@ -48,7 +48,7 @@ pub fn file_name(bytes: &[u8], mime: &str) -> String {
 }
 
 impl ExternalTextures {
-    /// Files go to `<tileset_dir>/tiles/textures/` (created on the first file).
+    /// Files go to `<tileset_dir>/textures/` (created on the first file).
     pub fn new(tileset_dir: &Path) -> ExternalTextures {
         ExternalTextures {
             dir: tileset_dir.join(TEXTURE_DIR),
@@ -249,7 +249,7 @@ mod tests {
         assert!(new_a && !again);
         assert_eq!(ua, ua2);
         assert_ne!(ua, ub);
-        assert!(ua.starts_with("textures/") && ua.ends_with(".png"));
+        assert!(ua.starts_with("../textures/") && ua.ends_with(".png"));
         assert!(ub.ends_with(".jpg"));
         assert_eq!(ext.file_count(), 2);
         assert_eq!(
@@ -257,11 +257,8 @@ mod tests {
             BTreeMap::from([(0, 3), (1, 3)]),
             "a file counts at the finest level that used it"
         );
-        let name = ua.trim_start_matches("textures/");
-        assert_eq!(
-            std::fs::read(dir.join("tiles/textures").join(name)).unwrap(),
-            *a
-        );
+        let name = ua.trim_start_matches("../textures/");
+        assert_eq!(std::fs::read(dir.join("textures").join(name)).unwrap(), *a);
         assert_eq!(name, file_name(&a, "image/png"));
         std::fs::remove_dir_all(&dir).unwrap();
     }

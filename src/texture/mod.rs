@@ -11,7 +11,7 @@
 //! that level ([`haar`] + [`codec`]). A pyramid is built once per image, on the first tile that
 //! needs a coarser level, and kept encoded (one decoded image per worker thread at a time). Level
 //! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
-//! re-encoded. Each level a tile uses is written once under `<tileset>/tiles/textures/` and referenced
+//! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. [`view`] measures what a client loads for a first whole-model view.
 
 pub mod classify;
@@ -212,7 +212,7 @@ pub struct TextureReport {
     /// Image bytes written (embedded in tiles or shared files), per level.
     pub written_per_level: Vec<LevelWritten>,
     pub written_bytes: u64,
-    /// Shared texture files under `tiles/textures/` (0 when embedded).
+    /// Shared texture files under `textures/` (0 when embedded).
     pub external_files: usize,
     pub images: Vec<ImageReport>,
 }
@@ -253,8 +253,7 @@ impl<'a> TextureLevels<'a> {
         }
     }
 
-    /// Shares image levels as files under `<tileset_dir>/tiles/textures/`, unless the options
-    /// embed.
+    /// Shares image levels as files under `<tileset_dir>/textures/`, unless the options embed.
     pub fn shared_in(mut self, tileset_dir: &std::path::Path) -> TextureLevels<'a> {
         if !self.opts.embed {
             self.external = Some(external::ExternalTextures::new(tileset_dir));

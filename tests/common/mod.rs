@@ -90,7 +90,9 @@ pub fn convert(input: &Path, out: &Path, extra: &[&str]) -> Value {
 }
 
 /// Runs the Khronos glTF validator (npm) over a folder; returns (files, errors, warnings), or None
-/// when Node or the package is not installed (and tools are not required).
+/// when Node or the package is not installed (and tools are not required). Tiles may reach shared
+/// files anywhere in their tileset (`../textures/`): the tileset folder (`dir`, or its parent for
+/// a `tiles` folder) is the root their URIs may reach.
 pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
     let script = repo().join("tools/validate_gltf.mjs");
     let installed = repo().join("tools/node_modules/gltf-validator").is_dir();
@@ -102,8 +104,14 @@ pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
         eprintln!("SKIPPED gltf-validator: tools/node_modules missing (run `make test`)");
         return None;
     }
+    let root = match dir.join("tileset.json").is_file() {
+        true => dir,
+        false => dir.parent().unwrap_or(dir),
+    };
     let o = Command::new("node")
         .arg(script)
+        .arg("--root")
+        .arg(root)
         .arg(dir)
         .output()
         .expect("run node");
