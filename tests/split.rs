@@ -17,8 +17,8 @@ struct TexturedVertex {
     color: Option<[u8; 4]>,
 }
 
-fn textured_vertices(glb_bytes: &[u8], offset: DVec3) -> (Vec<TexturedVertex>, usize, f64) {
-    let g = gltf::Gltf::from_slice_without_validation(glb_bytes).unwrap();
+fn textured_vertices(glb_path: &Path, offset: DVec3) -> (Vec<TexturedVertex>, usize, f64) {
+    let g = gltf::Gltf::from_slice_without_validation(&std::fs::read(glb_path).unwrap()).unwrap();
     let blob = g.blob.as_deref().unwrap();
     let images: Vec<image::RgbaImage> = g
         .document
@@ -28,7 +28,11 @@ fn textured_vertices(glb_bytes: &[u8], offset: DVec3) -> (Vec<TexturedVertex>, u
                 let b = &blob[view.offset()..view.offset() + view.length()];
                 image::load_from_memory(b).unwrap().to_rgba8()
             }
-            _ => panic!("external image"),
+            // Shared texture files, relative to the tile.
+            gltf::image::Source::Uri { uri, .. } => {
+                let b = std::fs::read(glb_path.parent().unwrap().join(uri)).unwrap();
+                image::load_from_memory(&b).unwrap().to_rgba8()
+            }
         })
         .collect();
     let mut out = Vec::new();
@@ -120,7 +124,7 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
     }
     // Same triangles (count and total area) and the same texture colour at every vertex.
     let (before, in_tris, in_area) =
-        textured_vertices(&std::fs::read(&input).unwrap(), DVec3::ZERO);
+        textured_vertices(&input, DVec3::ZERO);
     let mut colors: HashMap<(i64, i64, i64), Vec<[u8; 4]>> = HashMap::new();
     for v in &before {
         if let Some(c) = v.color {
@@ -137,10 +141,7 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
     );
     let (mut out_tris, mut out_area, mut checked, mut textured) = (0, 0.0, 0usize, 0usize);
     for t in tiles.iter().filter(|t| t.uri.is_some()) {
-        let (after, n, area) = textured_vertices(
-            &std::fs::read(out.join(t.uri.as_ref().unwrap())).unwrap(),
-            anchor,
-        );
+        let (after, n, area) = textured_vertices(&out.join(t.uri.as_ref().unwrap()), anchor);
         out_tris += n;
         out_area += area;
         for v in after {
