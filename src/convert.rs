@@ -14,9 +14,14 @@ use crate::error::{Error, Result};
 use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
 use crate::simplify::hlod::{simplify_children, tile_error};
+use crate::simplify::lod_chain::{chain_levels, with_lod_chains};
 use crate::tile_content::TileContent;
 use crate::tileset::georef::GeoOrigin;
 use crate::tileset::metadata::MetadataSchema;
+use crate::tileset::view::{
+    paper_delta_mesh_px, paper_geometric_error_m, sse_px, switch_distance_m, ViewOptions,
+    PAPER_MAX_DELTA_PX,
+};
 use crate::tileset::{tileset_json, Refine, TileFacts};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -42,6 +47,8 @@ pub struct ConvertOptions {
     pub compression: Compression,
     /// Levels of detail: HLOD (default), none, or the paper's discrete chains.
     pub lod: LodMode,
+    /// Which error the simplified tiles declare as geometricError (both are reported).
+    pub error_metric: ErrorMetric,
     /// Options of the QEM simplifier for LOD content (targets are set per tile).
     pub simplify: crate::simplify::SimplifyOptions,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
@@ -67,6 +74,7 @@ impl ConvertOptions {
             octree: OctreeOptions::default(),
             compression: Compression::default(),
             lod: LodMode::default(),
+            error_metric: ErrorMetric::default(),
             simplify: crate::simplify::SimplifyOptions::default(),
             dedup: Some(DedupOptions::default()),
             instancing: true,
@@ -99,6 +107,11 @@ pub enum LodMode {
     /// No simplified content: internal tiles hold the components too large for their children and
     /// refine by adding (`refine: "ADD"`), with a size-bound geometric error.
     None,
+    /// The paper's discrete LODs (III.C, Table IV): every leaf becomes a chain of tiles with its
+    /// bounds, coarsest first, simplified to these ratios of its triangles (finest first, as
+    /// [`crate::simplify::lod_chain::chain_ratios`] gives them), full detail last;
+    /// `refine: "REPLACE"`; internal tiles are empty, with a size-bound error.
+    Ratios(Vec<f32>),
 }
 
 impl LodMode {
@@ -106,6 +119,32 @@ impl LodMode {
         match self {
             LodMode::Hlod => "hlod",
             LodMode::None => "none",
+            LodMode::Ratios(_) => "ratios",
+        }
+    }
+}
+
+/// Which error simplified tiles declare as `geometricError`. The report shows both per level
+/// (`lod_levels`, as the paper's Table I).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ErrorMetric {
+    /// The measured distance between a tile's content and the full detail it stands for (honest:
+    /// checked by an independent measurement in the tests).
+    #[default]
+    Measured,
+    /// The paper's screen-space error (III.C(3), formulas (1), (2)): the geometricError that makes
+    /// a client switch where Δ(mesh) of the longest collapsed edge reaches
+    /// [`PAPER_MAX_DELTA_PX`] at 1920x1080 and 60° ([`paper_geometric_error_m`]). Not a distance
+    /// bound: it can be smaller than the real deviation (not honest in general).
+    PaperSse,
+}
+
+impl ErrorMetric {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ErrorMetric::Measured => "measured",
+            ErrorMetric::PaperSse => "paper-sse",
         }
     }
 }
@@ -165,6 +204,45 @@ pub struct TileReport {
     /// HLOD tiles: bound of the distance from this tile's content to full detail (metres).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coarse_to_full_bound_m: Option<f64>,
+    /// Simplified tiles: the measured error (the geometricError under `--error-metric measured`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_error_m: Option<f64>,
+    /// Simplified tiles: longest edge collapsed between full detail and this content (metres).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_folding_edge_m: Option<f64>,
+    /// Simplified tiles: the paper's error of that edge (the geometricError under
+    /// `--error-metric paper-sse`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paper_error_m: Option<f64>,
+    /// Discrete chains: the tile's LOD (0 = full detail).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lod_level: Option<usize>,
+}
+
+/// One level of detail, as the paper's Table I (LOD level, patches, maximum folding edge length,
+/// range of visibility, Δ(mesh)), with the measured error beside the paper's.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct LodLevelReport {
+    /// "LOD0 (full detail)", "LOD2 (ratio 0.70)" for chains, "HLOD depth 3" for HLOD tiles.
+    pub level: String,
+    pub tiles: usize,
+    /// Triangles drawn by the level's tiles (the paper's "patches").
+    pub patches: usize,
+    /// Longest edge collapsed between full detail and any tile of the level (metres).
+    pub max_folding_edge_m: f64,
+    /// Largest measured error of a tile of the level (metres).
+    pub measured_error_max_m: f64,
+    /// Largest paper error of a tile of the level ([`paper_geometric_error_m`], metres).
+    pub paper_error_max_m: f64,
+    /// Largest declared geometricError of the level (metres), from the selected metric.
+    pub geometric_error_max_m: f64,
+    /// Nearest distance at which a client (1920x1080, 60°, 16 px) still draws the level's
+    /// largest-error tile (metres): the paper's "range of visibility".
+    pub range_of_visibility_m: f64,
+    /// The paper's Δ(mesh) (formula (2), pixels) of the longest folding edge at that distance.
+    pub delta_mesh_px: f64,
+    /// The measured error on screen at that distance (pixels): 16 px or less is honest.
+    pub measured_sse_px: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -204,6 +282,9 @@ pub struct Report {
     pub input: InputReport,
     pub output: OutputReport,
     pub levels: Vec<LevelReport>,
+    /// The levels of detail as the paper's Table I (absent without LOD).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lod_levels: Vec<LodLevelReport>,
     pub tiles: Vec<TileReport>,
     pub georeference: GeoReport,
     /// What dedup found (absent when it was turned off).
@@ -380,8 +461,14 @@ pub fn convert_scene(
     let textures_prepared = crate::texture::prepare(scene, &opts.texture);
     let t1 = Instant::now();
     let mut plan = plan_octree(scene, &opts.octree);
-    if opts.lod == LodMode::Hlod {
-        plan = plan.with_content_in_leaves();
+    let mut chain_level = Vec::new();
+    match &opts.lod {
+        LodMode::Hlod => plan = plan.with_content_in_leaves(),
+        LodMode::Ratios(r) => {
+            let c = with_lod_chains(&plan.with_content_in_leaves(), r.len());
+            (plan, chain_level) = (c.plan, c.level);
+        }
+        LodMode::None => {}
     }
     let t_partition = t1.elapsed().as_secs_f64();
 
@@ -402,7 +489,16 @@ pub fn convert_scene(
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
     let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture);
-    let result = write_tileset(scene, &plan, opts, &tmp, origin, anchor, &texture_levels);
+    let result = write_tileset(
+        scene,
+        &plan,
+        &chain_level,
+        opts,
+        &tmp,
+        origin,
+        anchor,
+        &texture_levels,
+    );
     let (facts_bytes, t_encode, t_tileset) = match result {
         Ok(x) => x,
         Err(e) => {
@@ -443,6 +539,10 @@ pub fn convert_scene(
             simplified_from_triangles: st.simplified_from_triangles,
             full_to_coarse_m: st.full_to_coarse_m,
             coarse_to_full_bound_m: st.coarse_to_full_bound_m,
+            measured_error_m: st.measured_error_m,
+            max_folding_edge_m: st.max_folding_edge_m,
+            paper_error_m: st.paper_error_m,
+            lod_level: chain_level.get(tiles.len()).copied().flatten(),
         });
         let d = t.depth as usize;
         while levels.len() <= d {
@@ -482,6 +582,11 @@ pub fn convert_scene(
             metadata_bytes: tiles.iter().map(|t| t.metadata_bytes).sum(),
         },
         levels,
+        lod_levels: if opts.lod == LodMode::None {
+            Vec::new()
+        } else {
+            lod_levels(&tiles, &opts.lod)
+        },
         tiles,
         georeference: GeoReport {
             origin,
@@ -490,9 +595,11 @@ pub fn convert_scene(
             anchor_rule,
         },
         dedup,
-        geometric_error_metric: match opts.lod {
-            LodMode::Hlod => HLOD_ERROR_METRIC,
-            LodMode::None => SIZE_BOUND_ERROR_METRIC,
+        geometric_error_metric: match (&opts.lod, opts.error_metric) {
+            (LodMode::None, _) => SIZE_BOUND_ERROR_METRIC,
+            (_, ErrorMetric::PaperSse) => PAPER_SSE_ERROR_METRIC,
+            (LodMode::Hlod, _) => HLOD_ERROR_METRIC,
+            (LodMode::Ratios(_), _) => CHAIN_ERROR_METRIC,
         }
         .into(),
         options: json!({
@@ -501,6 +608,8 @@ pub fn convert_scene(
             "max_depth": opts.octree.max_depth,
             "compression": format!("{:?}", opts.compression).to_lowercase(),
             "lod": opts.lod.name(),
+            "lod_ratios": match &opts.lod { LodMode::Ratios(r) => json!(r), _ => json!(null) },
+            "error_metric": opts.error_metric.name(),
             "dedup": opts.dedup.is_some(),
             "dedup_tolerance_m": opts.dedup.as_ref().map(|d| d.tolerance_m),
             "instancing": opts.instancing,
@@ -548,6 +657,94 @@ simplified content and the full detail it stands for (symmetric Hausdorff distan
 against the content, content samples bounded through the children's content and errors; times 1.1, plus the \
 quantization bound with Draco); leaves have 0";
 
+/// The geometric error of discrete LOD chains, as the report describes it.
+pub const CHAIN_ERROR_METRIC: &str = "measured: a chain tile's geometricError bounds the distance between its \
+simplified content and the leaf's full detail (symmetric Hausdorff distance, measured as for HLOD tiles, times 1.1, \
+plus the quantization bound with Draco), strictly decreasing down the chain; full detail has 0; empty internal tiles \
+have their bounding-box diagonal (everything below is missing when they are drawn)";
+
+/// The paper's screen-space error, as the report describes it.
+pub const PAPER_SSE_ERROR_METRIC: &str = "paper-sse: a simplified tile's geometricError is the paper's (III.C(3), \
+formulas (1) and (2)): the error that makes a client switch (1920x1080, 60 degrees, 16 px) where Delta(mesh) of the \
+longest edge collapsed for the tile reaches 16 px, 3.77 x that edge length; held above the children's. It is not a \
+distance bound: compare measured_error_m (the honest value) per tile and measured_sse_px per level";
+
+/// The paper's Table I from the tile reports: one row for full detail, then one per chain level
+/// (chains) or per HLOD depth, deepest first.
+fn lod_levels(tiles: &[TileReport], lod: &LodMode) -> Vec<LodLevelReport> {
+    let v = ViewOptions::default();
+    let mut rows: BTreeMap<(i64, String), LodLevelReport> = BTreeMap::new();
+    for t in tiles.iter().filter(|t| t.content.is_some()) {
+        let key = match (lod, t.lod_level, t.measured_error_m) {
+            (LodMode::Ratios(r), Some(k), _) if k > 0 => {
+                (k as i64, format!("LOD{k} (ratio {:.2})", r[k - 1]))
+            }
+            (LodMode::Hlod, _, Some(_)) => {
+                (1000 - t.depth as i64, format!("HLOD depth {}", t.depth))
+            }
+            _ => (0, "LOD0 (full detail)".to_string()),
+        };
+        let row = rows.entry(key.clone()).or_insert_with(|| LodLevelReport {
+            level: key.1,
+            tiles: 0,
+            patches: 0,
+            max_folding_edge_m: 0.0,
+            measured_error_max_m: 0.0,
+            paper_error_max_m: 0.0,
+            geometric_error_max_m: 0.0,
+            range_of_visibility_m: 0.0,
+            delta_mesh_px: 0.0,
+            measured_sse_px: 0.0,
+        });
+        row.tiles += 1;
+        row.patches += t.triangles;
+        row.max_folding_edge_m = row
+            .max_folding_edge_m
+            .max(t.max_folding_edge_m.unwrap_or(0.0));
+        row.measured_error_max_m = row
+            .measured_error_max_m
+            .max(t.measured_error_m.unwrap_or(0.0));
+        row.paper_error_max_m = row.paper_error_max_m.max(t.paper_error_m.unwrap_or(0.0));
+        row.geometric_error_max_m = row.geometric_error_max_m.max(t.geometric_error_m);
+    }
+    rows.into_values()
+        .map(|mut r| {
+            r.range_of_visibility_m = switch_distance_m(r.geometric_error_max_m, &v);
+            if r.range_of_visibility_m > 0.0 {
+                r.delta_mesh_px =
+                    paper_delta_mesh_px(r.max_folding_edge_m, r.range_of_visibility_m, &v);
+                r.measured_sse_px = sse_px(r.measured_error_max_m, r.range_of_visibility_m, &v);
+            }
+            r
+        })
+        .collect()
+}
+
+/// The geometricError a simplified tile declares under `metric`, from its measured error and its
+/// longest folding edge, held strictly above its children's (3D Tiles); also the paper's value.
+fn declared_error(
+    metric: ErrorMetric,
+    measured_m: f64,
+    folding_edge_m: f64,
+    children_max_m: f64,
+) -> (f64, f64) {
+    let paper_m =
+        paper_geometric_error_m(folding_edge_m, &ViewOptions::default(), PAPER_MAX_DELTA_PX);
+    let base = match metric {
+        ErrorMetric::Measured => measured_m,
+        ErrorMetric::PaperSse => paper_m,
+    };
+    (base.max(children_max_m * (1.0 + 1e-6) + 1e-6), paper_m)
+}
+
+/// How far Draco quantization moves decoded vertices (metres), added to measured errors.
+fn quantization_m(c: Compression) -> f64 {
+    match c {
+        Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+        Compression::None => 0.0,
+    }
+}
+
 /// The geometric error without LOD (additive refinement), as the report describes it.
 pub const SIZE_BOUND_ERROR_METRIC: &str = "size-bound: a tile's geometricError is the largest bounding-box diagonal \
 among the components of its descendants (what is missing from the view when the tile is drawn without its children, \
@@ -586,11 +783,16 @@ struct TileStats {
     simplified_from_triangles: Option<usize>,
     full_to_coarse_m: Option<f64>,
     coarse_to_full_bound_m: Option<f64>,
+    measured_error_m: Option<f64>,
+    max_folding_edge_m: Option<f64>,
+    paper_error_m: Option<f64>,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn write_tileset(
     scene: &Scene,
     plan: &TilePlan,
+    chain_level: &[Option<usize>],
     opts: &ConvertOptions,
     tmp: &Path,
     origin: GeoOrigin,
@@ -619,7 +821,7 @@ fn write_tileset(
         let uri = format!("tiles/{}.glb", tile.path);
         let path = tmp.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
-        let texture_error = if opts.lod == LodMode::Hlod {
+        let texture_error = if opts.lod != LodMode::None {
             st.geometric_error_m
         } else {
             0.0
@@ -642,7 +844,7 @@ fn write_tileset(
         st.metadata_bytes = enc.metadata_bytes as u64;
         Ok((enc.bounds, st))
     };
-    let stats: Vec<Result<(Aabb, TileStats)>> = match opts.lod {
+    let stats: Vec<Result<(Aabb, TileStats)>> = match &opts.lod {
         LodMode::None => plan
             .tiles
             .par_iter()
@@ -680,6 +882,7 @@ fn write_tileset(
                 })
                 .collect()
         }
+        LodMode::Ratios(ratios) => build_chains(scene, plan, chain_level, ratios, opts, &write)?,
     };
     pb.finish_and_clear();
     let mut facts = Vec::with_capacity(stats.len());
@@ -701,7 +904,7 @@ fn write_tileset(
         "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
     }});
     let refine = match opts.lod {
-        LodMode::Hlod => Refine::Replace,
+        LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
         LodMode::None => Refine::Add,
     };
     let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
@@ -719,6 +922,8 @@ struct BuiltSubtree {
     geometric_error_m: f64,
     /// Bound of the distance from `content` to full detail (0 for leaves).
     coarse_to_full_m: f64,
+    /// Longest edge collapsed between full detail and `content` (0 for leaves).
+    max_folding_edge_m: f64,
     /// Triangles per cut component in the subtree (only components cut across tiles).
     cut_triangles: BTreeMap<ComponentId, usize>,
 }
@@ -774,6 +979,7 @@ impl HlodBuilder<'_> {
                 content: content.expand(),
                 geometric_error_m: 0.0,
                 coarse_to_full_m: 0.0,
+                max_folding_edge_m: 0.0,
                 cut_triangles,
             }
         } else {
@@ -788,17 +994,7 @@ impl HlodBuilder<'_> {
                     *cut_triangles.entry(c).or_default() += n;
                 }
             }
-            // Components that go on outside this subtree keep their borders.
-            let continuing: Vec<ComponentId> = cut_triangles
-                .iter()
-                .filter(|&(&c, &n)| {
-                    n < self
-                        .scene
-                        .mesh(self.scene.component(c).mesh)
-                        .triangle_count()
-                })
-                .map(|(&c, _)| c)
-                .collect();
+            let continuing = continuing(self.scene, &cut_triangles);
             let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
             let r = simplify_children(
                 &contents,
@@ -822,19 +1018,24 @@ impl HlodBuilder<'_> {
                 &self.opts.simplify,
             );
             // Quantization moves decoded vertices by up to this much on top.
-            let quantization_m = match self.opts.compression {
-                Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
-                Compression::None => 0.0,
-            };
+            let measured = err.error_m + quantization_m(self.opts.compression);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
+            let folding = kids
+                .iter()
+                .map(|k| k.max_folding_edge_m)
+                .fold(r.max_collapsed_edge_m, f64::max);
             // Strictly above the children's, whatever the sampling found.
-            let ge = (err.error_m + quantization_m).max(children_max * (1.0 + 1e-6) + 1e-6);
+            let (ge, paper) =
+                declared_error(self.opts.error_metric, measured, folding, children_max);
             drop(kids);
             let st = TileStats {
                 geometric_error_m: ge,
                 simplified_from_triangles: Some(r.input_triangles),
                 full_to_coarse_m: Some(err.full_to_coarse_m),
                 coarse_to_full_bound_m: Some(err.coarse_to_full_m),
+                measured_error_m: Some(measured),
+                max_folding_edge_m: Some(folding),
+                paper_error_m: Some(paper),
                 ..Default::default()
             };
             let written = (self.write)(i, &r.content, st)?;
@@ -843,11 +1044,128 @@ impl HlodBuilder<'_> {
                 content: r.content,
                 geometric_error_m: ge,
                 coarse_to_full_m: err.coarse_to_full_m,
+                max_folding_edge_m: folding,
                 cut_triangles,
             }
         };
         Ok(built)
     }
+}
+
+/// Components of `cut_triangles` (triangles per component cut across tiles, in a subtree) that go
+/// on outside the subtree: their open borders stay locked (no cracks). Sorted.
+fn continuing(scene: &Scene, cut_triangles: &BTreeMap<ComponentId, usize>) -> Vec<ComponentId> {
+    cut_triangles
+        .iter()
+        .filter(|&(&c, &n)| n < scene.mesh(scene.component(c).mesh).triangle_count())
+        .map(|(&c, _)| c)
+        .collect()
+}
+
+/// Discrete LOD chains: each chain (found at its full-detail tile, level 0) is built and written
+/// at once, chains in parallel; then the empty internal tiles get their size-bound error, bottom
+/// up, strictly above their children's.
+fn build_chains(
+    scene: &Scene,
+    plan: &TilePlan,
+    chain_level: &[Option<usize>],
+    ratios: &[f32],
+    opts: &ConvertOptions,
+    write: &WriteTile<'_>,
+) -> Result<Vec<Result<(Aabb, TileStats)>>> {
+    let n = ratios.len();
+    let fulls: Vec<usize> = (0..plan.tiles.len())
+        .filter(|&i| chain_level[i] == Some(0))
+        .collect();
+    let built: Vec<Vec<(usize, Aabb, TileStats)>> = fulls
+        .par_iter()
+        .map(|&i| -> Result<Vec<(usize, Aabb, TileStats)>> {
+            let tile = &plan.tiles[i];
+            let center = tile.content_bounds.center();
+            let content = gather(scene, opts, &tile.content, center);
+            let mut out = vec![{
+                let (b, st) = write(i, &content, TileStats::default())?;
+                (i, b, st)
+            }];
+            let full = content.expand();
+            let mut cut = BTreeMap::new();
+            for item in &tile.content {
+                if let Some(t) = &item.triangles {
+                    *cut.entry(item.component).or_default() += t.len();
+                }
+            }
+            let levels = chain_levels(
+                scene,
+                tile,
+                &full,
+                &continuing(scene, &cut),
+                ratios,
+                &opts.simplify,
+            )
+            .map_err(|e| {
+                Error::output(
+                    format!("tiles/{}.glb", tile.path),
+                    format!("simplification failed: {e}"),
+                )
+            })?;
+            // Finest first: chain tile i - k holds level k.
+            let mut below = 0.0;
+            for (k, l) in levels.iter().enumerate() {
+                let measured = l.error.error_m + quantization_m(opts.compression);
+                let (ge, paper) =
+                    declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
+                below = ge;
+                let st = TileStats {
+                    geometric_error_m: ge,
+                    simplified_from_triangles: Some(full.triangle_count()),
+                    full_to_coarse_m: Some(l.error.full_to_coarse_m),
+                    coarse_to_full_bound_m: Some(l.error.coarse_to_full_m),
+                    measured_error_m: Some(measured),
+                    max_folding_edge_m: Some(l.max_collapsed_edge_m),
+                    paper_error_m: Some(paper),
+                    ..Default::default()
+                };
+                let at = i - (k + 1);
+                debug_assert_eq!(chain_level[at], Some(k + 1));
+                let (b, st) = write(at, &l.content, st)?;
+                out.push((at, b, st));
+            }
+            debug_assert_eq!(levels.len(), n);
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
+    for (i, b, st) in built.into_iter().flatten() {
+        slots[i] = Some((b, st));
+    }
+    // Internal tiles (pre-order: children after parents).
+    for i in (0..plan.tiles.len()).rev() {
+        if slots[i].is_some() {
+            continue;
+        }
+        let t = &plan.tiles[i];
+        let children_max = t
+            .children
+            .iter()
+            .filter_map(|&c| slots[c].as_ref().map(|s| s.1.geometric_error_m))
+            .fold(0.0, f64::max);
+        let ge = if t.children.is_empty() {
+            0.0
+        } else {
+            t.bounds.diagonal().max(children_max * (1.0 + 1e-6) + 1e-6)
+        };
+        slots[i] = Some((
+            Aabb::EMPTY,
+            TileStats {
+                geometric_error_m: ge,
+                ..Default::default()
+            },
+        ));
+    }
+    Ok(slots
+        .into_iter()
+        .map(|s| Ok(s.expect("every tile built")))
+        .collect())
 }
 
 /// What `simplify_model` did.

@@ -36,6 +36,8 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 pub struct HlodContent {
     pub content: TileContent,
     pub input_triangles: usize,
+    /// Longest edge the simplifier collapsed (the paper's maximum folding edge length, metres).
+    pub max_collapsed_edge_m: f64,
 }
 
 /// One tile content as a single triangle soup (all primitives), for distance queries.
@@ -252,6 +254,7 @@ pub fn simplify_children(
     Ok(HlodContent {
         content,
         input_triangles,
+        max_collapsed_edge_m: r.max_collapsed_edge_m,
     })
 }
 

@@ -19,7 +19,8 @@ pub mod crop;
 pub mod haar;
 pub mod identical;
 pub mod lod;
-pub mod view;
+/// The first-view selection simulation moved to the tileset module (it serves geometry too).
+pub use crate::tileset::view;
 
 pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
 
