@@ -1015,6 +1015,7 @@ impl HlodBuilder<'_> {
                 &r.content,
                 &children,
                 &leaves,
+                0,
                 &self.opts.simplify,
             );
             // Quantization moves decoded vertices by up to this much on top.

@@ -74,7 +74,9 @@ pub struct TileError {
 
 /// Declared error of `content` (the tile's simplified geometry, P) with respect to the full detail
 /// `leaves` below it, given its `children`'s content and their `coarse_to_full_m` bounds (see the
-/// module docs).
+/// module docs). Each leaf is sampled at every vertex, edge midpoint and centroid plus as many
+/// area-weighted points as it has triangles, and at least `min_leaf_samples` (a small leaf alone,
+/// as under a discrete LOD chain, needs more than its triangle count).
 /// All contents must share `content.center`'s frame or carry their own centre (they are
 /// re-anchored).
 pub fn tile_error(
@@ -82,6 +84,7 @@ pub fn tile_error(
     content: &TileContent,
     children: &[(&TileContent, f64)],
     leaves: &[&[ContentItem]],
+    min_leaf_samples: usize,
     opts: &SimplifyOptions,
 ) -> TileError {
     let center = content.center;
@@ -93,7 +96,8 @@ pub fn tile_error(
     leaves.par_iter().for_each(|items| {
         let leaf = TileContent::gather(scene, items, center);
         let (lp, li) = soup(&leaf);
-        let pts = sample_surface_dense(TriMesh::new(&lp, &li), li.len() / 3);
+        let pts =
+            sample_surface_dense(TriMesh::new(&lp, &li), (li.len() / 3).max(min_leaf_samples));
         pts.par_iter().with_min_len(1024).for_each_init(
             || u32::MAX,
             |hint, &x| {
