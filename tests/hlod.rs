@@ -471,21 +471,18 @@ fn paper_error_by_hand(edge_m: f64) -> f64 {
     edge_m * 16.0 * (1920.0f64 / (2.0 * 1080.0 * 16.0)).sqrt()
 }
 
+/// The sample converted in `name` with 2000-triangle tiles, no compression and `extra` options.
+fn sample_with(name: &str, extra: &[&str]) -> (std::path::PathBuf, serde_json::Value) {
+    let out = tmpdir(name).join("tiles");
+    let mut args = vec!["--max-tile-triangles", "2000", "--compression", "none"];
+    args.extend_from_slice(extra);
+    let report = convert(&sample(), &out, &args);
+    (out, report)
+}
+
 #[test]
 fn sample_paper_sse_metric_declares_the_papers_error_and_reports_both() {
-    let out = tmpdir("hlod-paper-sse").join("tiles");
-    let report = convert(
-        &sample(),
-        &out,
-        &[
-            "--max-tile-triangles",
-            "2000",
-            "--compression",
-            "none",
-            "--error-metric",
-            "paper-sse",
-        ],
-    );
+    let (out, report) = sample_with("hlod-paper-sse", &["--error-metric", "paper-sse"]);
     assert_eq!(report["options"]["error_metric"], "paper-sse");
     assert!(report["geometric_error_metric"]
         .as_str()
@@ -545,21 +542,21 @@ fn sample_paper_sse_metric_declares_the_papers_error_and_reports_both() {
 
 #[test]
 fn measured_metric_reports_the_papers_delta_beside_it() {
-    let out = tmpdir("hlod-measured-table").join("tiles");
-    let report = convert(
-        &sample(),
-        &out,
-        &["--max-tile-triangles", "2000", "--compression", "none"],
-    );
+    let (_, report) = sample_with("hlod-measured-table", &[]);
+    let (mut simplified, mut held) = (0, 0);
     for t in report["tiles"].as_array().unwrap() {
         if let Some(m) = t["measured_error_m"].as_f64() {
+            // The measured error is declared, unless held above a child's.
             let declared = t["geometric_error_m"].as_f64().unwrap();
-            assert!(declared >= m && declared <= m * 1.0001 + 1e-5 || declared > m);
+            assert!(declared >= m, "{t}");
+            simplified += 1;
+            held += usize::from(declared > m);
             let edge = t["max_folding_edge_m"].as_f64().unwrap();
             let paper = paper_error_by_hand(edge);
             assert!((t["paper_error_m"].as_f64().unwrap() - paper).abs() < 1e-9 * paper.max(1.0));
         }
     }
+    assert!(simplified > 0 && held < simplified);
     // Under the measured metric the real error on screen is 16 px where the level switches.
     for r in &report["lod_levels"].as_array().unwrap()[1..] {
         let px = r["measured_sse_px"].as_f64().unwrap();
@@ -616,19 +613,7 @@ fn check_chains(name: &str, out: &std::path::Path, report: &serde_json::Value, r
 
 #[test]
 fn sample_lod_chains_are_honest_and_keep_their_ratios() {
-    let out = tmpdir("chains-sample").join("tiles");
-    let report = convert(
-        &sample(),
-        &out,
-        &[
-            "--max-tile-triangles",
-            "2000",
-            "--compression",
-            "none",
-            "--lod-ratios",
-            "0.85,0.7,0.5",
-        ],
-    );
+    let (out, report) = sample_with("chains-sample", &["--lod-ratios", "0.85,0.7,0.5"]);
     check_chains("sample", &out, &report, &[0.85, 0.7, 0.5]);
     if let Some((_, errors, _)) = gltf_validator(&out) {
         assert_eq!(errors, 0);
@@ -672,4 +657,27 @@ fn shared_model_lod_chains_are_honest_and_keep_their_ratios() {
     if let Some((_, errors, _)) = gltf_validator(&out) {
         assert_eq!(errors, 0);
     }
+}
+
+#[test]
+fn every_hlod_tile_of_railway_is_within_the_budget() {
+    // LoD3_Railway's many small closed parts once stalled the simplifier above the budget (the
+    // root kept 2,170 triangles for 2,000).
+    let Some(model) = shared_models()
+        .into_iter()
+        .find(|m| m.to_string_lossy().contains("LoD3_Railway.glb"))
+    else {
+        eprintln!("SKIPPED: LoD3_Railway not found");
+        return;
+    };
+    let out = tmpdir("hlod-railway-budget").join("tiles");
+    let report = convert(&model, &out, &["--max-tile-triangles", "2000"]);
+    let mut simplified = 0;
+    for t in report["tiles"].as_array().unwrap() {
+        if t["simplified_from_triangles"].is_u64() {
+            simplified += 1;
+            assert!(t["stored_triangles"].as_u64().unwrap() <= 2000, "{t}");
+        }
+    }
+    assert!(simplified > 1);
 }

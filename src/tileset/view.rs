@@ -154,14 +154,18 @@ impl Obb {
     }
 }
 
-/// Image bytes embedded in a GLB, and how many images.
-pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
+/// The JSON chunk of a GLB.
+fn glb_json(glb: &[u8]) -> Result<Value, String> {
     if glb.len() < 20 || &glb[0..4] != b"glTF" {
         return Err("not a GLB".into());
     }
     let n = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
-    let json: Value = serde_json::from_slice(glb.get(20..20 + n).ok_or("short GLB")?)
-        .map_err(|e| e.to_string())?;
+    serde_json::from_slice(glb.get(20..20 + n).ok_or("short GLB")?).map_err(|e| e.to_string())
+}
+
+/// Image bytes embedded in a GLB, and how many images.
+pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
+    let json = glb_json(glb)?;
     let views = json["bufferViews"].as_array().cloned().unwrap_or_default();
     let images = json["images"].as_array().cloned().unwrap_or_default();
     let bytes = images
@@ -175,12 +179,7 @@ pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
 /// Triangles a GLB draws: index (or vertex) count / 3 of each triangle primitive of each node's
 /// mesh, times the node's instance count (`EXT_mesh_gpu_instancing`).
 pub fn glb_drawn_triangles(glb: &[u8]) -> Result<u64, String> {
-    if glb.len() < 20 || &glb[0..4] != b"glTF" {
-        return Err("not a GLB".into());
-    }
-    let n = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
-    let json: Value = serde_json::from_slice(glb.get(20..20 + n).ok_or("short GLB")?)
-        .map_err(|e| e.to_string())?;
+    let json = glb_json(glb)?;
     let accessors = json["accessors"].as_array().cloned().unwrap_or_default();
     let count = |a: &Value| {
         a.as_u64()
