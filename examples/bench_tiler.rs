@@ -12,6 +12,8 @@
 //! `target/bench/tiler.json`.
 //!
 //! Usage: cargo run --release --example bench_tiler -- [DATA_DIR] [--budgets 10000,40000]
+//!        cargo run --release --example bench_tiler -- --first-view TILESET_DIR...  (the first-view
+//!        table of tilesets already written)
 
 #[path = "../tests/support/height_field.rs"]
 #[allow(dead_code)]
@@ -97,6 +99,13 @@ fn convert(
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().is_some_and(|a| a == "--first-view") {
+        first_view_header();
+        for dir in &args[1..] {
+            first_view_row(dir, &first_view(Path::new(dir)));
+        }
+        return;
+    }
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = args
         .iter()
