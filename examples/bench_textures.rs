@@ -7,11 +7,15 @@
 //! - Table V equivalent: per textured model, the original texture MB, after identical images are
 //!   merged and unused areas cropped, and the MB of pyramid levels 1-4 (default encoding).
 //! - First view: texture bytes of the tiles a client selects for a whole-model view (SSE 16 px,
-//!   1920x1080, 60° fov) against the original textures, with texture LOD on and off.
+//!   1920x1080, 60° fov) against the original textures: shared texture files (the default, each
+//!   file counted once), textures embedded in every tile (`--embed-textures`), and texture LOD off;
+//!   with the requests (tiles plus distinct texture files).
 //!
-//! Usage: cargo run --release --example bench_textures -- [DATA_DIR]
+//! Usage: cargo run --release --example bench_textures -- [DATA_DIR [MAX_TILE_TRIANGLES]]
+//! (the tile budget of the first-view conversions; default 3000, as `tests/textures.rs`: at the
+//! tool's default budget these small models fit one tile and a first view loads everything).
 
-use bimtiles::texture::{self, haar, view, TextureFormat, TextureOptions};
+use bimtiles::texture::{self, external, haar, view, TextureFormat, TextureOptions};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -19,13 +23,14 @@ fn mb(b: u64) -> f64 {
     b as f64 / 1e6
 }
 
-fn convert(bin: &Path, input: &Path, out: &Path, texture_lod: &str) -> bool {
+fn convert(bin: &Path, input: &Path, out: &Path, extra: &[&str]) -> bool {
     Command::new(bin)
         .arg("convert")
         .arg(input)
         .arg("--out")
         .arg(out)
-        .args(["--force", "--quiet", "--texture-lod", texture_lod])
+        .args(["--force", "--quiet"])
+        .args(extra)
         .status()
         .is_ok_and(|s| s.success())
 }
@@ -36,6 +41,7 @@ fn main() {
         .nth(1)
         .map(PathBuf::from)
         .unwrap_or_else(|| repo.join("../shared/data"));
+    let budget = std::env::args().nth(2).unwrap_or_else(|| "3000".into());
     let bin = repo.join("target/release/bimtiles");
     let work = repo.join("target/bench");
     std::fs::create_dir_all(&work).unwrap();
@@ -155,37 +161,64 @@ fn main() {
     }
 
     // First view.
-    println!("\nFirst whole-model view (SSE 16 px, 1920x1080, fov 60°): texture bytes loaded");
+    println!("\nFirst whole-model view (SSE 16 px, 1920x1080, fov 60°), --max-tile-triangles {budget}: texture bytes loaded");
     println!(
-        "{:<28} {:>10} {:>12} {:>12} {:>8} {:>12} {:>8}",
-        "model", "orig B", "LOD on B", "LOD off B", "on %", "tiles on", "off %"
+        "{:<24} {:>8} {:>9} {:>6} {:>5} {:>9} {:>6} {:>5} {:>9} {:>6} {:>5}",
+        "model", "orig B", "shared B", "%", "req", "embed B", "%", "req", "LOD off B", "%", "req"
     );
     for (input, _) in &scenes {
         let name = input.file_stem().unwrap().to_string_lossy().to_string();
-        let (on, off) = (
-            work.join(format!("tex-{name}-on")),
-            work.join(format!("tex-{name}-off")),
-        );
-        if !convert(&bin, input, &on, "on") || !convert(&bin, input, &off, "off") {
+        let b = budget.as_str();
+        let runs: Vec<(PathBuf, Vec<&str>)> = vec![
+            (work.join(format!("tex-{name}-shared")), vec![]),
+            (
+                work.join(format!("tex-{name}-embed")),
+                vec!["--embed-textures"],
+            ),
+            (
+                work.join(format!("tex-{name}-off")),
+                vec!["--texture-lod", "off"],
+            ),
+        ]
+        .into_iter()
+        .map(|(d, mut a)| {
+            a.extend(["--max-tile-triangles", b]);
+            (d, a)
+        })
+        .collect();
+        if !runs
+            .iter()
+            .all(|(dir, extra)| convert(&bin, input, dir, extra))
+        {
             eprintln!("conversion of {name} failed");
             continue;
         }
         let report: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(on.join("report.json")).unwrap()).unwrap();
+            serde_json::from_slice(&std::fs::read(runs[0].0.join("report.json")).unwrap()).unwrap();
         let original = report["textures"]["original_bytes"].as_u64().unwrap_or(0);
-        let v_on = view::first_view(&on, &Default::default()).unwrap();
-        let v_off = view::first_view(&off, &Default::default()).unwrap();
+        let v: Vec<(view::FirstView, usize)> = runs
+            .iter()
+            .map(|(dir, _)| external::first_view_shared(dir, &Default::default()).unwrap())
+            .collect();
+        let requests = |k: usize| v[k].0.tiles + v[k].1;
+        let v: Vec<view::FirstView> = v.iter().map(|x| x.0.clone()).collect();
+        let pct = |b: u64| 100.0 * b as f64 / original.max(1) as f64;
         println!(
-            "{:<28} {:>10} {:>12} {:>12} {:>8.1} {:>12} {:>8.1}",
+            "{:<24} {:>8} {:>9} {:>6.1} {:>5} {:>9} {:>6.1} {:>5} {:>9} {:>6.1} {:>5}",
             name,
             original,
-            v_on.texture_bytes,
-            v_off.texture_bytes,
-            100.0 * v_on.texture_bytes as f64 / original.max(1) as f64,
-            v_on.tiles,
-            100.0 * v_off.texture_bytes as f64 / original.max(1) as f64,
+            v[0].texture_bytes,
+            pct(v[0].texture_bytes),
+            requests(0),
+            v[1].texture_bytes,
+            pct(v[1].texture_bytes),
+            requests(1),
+            v[2].texture_bytes,
+            pct(v[2].texture_bytes),
+            requests(2),
         );
-        let _ = std::fs::remove_dir_all(&on);
-        let _ = std::fs::remove_dir_all(&off);
+        for (dir, _) in &runs {
+            let _ = std::fs::remove_dir_all(dir);
+        }
     }
 }

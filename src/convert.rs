@@ -11,11 +11,12 @@ use crate::encode::glb::encode_content_with_images;
 use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
 use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
+use crate::ingest::InputSet;
 use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
 use crate::simplify::hlod::{simplify_children, tile_error};
 use crate::simplify::lod_chain::{chain_levels, with_lod_chains};
-use crate::tile_content::TileContent;
+use crate::tile_content::{AppearanceClasses, TileContent};
 use crate::tileset::georef::GeoOrigin;
 use crate::tileset::metadata::MetadataSchema;
 use crate::tileset::view::{
@@ -59,6 +60,10 @@ pub struct ConvertOptions {
     /// Instance a shape in a tile only when that stores at least this many fewer triangles;
     /// `None`: [`default_min_instanced_triangles_saved`] of the compression.
     pub min_instanced_triangles_saved: Option<usize>,
+    /// Write a tile's plain-coloured materials that differ only in base colour as one primitive,
+    /// the colours in `COLOR_0` ([`AppearanceClasses`]); off, one primitive per material;
+    /// `None`: [`default_merge_plain_materials`] of the compression.
+    pub merge_plain_materials: Option<bool>,
     /// Show progress bars on stderr.
     pub progress: bool,
     /// Texture elimination, pyramids and level matching (paper III.D–III.F).
@@ -79,6 +84,7 @@ impl ConvertOptions {
             dedup: Some(DedupOptions::default()),
             instancing: true,
             min_instanced_triangles_saved: None,
+            merge_plain_materials: None,
             progress: false,
             texture: Default::default(),
         }
@@ -93,8 +99,16 @@ impl ConvertOptions {
 pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
     match compression {
         Compression::Draco => 1000,
-        Compression::None => 100,
+        Compression::None | Compression::Quantized => 100,
     }
+}
+
+/// Default of [`ConvertOptions::merge_plain_materials`], by measurement (README): with Draco,
+/// merging cuts primitives 2.6–5x and bytes 7–12% on the shared BIM models (one Draco stream per
+/// class instead of per material, 8-bit colours); plain float `COLOR_0` costs 16 bytes a vertex,
+/// +20–26% bytes, so without compression materials stay apart.
+pub fn default_merge_plain_materials(compression: Compression) -> bool {
+    compression == Compression::Draco
 }
 
 /// How levels of detail are made.
@@ -374,13 +388,21 @@ fn check_output(out: &Path, force: bool) -> Result<()> {
 /// Reads `inputs` (none: the embedded sample building), converts them and writes the tileset to
 /// `opts.out_dir`.
 pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
+    convert_input_set(&InputSet::new(inputs, None), opts)
+}
+
+/// Reads an input set (sample, model files or a campus manifest) and converts it.
+pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
     check_output(&opts.out_dir, opts.force)?;
-    let mut scene = if inputs.is_empty() {
-        crate::ingest::read_embedded_sample()?
-    } else {
-        crate::ingest::read_inputs(inputs)?
-    };
+    let mut scene = read_scene(inputs)?;
+    let t_ingest = t0.elapsed().as_secs_f64();
+    convert_scene(&mut scene, opts, t0, t_ingest)
+}
+
+/// Reads an input set into one scene; an input without triangles is an error.
+pub(crate) fn read_scene(inputs: &InputSet) -> Result<Scene> {
+    let scene = inputs.read()?;
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -389,18 +411,30 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
             .unwrap_or_default();
         return Err(Error::input(name, "the input has no triangles to tile"));
     }
-    let t_ingest = t0.elapsed().as_secs_f64();
-    convert_scene(&mut scene, opts, t0, t_ingest)
+    Ok(scene)
 }
 
-/// Converts an already-read scene (used by `convert` and by tests that build scenes in memory).
-pub fn convert_scene(
-    scene: &mut Scene,
-    opts: &ConvertOptions,
-    t0: Instant,
-    t_ingest: f64,
-) -> Result<Report> {
-    check_output(&opts.out_dir, opts.force)?;
+/// A scene placed, deduplicated and planned: everything before the tiles are built. A pure
+/// function of the input and the options, so every process of a sharded build gets the same.
+pub(crate) struct Prepared {
+    pub input: InputReport,
+    pub anchor: DVec3,
+    pub anchor_rule: String,
+    pub origin: GeoOrigin,
+    pub origin_source: &'static str,
+    pub dedup: Option<DedupReport>,
+    pub textures_prepared: crate::texture::Prepared,
+    /// White twin materials added to the scene for merging plain colours per tile.
+    pub appearance: AppearanceClasses,
+    pub plan: TilePlan,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    pub chain_level: Vec<Option<usize>>,
+    pub t_dedup: f64,
+    pub t_partition: f64,
+}
+
+/// Place, dedup, texture preparation and the octree plan.
+pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
     let input = InputReport {
         files: scene
             .sources
@@ -459,6 +493,13 @@ pub fn convert_scene(
     let t_dedup = t_dedup_start.elapsed().as_secs_f64();
 
     let textures_prepared = crate::texture::prepare(scene, &opts.texture);
+    let merge_materials = opts
+        .merge_plain_materials
+        .unwrap_or_else(|| default_merge_plain_materials(opts.compression));
+    let appearance = match merge_materials {
+        true => AppearanceClasses::add_to(scene),
+        false => AppearanceClasses::default(),
+    };
     let t1 = Instant::now();
     let mut plan = plan_octree(scene, &opts.octree);
     let mut chain_level = Vec::new();
@@ -471,6 +512,34 @@ pub fn convert_scene(
         LodMode::None => {}
     }
     let t_partition = t1.elapsed().as_secs_f64();
+    Prepared {
+        input,
+        anchor,
+        anchor_rule,
+        origin,
+        origin_source,
+        dedup,
+        textures_prepared,
+        appearance,
+        plan,
+        chain_level,
+        t_dedup,
+        t_partition,
+    }
+}
+
+/// Converts an already-read scene (used by `convert` and by tests that build scenes in memory).
+/// The tiles are built as one subtree job over the whole tree, then merged: the code path of the
+/// sharded build (`crate::shard`) with a single job.
+pub fn convert_scene(
+    scene: &mut Scene,
+    opts: &ConvertOptions,
+    t0: Instant,
+    t_ingest: f64,
+) -> Result<Report> {
+    check_output(&opts.out_dir, opts.force)?;
+    let prep = prepare(scene, opts);
+    let plan = &prep.plan;
 
     // Temporary folder beside the target, renamed at the end.
     let out = &opts.out_dir;
@@ -488,17 +557,26 @@ pub fn convert_scene(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
-    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture);
-    let result = write_tileset(
-        scene,
-        &plan,
-        &chain_level,
-        opts,
-        &tmp,
-        origin,
-        anchor,
-        &texture_levels,
-    );
+    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture).shared_in(&tmp);
+    let result = (|| {
+        let t = Instant::now();
+        let writer = TileWriter::new(
+            scene,
+            plan,
+            opts,
+            &tmp,
+            &texture_levels,
+            &prep.appearance,
+            &prep.chain_level,
+            plan.tiles.len(),
+        )?;
+        let job = writer.build_subtrees(&[0], &Default::default(), Default::default())?;
+        writer.finish_progress();
+        let t_encode = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let stats = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
+        Ok((stats, t_encode, t.elapsed().as_secs_f64()))
+    })();
     let (facts_bytes, t_encode, t_tileset) = match result {
         Ok(x) => x,
         Err(e) => {
@@ -506,13 +584,54 @@ pub fn convert_scene(
             return Err(e);
         }
     };
+    let timings = Timings {
+        ingest: t_ingest,
+        dedup: prep.t_dedup,
+        partition: prep.t_partition,
+        encode_write: t_encode,
+        tileset: t_tileset,
+        total: 0.0,
+    };
+    let mut report = make_report(prep, &facts_bytes, opts, &tmp, timings, texture_levels);
+    report.timings_s.total = t0.elapsed().as_secs_f64();
+    report.peak_memory_bytes = peak_memory_bytes();
+    let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
+    let finish = || -> std::io::Result<()> {
+        std::fs::write(tmp.join("report.json"), &report_json)?;
+        if out.exists() {
+            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+            std::fs::rename(out, &old)?;
+            std::fs::rename(&tmp, out)?;
+            std::fs::remove_dir_all(&old)?;
+        } else {
+            std::fs::rename(&tmp, out)?;
+        }
+        Ok(())
+    };
+    if let Err(e) = finish() {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(Error::output(out, e));
+    }
+    Ok(report)
+}
 
+/// The report of a finished build in `dir` (tileset.json and schema.json written), from the tiles'
+/// figures; timings and peak memory are the caller's.
+pub(crate) fn make_report(
+    prep: Prepared,
+    facts_bytes: &[TileStats],
+    opts: &ConvertOptions,
+    dir: &Path,
+    timings: Timings,
+    texture_levels: crate::texture::TextureLevels,
+) -> Report {
+    let plan = &prep.plan;
     let mut levels: Vec<LevelReport> = Vec::new();
     let (mut out_tris, mut out_verts, mut out_stored, mut out_shapes, mut out_instances) =
         (0, 0, 0, 0, 0);
     let mut out_bytes = 0u64;
     let mut tiles = Vec::new();
-    for (t, st) in plan.tiles.iter().zip(&facts_bytes) {
+    for (t, st) in plan.tiles.iter().zip(facts_bytes) {
         let (ge, bytes, tris, verts) = (
             &st.geometric_error_m,
             &st.bytes,
@@ -542,7 +661,7 @@ pub fn convert_scene(
             measured_error_m: st.measured_error_m,
             max_folding_edge_m: st.max_folding_edge_m,
             paper_error_m: st.paper_error_m,
-            lod_level: chain_level.get(tiles.len()).copied().flatten(),
+            lod_level: prep.chain_level.get(tiles.len()).copied().flatten(),
         });
         let d = t.depth as usize;
         while levels.len() <= d {
@@ -564,11 +683,11 @@ pub fn convert_scene(
     }
     let tileset_bytes = ["tileset.json", "schema.json"]
         .iter()
-        .map(|f| std::fs::metadata(tmp.join(f)).map_or(0, |m| m.len()))
+        .map(|f| std::fs::metadata(dir.join(f)).map_or(0, |m| m.len()))
         .sum::<u64>();
-    let mut report = Report {
+    Report {
         tool: concat!("bimtiles ", env!("CARGO_PKG_VERSION")).into(),
-        input,
+        input: prep.input,
         output: OutputReport {
             bytes: out_bytes + tileset_bytes,
             tiles: plan.tiles.len(),
@@ -589,12 +708,12 @@ pub fn convert_scene(
         },
         tiles,
         georeference: GeoReport {
-            origin,
-            origin_source: origin_source.into(),
-            anchor_m: anchor.to_array(),
-            anchor_rule,
+            origin: prep.origin,
+            origin_source: prep.origin_source.into(),
+            anchor_m: prep.anchor.to_array(),
+            anchor_rule: prep.anchor_rule,
         },
-        dedup,
+        dedup: prep.dedup,
         geometric_error_metric: match (&opts.lod, opts.error_metric) {
             (LodMode::None, _) => SIZE_BOUND_ERROR_METRIC,
             (_, ErrorMetric::PaperSse) => PAPER_SSE_ERROR_METRIC,
@@ -617,38 +736,11 @@ pub fn convert_scene(
                 .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression)),
             "texture": opts.texture,
         }),
-        timings_s: Timings {
-            ingest: t_ingest,
-            dedup: t_dedup,
-            partition: t_partition,
-            encode_write: t_encode,
-            tileset: t_tileset,
-            total: 0.0,
-        },
+        timings_s: timings,
         peak_memory_bytes: 0,
-        textures: (textures_prepared.images_bound > 0)
-            .then(|| texture_levels.report(textures_prepared)),
-    };
-    report.timings_s.total = t0.elapsed().as_secs_f64();
-    report.peak_memory_bytes = peak_memory_bytes();
-    let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
-    let finish = || -> std::io::Result<()> {
-        std::fs::write(tmp.join("report.json"), &report_json)?;
-        if out.exists() {
-            let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-            std::fs::rename(out, &old)?;
-            std::fs::rename(&tmp, out)?;
-            std::fs::remove_dir_all(&old)?;
-        } else {
-            std::fs::rename(&tmp, out)?;
-        }
-        Ok(())
-    };
-    if let Err(e) = finish() {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(Error::output(out, e));
+        textures: (prep.textures_prepared.images_bound > 0)
+            .then(|| texture_levels.report(prep.textures_prepared)),
     }
-    Ok(report)
 }
 
 /// The geometric error of HLOD tilesets, as the report describes it.
@@ -740,7 +832,7 @@ fn declared_error(
 /// How far Draco quantization moves decoded vertices (metres), added to measured errors.
 fn quantization_m(c: Compression) -> f64 {
     match c {
-        Compression::Draco => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+        Compression::Draco | Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
         Compression::None => 0.0,
     }
 }
@@ -768,71 +860,119 @@ fn gather(
 }
 
 /// What writing one tile gave.
-#[derive(Debug, Clone, Default)]
-struct TileStats {
-    uri: Option<String>,
-    geometric_error_m: f64,
-    bytes: u64,
-    triangles: usize,
-    vertices: usize,
-    stored_triangles: usize,
-    instanced_shapes: usize,
-    instances: usize,
-    features: usize,
-    metadata_bytes: u64,
-    simplified_from_triangles: Option<usize>,
-    full_to_coarse_m: Option<f64>,
-    coarse_to_full_bound_m: Option<f64>,
-    measured_error_m: Option<f64>,
-    max_folding_edge_m: Option<f64>,
-    paper_error_m: Option<f64>,
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct TileStats {
+    pub uri: Option<String>,
+    pub geometric_error_m: f64,
+    pub bytes: u64,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub stored_triangles: usize,
+    pub instanced_shapes: usize,
+    pub instances: usize,
+    pub features: usize,
+    pub metadata_bytes: u64,
+    pub simplified_from_triangles: Option<usize>,
+    pub full_to_coarse_m: Option<f64>,
+    pub coarse_to_full_bound_m: Option<f64>,
+    pub measured_error_m: Option<f64>,
+    pub max_folding_edge_m: Option<f64>,
+    pub paper_error_m: Option<f64>,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn write_tileset(
-    scene: &Scene,
-    plan: &TilePlan,
-    chain_level: &[Option<usize>],
-    opts: &ConvertOptions,
-    tmp: &Path,
-    origin: GeoOrigin,
-    anchor: DVec3,
-    textures: &crate::texture::TextureLevels,
-) -> Result<(Vec<TileStats>, f64, f64)> {
-    let tiles_dir = tmp.join("tiles");
-    std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
-    let t = Instant::now();
-    let pb = progress_bar(opts.progress, plan.tiles.len(), "tiles");
-    let encoding = TileEncoding {
-        compression: opts.compression,
-        ..TileEncoding::default()
-    };
-    // The metadata schema, once for the tileset (schema.json), referenced by every tile.
-    let schema = MetadataSchema::from_scene(scene);
-    let schema_json =
-        serde_json::to_vec_pretty(&schema.to_json(None)).map_err(|e| Error::output(tmp, e))?;
-    let schema_path = tmp.join("schema.json");
-    std::fs::write(&schema_path, schema_json).map_err(|e| Error::output(&schema_path, e))?;
-    let make_table = |features: &[crate::scene::ComponentId]| {
-        schema.property_table(scene, features, "../schema.json")
-    };
-    let write = |i: usize, content: &TileContent, mut st: TileStats| -> Result<(Aabb, TileStats)> {
-        let tile = &plan.tiles[i];
+/// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
+/// renamed, so a killed process leaves no tile under its final name half-written), and assembles
+/// the tileset from the tiles' figures. Used by `convert` (one job over the whole tree) and by the
+/// sharded build (`crate::shard`: each job builds its subtrees, `merge` the levels above them).
+pub(crate) struct TileWriter<'a> {
+    scene: &'a Scene,
+    plan: &'a TilePlan,
+    opts: &'a ConvertOptions,
+    dir: &'a Path,
+    textures: &'a crate::texture::TextureLevels<'a>,
+    appearance: &'a AppearanceClasses,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    chain_level: &'a [Option<usize>],
+    schema: MetadataSchema,
+    encoding: TileEncoding,
+    pb: indicatif::ProgressBar,
+}
+
+/// What building some subtrees gave: the figures of every tile written, and (HLOD) what each
+/// subtree root hands its parent.
+#[derive(Debug, Default, PartialEq)]
+pub(crate) struct JobOutput {
+    pub tiles: Vec<(usize, Aabb, TileStats)>,
+    pub roots: Vec<(usize, BuiltSubtree)>,
+}
+
+impl<'a> TileWriter<'a> {
+    /// `progress_len`: tiles this process will write (for the progress bar).
+    pub(crate) fn new(
+        scene: &'a Scene,
+        plan: &'a TilePlan,
+        opts: &'a ConvertOptions,
+        dir: &'a Path,
+        textures: &'a crate::texture::TextureLevels<'a>,
+        appearance: &'a AppearanceClasses,
+        chain_level: &'a [Option<usize>],
+        progress_len: usize,
+    ) -> Result<Self> {
+        let tiles_dir = dir.join("tiles");
+        std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
+        Ok(TileWriter {
+            scene,
+            plan,
+            opts,
+            dir,
+            textures,
+            appearance,
+            chain_level,
+            // The metadata schema, once for the tileset (schema.json), referenced by every tile.
+            schema: MetadataSchema::from_scene(scene),
+            encoding: TileEncoding {
+                compression: opts.compression,
+                ..TileEncoding::default()
+            },
+            pb: progress_bar(opts.progress, progress_len, "tiles"),
+        })
+    }
+
+    pub(crate) fn finish_progress(&self) {
+        self.pb.finish_and_clear();
+    }
+
+    fn write(
+        &self,
+        i: usize,
+        content: &TileContent,
+        mut st: TileStats,
+    ) -> Result<(Aabb, TileStats)> {
+        let (scene, opts, textures) = (self.scene, self.opts, self.textures);
+        let tile = &self.plan.tiles[i];
         let uri = format!("tiles/{}.glb", tile.path);
-        let path = tmp.join(&uri);
+        let path = self.dir.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
         let texture_error = if opts.lod != LodMode::None {
             st.geometric_error_m
         } else {
             0.0
         };
+        let merged = self.appearance.merge(scene, content);
+        let content = merged.as_ref().unwrap_or(content);
         let chosen = textures.for_tile(content, texture_error);
-        let image =
-            |id: crate::scene::ImageId| textures.fetch(id, chosen.0.get(&id).copied().unwrap_or(0));
-        let enc = encode_content_with_images(scene, content, &encoding, Some(&make_table), &image)
-            .map_err(|e| Error::output(&path, e))?;
-        std::fs::write(&path, &enc.glb).map_err(|e| Error::output(&path, e))?;
-        pb.inc(1);
+        let image = |id: crate::scene::ImageId| {
+            textures.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0))
+        };
+        let make_table = |features: &[crate::scene::ComponentId]| {
+            self.schema
+                .property_table(scene, features, "../schema.json")
+        };
+        let enc =
+            encode_content_with_images(scene, content, &self.encoding, Some(&make_table), &image)
+                .map_err(|e| Error::output(&path, e))?;
+        write_renamed(&path, &enc.glb)?;
+        self.pb.inc(1);
         st.uri = Some(uri);
         st.bytes = enc.glb.len() as u64;
         st.triangles = enc.triangles;
@@ -843,89 +983,188 @@ fn write_tileset(
         st.features = enc.features.len();
         st.metadata_bytes = enc.metadata_bytes as u64;
         Ok((enc.bounds, st))
-    };
-    let stats: Vec<Result<(Aabb, TileStats)>> = match &opts.lod {
-        LodMode::None => plan
-            .tiles
-            .par_iter()
-            .enumerate()
-            .map(|(i, tile)| {
-                let st = TileStats {
-                    geometric_error_m: tile.omitted_size_m,
-                    ..Default::default()
-                };
-                if tile.content.is_empty() {
-                    pb.inc(1);
-                    return Ok((Aabb::EMPTY, st));
-                }
-                let content = gather(scene, opts, &tile.content, tile.content_bounds.center());
-                write(i, &content, st)
-            })
-            .collect(),
-        LodMode::Hlod => {
-            let slots: Vec<std::sync::Mutex<Option<(Aabb, TileStats)>>> =
-                plan.tiles.iter().map(|_| Default::default()).collect();
-            let hlod = HlodBuilder {
-                scene,
-                plan,
-                opts,
-                write: &write,
-                slots: &slots,
-            };
-            hlod.build(0)?;
-            slots
-                .into_iter()
-                .map(|m| {
-                    Ok(m.into_inner()
-                        .expect("no poisoned slot")
-                        .expect("every tile built"))
-                })
-                .collect()
-        }
-        LodMode::Ratios(ratios) => build_chains(scene, plan, chain_level, ratios, opts, &write)?,
-    };
-    pb.finish_and_clear();
-    let mut facts = Vec::with_capacity(stats.len());
-    let mut tile_stats = Vec::with_capacity(stats.len());
-    for s in stats {
-        let (content_bounds, st) = s?;
-        facts.push(TileFacts {
-            content_uri: st.uri.clone(),
-            content_bounds,
-            geometric_error_m: st.geometric_error_m,
-        });
-        tile_stats.push(st);
     }
-    let t_encode = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let extras = json!({"bimtiles": {
-        "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
-        "anchor_m": anchor.to_array(),
-        "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
-    }});
-    let refine = match opts.lod {
-        LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
-        LodMode::None => Refine::Add,
-    };
-    let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
-    ts["schemaUri"] = json!("schema.json");
-    let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
-    let ts_path = tmp.join("tileset.json");
-    std::fs::write(&ts_path, bytes).map_err(|e| Error::output(&ts_path, e))?;
-    Ok((tile_stats, t_encode, t.elapsed().as_secs_f64()))
+
+    /// Builds and writes the subtrees under `roots`, not descending into tiles of `stop`, whose
+    /// results are `provided` (HLOD: what those subtree roots hand up).
+    pub(crate) fn build_subtrees(
+        &self,
+        roots: &[usize],
+        stop: &std::collections::BTreeSet<usize>,
+        provided: BTreeMap<usize, BuiltSubtree>,
+    ) -> Result<JobOutput> {
+        let (scene, plan, opts) = (self.scene, self.plan, self.opts);
+        let write = |i: usize, content: &TileContent, st: TileStats| self.write(i, content, st);
+        match &opts.lod {
+            LodMode::None => {
+                let mut owned = Vec::new();
+                let mut stack: Vec<usize> = roots.iter().rev().copied().collect();
+                while let Some(j) = stack.pop() {
+                    if !stop.contains(&j) {
+                        owned.push(j);
+                        stack.extend(plan.tiles[j].children.iter().rev());
+                    }
+                }
+                let tiles = owned
+                    .par_iter()
+                    .map(|&i| {
+                        let tile = &plan.tiles[i];
+                        let st = TileStats {
+                            geometric_error_m: tile.omitted_size_m,
+                            ..Default::default()
+                        };
+                        if tile.content.is_empty() {
+                            self.pb.inc(1);
+                            return Ok((i, Aabb::EMPTY, st));
+                        }
+                        let content =
+                            gather(scene, opts, &tile.content, tile.content_bounds.center());
+                        let (b, st) = write(i, &content, st)?;
+                        Ok((i, b, st))
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                Ok(JobOutput {
+                    tiles,
+                    roots: Vec::new(),
+                })
+            }
+            LodMode::Hlod => {
+                let slots: Vec<std::sync::Mutex<Option<(Aabb, TileStats)>>> =
+                    plan.tiles.iter().map(|_| Default::default()).collect();
+                let hlod = HlodBuilder {
+                    scene,
+                    plan,
+                    opts,
+                    write: &write,
+                    slots: &slots,
+                    stop,
+                    provided: std::sync::Mutex::new(provided),
+                };
+                let built = roots
+                    .par_iter()
+                    .map(|&r| hlod.build(r))
+                    .collect::<Result<Vec<_>>>()?;
+                let tiles = slots
+                    .into_iter()
+                    .enumerate()
+                    .filter_map(|(i, m)| {
+                        m.into_inner()
+                            .expect("no poisoned slot")
+                            .map(|(b, st)| (i, b, st))
+                    })
+                    .collect();
+                Ok(JobOutput {
+                    tiles,
+                    roots: roots.iter().copied().zip(built).collect(),
+                })
+            }
+            LodMode::Ratios(ratios) => {
+                // Chains sit below whole leaves: a job builds them over the whole tree, or none.
+                if stop.contains(&0) {
+                    return Ok(JobOutput::default());
+                }
+                if roots != [0] || !stop.is_empty() {
+                    return Err(Error::output(
+                        self.dir,
+                        "--lod-ratios chains are built by convert, not by sharded jobs",
+                    ));
+                }
+                let tiles = build_chains(scene, plan, self.chain_level, ratios, opts, &write)?;
+                Ok(JobOutput {
+                    tiles,
+                    roots: Vec::new(),
+                })
+            }
+        }
+    }
+
+    /// Builds the tiles above the subtree `roots` from the jobs' outputs, then writes schema.json
+    /// and tileset.json; returns every tile's figures, in plan order.
+    pub(crate) fn merge(
+        &self,
+        jobs: Vec<JobOutput>,
+        roots: &[usize],
+        origin: GeoOrigin,
+        anchor: DVec3,
+    ) -> Result<Vec<TileStats>> {
+        let (plan, opts, tmp) = (self.plan, self.opts, self.dir);
+        let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
+        let mut provided = BTreeMap::new();
+        for job in jobs {
+            for (i, b, st) in job.tiles {
+                slots[i] = Some((b, st));
+            }
+            provided.extend(job.roots);
+        }
+        let stop: std::collections::BTreeSet<usize> = roots.iter().copied().collect();
+        let top = self.build_subtrees(&[0], &stop, provided)?;
+        for (i, b, st) in top.tiles {
+            slots[i] = Some((b, st));
+        }
+        let mut facts = Vec::with_capacity(slots.len());
+        let mut tile_stats = Vec::with_capacity(slots.len());
+        for (i, s) in slots.into_iter().enumerate() {
+            let (content_bounds, st) = s.ok_or_else(|| {
+                Error::output(
+                    tmp,
+                    format!("tile {} was built by no job", plan.tiles[i].path),
+                )
+            })?;
+            facts.push(TileFacts {
+                content_uri: st.uri.clone(),
+                content_bounds,
+                geometric_error_m: st.geometric_error_m,
+            });
+            tile_stats.push(st);
+        }
+        let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
+            .map_err(|e| Error::output(tmp, e))?;
+        write_renamed(&tmp.join("schema.json"), &schema_json)?;
+        let extras = json!({"bimtiles": {
+            "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
+            "anchor_m": anchor.to_array(),
+            "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
+        }});
+        let refine = match opts.lod {
+            LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
+            LodMode::None => Refine::Add,
+        };
+        let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
+        ts["schemaUri"] = json!("schema.json");
+        let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
+        write_renamed(&tmp.join("tileset.json"), &bytes)?;
+        Ok(tile_stats)
+    }
+}
+
+/// Writes `bytes` to `path` through a temporary name beside it (`.NAME.tmp-PID`), renamed at
+/// the end: a reader never sees a half-written file under the final name.
+pub(crate) fn write_renamed(path: &Path, bytes: &[u8]) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    std::fs::write(&tmp, bytes)
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            Error::output(path, e)
+        })
 }
 
 /// What a subtree gives its parent when building HLOD bottom-up.
-struct BuiltSubtree {
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct BuiltSubtree {
     /// What the tile draws (full detail for leaves, simplified above).
-    content: TileContent,
-    geometric_error_m: f64,
+    pub content: TileContent,
+    pub geometric_error_m: f64,
     /// Bound of the distance from `content` to full detail (0 for leaves).
-    coarse_to_full_m: f64,
+    pub coarse_to_full_m: f64,
     /// Longest edge collapsed between full detail and `content` (0 for leaves).
-    max_folding_edge_m: f64,
+    pub max_folding_edge_m: f64,
     /// Triangles per cut component in the subtree (only components cut across tiles).
-    cut_triangles: BTreeMap<ComponentId, usize>,
+    pub cut_triangles: BTreeMap<ComponentId, usize>,
 }
 
 type WriteTile<'a> =
@@ -939,6 +1178,10 @@ struct HlodBuilder<'a> {
     opts: &'a ConvertOptions,
     write: &'a WriteTile<'a>,
     slots: &'a [std::sync::Mutex<Option<(Aabb, TileStats)>>],
+    /// Tiles not to build: their subtrees were built elsewhere (sharded jobs) and their roots'
+    /// results are in `provided`.
+    stop: &'a std::collections::BTreeSet<usize>,
+    provided: std::sync::Mutex<BTreeMap<usize, BuiltSubtree>>,
 }
 
 impl HlodBuilder<'_> {
@@ -959,6 +1202,10 @@ impl HlodBuilder<'_> {
     fn build(&self, i: usize) -> Result<BuiltSubtree> {
         let tile = &self.plan.tiles[i];
         let path = || format!("tiles/{}.glb", tile.path);
+        if self.stop.contains(&i) {
+            let done = self.provided.lock().expect("provided").remove(&i);
+            return done.ok_or_else(|| Error::output(path(), "no job built this subtree"));
+        }
         let built = if tile.children.is_empty() {
             let content = gather(
                 self.scene,
@@ -1073,7 +1320,7 @@ fn build_chains(
     ratios: &[f32],
     opts: &ConvertOptions,
     write: &WriteTile<'_>,
-) -> Result<Vec<Result<(Aabb, TileStats)>>> {
+) -> Result<Vec<(usize, Aabb, TileStats)>> {
     let n = ratios.len();
     let fulls: Vec<usize> = (0..plan.tiles.len())
         .filter(|&i| chain_level[i] == Some(0))
@@ -1165,7 +1412,11 @@ fn build_chains(
     }
     Ok(slots
         .into_iter()
-        .map(|s| Ok(s.expect("every tile built")))
+        .enumerate()
+        .map(|(i, s)| {
+            let (b, st) = s.expect("every tile built");
+            (i, b, st)
+        })
         .collect())
 }
 

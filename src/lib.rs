@@ -17,6 +17,7 @@ pub mod inspect;
 pub mod partition;
 pub mod scene;
 pub mod serve;
+pub mod shard;
 pub mod simplify;
 pub mod texture;
 pub mod tile_content;

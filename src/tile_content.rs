@@ -78,6 +78,121 @@ impl InstancedShape {
     }
 }
 
+/// Untextured materials that differ only in base colour form one *appearance class*; each class
+/// has a white twin material in the scene. A tile's primitives of one class can then be written as
+/// one primitive with the base colours moved into `COLOR_0` (glTF multiplies the two, so what is
+/// drawn is unchanged). Why: CesiumJS pays per primitive (a draw call, and with Draco a decode
+/// task scheduled one per frame per worker), and BIM exports carry dozens of plain-coloured
+/// materials per tile.
+#[derive(Debug, Clone, Default)]
+pub struct AppearanceClasses {
+    /// Per scene material: the white twin of its class (`None`: textured, left alone).
+    twin: Vec<Option<MaterialId>>,
+}
+
+impl AppearanceClasses {
+    /// Finds the classes of `scene`'s untextured materials and appends one white twin per class
+    /// to `scene.materials` (the existing ids do not change).
+    pub fn add_to(scene: &mut Scene) -> AppearanceClasses {
+        let key = |m: &crate::scene::Material| {
+            let bits = |v: f32| v.to_bits();
+            (
+                m.alpha_mode,
+                bits(m.alpha_cutoff),
+                m.double_sided,
+                bits(m.metallic),
+                bits(m.roughness),
+                m.emissive.map(bits),
+            )
+        };
+        let mut classes: BTreeMap<_, MaterialId> = BTreeMap::new();
+        let original = scene.materials.len();
+        let mut twin = Vec::with_capacity(original);
+        for i in 0..original {
+            let m = scene.materials[i].clone();
+            if m.base_color_texture.is_some() {
+                twin.push(None);
+                continue;
+            }
+            let id = *classes.entry(key(&m)).or_insert_with(|| {
+                let white = crate::scene::Material {
+                    name: Some(format!(
+                        "bimtiles-vertex-colour-{}",
+                        scene.materials.len() - original
+                    )),
+                    base_color: [1.0; 4],
+                    ..m
+                };
+                scene.materials.push(white);
+                MaterialId((scene.materials.len() - 1) as u32)
+            });
+            twin.push(Some(id));
+        }
+        AppearanceClasses { twin }
+    }
+
+    /// `content` with the plain primitives of each appearance class merged into one, base colours
+    /// moved into the vertex colours; `None` when no class has two primitives in this tile.
+    /// Instanced shapes are left as they are (a shape is one mesh already).
+    pub fn merge(&self, scene: &Scene, content: &TileContent) -> Option<TileContent> {
+        let twin_of = |p: &ContentPrimitive| {
+            p.material
+                .and_then(|m| self.twin.get(m.index()).copied().flatten())
+        };
+        let mut per_class: BTreeMap<u32, usize> = BTreeMap::new();
+        for p in &content.primitives {
+            if let Some(t) = twin_of(p) {
+                *per_class.entry(t.0).or_default() += 1;
+            }
+        }
+        if per_class.values().all(|&n| n < 2) {
+            return None;
+        }
+        let mut kept = Vec::new();
+        let mut merged: BTreeMap<u32, ContentPrimitive> = BTreeMap::new();
+        for p in &content.primitives {
+            let Some(t) = twin_of(p).filter(|t| per_class[&t.0] >= 2) else {
+                kept.push(p.clone());
+                continue;
+            };
+            let base =
+                scene.materials[p.material.expect("a twin has a material").index()].base_color;
+            let out = merged.entry(t.0).or_insert_with(|| ContentPrimitive {
+                material: Some(t),
+                ..Default::default()
+            });
+            let first = out.positions.len() as u32;
+            out.positions.extend_from_slice(&p.positions);
+            out.normals.extend_from_slice(&p.normals);
+            out.feature_ids.extend_from_slice(&p.feature_ids);
+            match p.colors.is_empty() {
+                true => out
+                    .colors
+                    .extend(std::iter::repeat_n(base, p.positions.len())),
+                false => out.colors.extend(
+                    p.colors
+                        .iter()
+                        .map(|c| std::array::from_fn(|k| c[k] * base[k])),
+                ),
+            }
+            out.indices.extend(p.indices.iter().map(|i| i + first));
+        }
+        // Textured first (by material id), then the merged classes, then unset materials, as
+        // `gather` orders them.
+        let (unset, textured): (Vec<_>, Vec<_>) =
+            kept.into_iter().partition(|p| p.material.is_none());
+        let mut primitives = textured;
+        primitives.extend(merged.into_values());
+        primitives.extend(unset);
+        Some(TileContent {
+            center: content.center,
+            features: content.features.clone(),
+            primitives,
+            instanced: content.instanced.clone(),
+        })
+    }
+}
+
 /// A tile's content, ready to simplify or encode.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TileContent {
@@ -691,5 +806,63 @@ mod tests {
             .indices
             .iter()
             .all(|&i| c.primitives[0].feature_ids[i as usize] == 0));
+    }
+
+    #[test]
+    fn plain_materials_of_one_appearance_merge_into_one_primitive() {
+        use crate::scene::{Material, TextureRef};
+        // Three components on two meshes: red and green (same appearance otherwise), and a
+        // textured one that must stay apart.
+        let mut s = one_triangle_scene();
+        let red = Material {
+            base_color: [1.0, 0.0, 0.0, 1.0],
+            metallic: 0.0,
+            ..Default::default()
+        };
+        let green = Material {
+            base_color: [0.0, 0.5, 0.0, 1.0],
+            ..red.clone()
+        };
+        let textured = Material {
+            base_color_texture: Some(TextureRef {
+                image: crate::scene::ImageId(0),
+                sampler: Default::default(),
+                tex_coord: 0,
+            }),
+            ..red.clone()
+        };
+        s.materials = vec![red, green, textured];
+        s.meshes[0].primitives[0].material = Some(MaterialId(0));
+        let mut second = s.meshes[0].clone();
+        second.primitives[0].material = Some(MaterialId(1));
+        second.primitives[0].colors = Some(vec![[0.5; 4]; 3]);
+        s.meshes.push(second);
+        s.components[1].mesh = MeshId(1);
+        let items = [0, 1].map(|c| ContentItem {
+            component: ComponentId(c),
+            triangles: None,
+        });
+        let classes = AppearanceClasses::add_to(&mut s);
+        // One class (red, green), its white twin appended; the textured material has none.
+        assert_eq!(s.materials.len(), 4);
+        assert_eq!(s.materials[3].base_color, [1.0; 4]);
+        assert_eq!(s.materials[3].metallic, 0.0);
+        let c = TileContent::gather(&s, &items, DVec3::ZERO);
+        assert_eq!(c.primitives.len(), 2);
+        let m = classes.merge(&s, &c).expect("two primitives of one class");
+        assert_eq!(m.primitives.len(), 1);
+        let p = &m.primitives[0];
+        assert_eq!(p.material, Some(MaterialId(3)));
+        assert_eq!(m.triangle_count(), c.triangle_count());
+        // Colour = vertex colour (white when absent) x base colour, per source primitive.
+        let by_feature = |f: u32| p.colors[p.feature_ids.iter().position(|&x| x == f).unwrap()];
+        assert_eq!(by_feature(0), [1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(by_feature(1), [0.0, 0.25, 0.0, 0.5]);
+        assert!(p.indices.iter().all(|&i| (i as usize) < p.positions.len()));
+        // Nothing to merge: a single primitive per class.
+        let one = TileContent::gather(&s, &items[..1], DVec3::ZERO);
+        assert!(classes.merge(&s, &one).is_none());
+        // Without classes (merging off) nothing merges.
+        assert!(AppearanceClasses::default().merge(&s, &c).is_none());
     }
 }

@@ -158,16 +158,41 @@ async function cameraPath(page, frames) {
   }, frames);
 }
 
-/** Cesium's own memory figures for the loaded tileset (GPU buffers and textures it tracks). */
+/**
+ * Cesium's own memory figures for the loaded tileset (GPU buffers and textures it tracks), and the
+ * same total with property tables counted once per content. Cesium 1.13x adds a model's property
+ * tables to its statistics once per runtime *primitive* (PrimitiveStatisticsPipelineStage
+ * countBinaryMetadata), so a tile with 21 primitives reports its 30 KB table as 630 KB, while the
+ * typed arrays exist once per model. `tilesetMemoryBytes` is the corrected total (what is really
+ * held); Cesium's own figures stay in `cesium*` fields.
+ */
 async function tilesetMemory(page) {
   return page.evaluate(() => {
     const t = window.bimtiles.tileset;
     const s = t.statistics;
+    let tablesOnce = 0;
+    let batchTextures = 0;
+    const seen = new Set();
+    const visit = (tile) => {
+      const c = tile.content;
+      const model = c && c._model;
+      if (model && !seen.has(model) && tile.contentReady) {
+        seen.add(model);
+        const md = model.structuralMetadata;
+        if (md) tablesOnce += md.propertyTablesByteLength;
+        batchTextures += model.statistics.batchTexturesByteLength;
+      }
+      for (const ch of tile.children) visit(ch);
+    };
+    visit(t.root);
+    const batchTableBytes = tablesOnce + batchTextures;
     return {
-      tilesetMemoryBytes: t.totalMemoryUsageInBytes,
+      tilesetMemoryBytes: t.totalMemoryUsageInBytes - s.batchTableByteLength + batchTableBytes,
       geometryBytes: s.geometryByteLength,
       textureBytes: s.texturesByteLength,
-      batchTableBytes: s.batchTableByteLength,
+      batchTableBytes,
+      cesiumTilesetMemoryBytes: t.totalMemoryUsageInBytes,
+      cesiumBatchTableBytes: s.batchTableByteLength,
     };
   });
 }

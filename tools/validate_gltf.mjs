@@ -1,7 +1,7 @@
 #!/usr/bin/env node
 // Independent glTF check for bimtiles output, using the Khronos glTF-Validator (npm `gltf-validator`).
 //
-// Usage: node tools/validate_gltf.mjs [--max-messages N] [--concurrency N] <file-or-dir>...
+// Usage: node tools/validate_gltf.mjs [--max-messages N] [--concurrency N] [--root DIR] <file-or-dir>...
 //
 // Validates every .glb / .gltf given (directories are searched recursively, in sorted order) in one Node
 // process and prints ONE JSON object to stdout:
@@ -13,7 +13,9 @@
 // Exit code: 0 = no errors, 1 = at least one error (or a file that could not be read/parsed), 2 = usage.
 //
 // External resources (buffers/images by uri) are read relative to the glTF's folder; a uri that escapes that
-// folder (.., absolute paths, other schemes) is refused and reported as an error by the validator.
+// folder (.., absolute paths, other schemes) is refused and reported as an error by the validator. With
+// --root DIR, relative uris may reach anything inside DIR instead (a tileset folder: tiles in tiles/ share
+// images in textures/ as ../textures/<name>).
 
 import { promises as fs } from 'node:fs';
 import path from 'node:path';
@@ -26,18 +28,21 @@ const SEVERITY = ['error', 'warning', 'info', 'hint'];
 
 function usage(msg) {
   if (msg) process.stderr.write(`validate_gltf: ${msg}\n`);
-  process.stderr.write('usage: node tools/validate_gltf.mjs [--max-messages N] [--concurrency N] <file-or-dir>...\n');
+  process.stderr.write('usage: node tools/validate_gltf.mjs [--max-messages N] [--concurrency N] [--root DIR] <file-or-dir>...\n');
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const opts = { maxMessages: 5, concurrency: 4, inputs: [] };
+  const opts = { maxMessages: 5, concurrency: 4, root: null, inputs: [] };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     if (a === '--max-messages' || a === '--concurrency') {
       const v = Number.parseInt(argv[++i], 10);
       if (!Number.isFinite(v) || v < (a === '--concurrency' ? 1 : 0)) usage(`bad value for ${a}`);
       if (a === '--max-messages') opts.maxMessages = v; else opts.concurrency = v;
+    } else if (a === '--root') {
+      if (argv[i + 1] === undefined) usage('--root needs a folder');
+      opts.root = path.resolve(argv[++i]);
     } else if (a === '-h' || a === '--help') {
       usage();
     } else if (a.startsWith('--')) {
@@ -76,9 +81,10 @@ async function collect(input, out) {
   }
 }
 
-// Reads `uri` relative to the folder of the glTF; refuses anything that escapes that folder.
-function resourceLoader(gltfPath) {
+// Reads `uri` relative to the folder of the glTF; refuses anything that escapes `root` (default: that folder).
+function resourceLoader(gltfPath, root) {
   const base = path.resolve(path.dirname(gltfPath));
+  const limit = root ?? base;
   return async (uri) => {
     let rel;
     try {
@@ -90,15 +96,15 @@ function resourceLoader(gltfPath) {
       throw new Error(`refused external resource ${uri}: not a relative path`);
     }
     const full = path.resolve(base, rel);
-    const back = path.relative(base, full);
+    const back = path.relative(limit, full);
     if (back === '' || back.startsWith('..') || path.isAbsolute(back)) {
-      throw new Error(`refused external resource ${uri}: escapes ${base}`);
+      throw new Error(`refused external resource ${uri}: escapes ${limit}`);
     }
     return new Uint8Array(await fs.readFile(full));
   };
 }
 
-async function validateOne(file, maxMessages) {
+async function validateOne(file, maxMessages, root) {
   if (file.missing) {
     return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,
       messages: [{ code: 'FILE_NOT_FOUND', severity: 'error', message: file.missing }] };
@@ -117,7 +123,7 @@ async function validateOne(file, maxMessages) {
       format: /\.glb$/i.test(file.path) ? 'glb' : 'gltf',
       maxIssues: 0,
       writeTimestamp: false,
-      externalResourceFunction: resourceLoader(file.path),
+      externalResourceFunction: resourceLoader(file.path, root),
     });
   } catch (e) {
     return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,
@@ -155,7 +161,7 @@ async function main() {
   async function worker() {
     while (next < files.length) {
       const i = next++;
-      results[i] = await validateOne(files[i], opts.maxMessages);
+      results[i] = await validateOne(files[i], opts.maxMessages, opts.root);
     }
   }
   await Promise.all(Array.from({ length: Math.min(opts.concurrency, Math.max(files.length, 1)) }, worker));

@@ -1,9 +1,10 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{convert, ConvertOptions, ErrorMetric, LodMode};
+use bimtiles::convert::{convert_input_set, ConvertOptions, ErrorMetric, LodMode};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
+use bimtiles::ingest::InputSet;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::simplify::SimplifyOptions;
@@ -27,6 +28,36 @@ struct Cli {
 enum Command {
     /// Convert models into a 3D Tiles 1.1 tileset.
     Convert(ConvertArgs),
+    /// Sharded build, step 1: plan the octree and split it into N subtree jobs (DIR/plan.json).
+    /// Takes the options of `convert`; `--out` is the build folder DIR.
+    Plan(PlanArgs),
+    /// Sharded build, step 2: build one job's subtrees into DIR (any order, any machine that sees
+    /// DIR and the inputs).
+    BuildJob {
+        /// The build folder written by `bimtiles plan`.
+        dir: PathBuf,
+        /// Which job (0 to N-1).
+        #[arg(long)]
+        job: usize,
+        /// Worker threads (default: all cores). The output does not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// No progress bar and no summary.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Sharded build, step 3: check every job's result, build the top levels and write
+    /// tileset.json, schema.json and report.json (byte-identical to `convert`'s tileset).
+    Merge {
+        /// The build folder written by `bimtiles plan`.
+        dir: PathBuf,
+        /// Worker threads (default: all cores). The output does not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// No progress bar and no summary.
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Simplify a model with our QEM and write it as one GLB (to compare simplifiers).
     Simplify {
         /// Input model (.glb, .gltf, .ifc).
@@ -80,6 +111,10 @@ enum Command {
 struct ConvertArgs {
     /// Input models (.glb, .gltf). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
+    /// A campus manifest (JSON): models placed by longitude/latitude/height/heading or by an
+    /// east/north/up offset, converted into one tileset (README "Many buildings").
+    #[arg(long, conflicts_with = "inputs")]
+    manifest: Option<PathBuf>,
     /// Output folder (must not exist, unless --force).
     #[arg(long, short)]
     out: PathBuf,
@@ -95,7 +130,9 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
     max_tile_bytes: usize,
-    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression) or none.
+    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
+    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs) or none
+    /// (32-bit floats).
     #[arg(long, value_enum, default_value = "draco")]
     compression: CompressionArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
@@ -129,6 +166,11 @@ struct ConvertArgs {
     /// Default: 1000 with Draco, 100 without.
     #[arg(long)]
     min_instanced_triangles_saved: Option<usize>,
+    /// One primitive per material in every tile. Default with Draco: plain-coloured materials
+    /// that differ only in base colour share one primitive, the colours per vertex (fewer draw
+    /// calls and Draco streams); without compression materials are kept apart.
+    #[arg(long)]
+    keep_materials: bool,
     /// Texture level per tile matched to its geometric error (Haar wavelet pyramid): on or off
     /// (every tile gets the full-resolution images).
     #[arg(long, value_enum, default_value = "on")]
@@ -143,12 +185,29 @@ struct ConvertArgs {
     #[arg(long, default_value_t = bimtiles::texture::DEFAULT_JPEG_QUALITY,
           value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: u8,
+    /// Embed each tile's textures in its GLB instead of writing each image level once under
+    /// textures/ and referencing it from the tiles.
+    #[arg(long)]
+    embed_textures: bool,
+    /// Embed the texture levels smaller than this many bytes even when sharing texture files.
+    #[arg(long, default_value_t = bimtiles::texture::DEFAULT_EMBED_BELOW_BYTES)]
+    embed_textures_below: usize,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
     /// No progress bars and no summary (report.json is still written).
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(Parser)]
+#[command(name = "bimtiles plan")]
+struct PlanArgs {
+    #[command(flatten)]
+    convert: ConvertArgs,
+    /// Number of subtree jobs.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    jobs: u64,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -179,6 +238,7 @@ enum TextureFormatArg {
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum CompressionArg {
     Draco,
+    Quantized,
     None,
 }
 
@@ -195,6 +255,43 @@ pub fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Convert(a) => run_convert(a),
+        Command::Plan(a) => run_plan(a),
+        Command::BuildJob {
+            dir,
+            job,
+            threads,
+            quiet,
+        } => {
+            set_threads(threads)?;
+            let (inputs, opts) = planned(&dir, quiet)?;
+            let s = bimtiles::shard::build_job(&opts.out_dir, job, &inputs, &opts)?;
+            if !quiet {
+                emit(&format!(
+                    "job {}: {} tiles in {:.2} s\n",
+                    s.job, s.tiles, s.seconds
+                ))?;
+            }
+            Ok(())
+        }
+        Command::Merge {
+            dir,
+            threads,
+            quiet,
+        } => {
+            set_threads(threads)?;
+            let (inputs, opts) = planned(&dir, quiet)?;
+            let r = bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)?;
+            if !quiet {
+                emit(&format!(
+                    "merged {}: {} tiles, {} triangles, {}\n",
+                    dir.display(),
+                    r.output.tiles,
+                    r.output.triangles,
+                    human_bytes(r.output.bytes)
+                ))?;
+            }
+            Ok(())
+        }
         Command::Serve {
             dir,
             port,
@@ -262,13 +359,85 @@ pub fn main() -> Result<()> {
     }
 }
 
-fn run_convert(a: ConvertArgs) -> Result<()> {
-    if let Some(n) = a.threads {
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n.max(1))
             .build_global()
             .context("cannot set up worker threads")?;
     }
+    Ok(())
+}
+
+/// `bimtiles plan`: the arguments after `plan` are kept in plan.json (with the working folder), so
+/// that build-job and merge re-create the same inputs and options.
+fn run_plan(a: PlanArgs) -> Result<()> {
+    set_threads(a.convert.threads)?;
+    let opts = convert_options(&a.convert)?;
+    let argv: Vec<String> = std::env::args().collect();
+    let at = argv.iter().position(|s| s == "plan").unwrap_or(argv.len());
+    let cwd = std::env::current_dir().context("cannot read the working folder")?;
+    let command = serde_json::json!({
+        "cwd": cwd,
+        "args": &argv[(at + 1).min(argv.len())..],
+    });
+    let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
+    let p = bimtiles::shard::plan(&inputs, &opts, a.jobs as usize, command)?;
+    if !a.convert.quiet {
+        emit(&format!(
+            "{}: {} tiles, {} built by merge, {} jobs (triangles per job: {})\n",
+            a.convert.out.display(),
+            p.tiles,
+            p.top.len(),
+            p.jobs.len(),
+            p.jobs
+                .iter()
+                .map(|j| j.triangles.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))?;
+    }
+    Ok(())
+}
+
+/// The inputs and options a plan was made with (paths relative to the folder `plan` ran in).
+fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptions)> {
+    let file = bimtiles::shard::read_plan(dir)?;
+    let bad = || anyhow::anyhow!("{}: the plan's command is unreadable", dir.display());
+    let cwd = PathBuf::from(file.command["cwd"].as_str().ok_or_else(bad)?);
+    let args: Vec<String> =
+        serde_json::from_value(file.command["args"].clone()).map_err(|_| bad())?;
+    let a = PlanArgs::try_parse_from(std::iter::once("plan".to_string()).chain(args))
+        .map_err(|e| anyhow::anyhow!("{}: the plan's command: {e}", dir.display()))?;
+    let mut opts = convert_options(&a.convert)?;
+    opts.out_dir = std::path::absolute(dir).context("cannot resolve the build folder")?;
+    opts.force = false;
+    opts.progress = !quiet;
+    // Where the plan was made, so that relative input paths (and the report's names for them)
+    // are the plan's; a machine without that folder needs absolute input paths in the plan.
+    std::env::set_current_dir(&cwd).with_context(|| {
+        format!(
+            "{}: the plan was made in {}, which is not here (plan with absolute input paths)",
+            dir.display(),
+            cwd.display()
+        )
+    })?;
+    let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
+    Ok((inputs, opts))
+}
+
+fn run_convert(a: ConvertArgs) -> Result<()> {
+    set_threads(a.threads)?;
+    let opts = convert_options(&a)?;
+    let inputs = InputSet::new(&a.inputs, a.manifest.as_deref());
+    let r = convert_input_set(&inputs, &opts)?;
+    if !a.quiet {
+        print_summary(&a, &r)?;
+    }
+    Ok(())
+}
+
+fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
     let opts = ConvertOptions {
         out_dir: a.out.clone(),
         force: a.force,
@@ -280,6 +449,7 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         },
         compression: match a.compression {
             CompressionArg::Draco => Compression::Draco,
+            CompressionArg::Quantized => Compression::Quantized,
             CompressionArg::None => Compression::None,
         },
         lod: match (&a.lod_ratios, a.lod) {
@@ -301,10 +471,13 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         }),
         instancing: !a.no_instancing,
         min_instanced_triangles_saved: a.min_instanced_triangles_saved,
+        merge_plain_materials: a.keep_materials.then_some(false),
         progress: !a.quiet,
         texture: TextureOptions {
             lod: a.texture_lod == OnOff::On,
             crop: a.texture_crop == OnOff::On,
+            embed: a.embed_textures,
+            embed_below_bytes: a.embed_textures_below,
             format: match a.texture_format {
                 TextureFormatArg::Auto => TextureFormat::Auto,
                 TextureFormatArg::Png => TextureFormat::Png,
@@ -324,8 +497,11 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
             a.dedup_tolerance_m
         );
     }
-    let r = convert(&a.inputs, &opts)?;
-    if !a.quiet {
+    Ok(opts)
+}
+
+fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
+    {
         if let Some(d) = &r.dedup {
             emit(&format!(
                 "dedup: {} components, {} shapes drawn, {} redundant copies removed, {} congruent copies share a shape ({:.2} s)\n",

@@ -5,6 +5,7 @@
 pub mod gltf;
 #[cfg(feature = "ifc")]
 pub mod ifc;
+pub mod manifest;
 
 use crate::error::{Error, Result};
 use crate::scene::Scene;
@@ -82,4 +83,31 @@ pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
         scene.append(read_input(p.as_ref())?);
     }
     Ok(scene)
+}
+
+/// What a conversion reads: the embedded sample, model files, or a campus manifest.
+#[derive(Debug, Clone, PartialEq)]
+pub enum InputSet {
+    Sample,
+    Files(Vec<std::path::PathBuf>),
+    Manifest(std::path::PathBuf),
+}
+
+impl InputSet {
+    /// Model files (none: the sample) or a manifest.
+    pub fn new(files: &[std::path::PathBuf], manifest: Option<&Path>) -> InputSet {
+        match (manifest, files) {
+            (Some(m), _) => InputSet::Manifest(m.to_path_buf()),
+            (None, []) => InputSet::Sample,
+            (None, f) => InputSet::Files(f.to_vec()),
+        }
+    }
+
+    pub fn read(&self) -> Result<Scene> {
+        match self {
+            InputSet::Sample => read_embedded_sample(),
+            InputSet::Files(f) => read_inputs(f),
+            InputSet::Manifest(m) => manifest::read_manifest(m),
+        }
+    }
 }

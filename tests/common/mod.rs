@@ -90,7 +90,9 @@ pub fn convert(input: &Path, out: &Path, extra: &[&str]) -> Value {
 }
 
 /// Runs the Khronos glTF validator (npm) over a folder; returns (files, errors, warnings), or None
-/// when Node or the package is not installed (and tools are not required).
+/// when Node or the package is not installed (and tools are not required). Tiles may reach shared
+/// files anywhere in their tileset (`../textures/`): the tileset folder (`dir`, or its parent for
+/// a `tiles` folder) is the root their URIs may reach.
 pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
     let script = repo().join("tools/validate_gltf.mjs");
     let installed = repo().join("tools/node_modules/gltf-validator").is_dir();
@@ -102,8 +104,14 @@ pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
         eprintln!("SKIPPED gltf-validator: tools/node_modules missing (run `make test`)");
         return None;
     }
+    let root = match dir.join("tileset.json").is_file() {
+        true => dir,
+        false => dir.parent().unwrap_or(dir),
+    };
     let o = Command::new("node")
         .arg(script)
+        .arg("--root")
+        .arg(root)
         .arg(dir)
         .output()
         .expect("run node");
@@ -427,10 +435,19 @@ pub fn primitive_geometry(
         );
     }
     let r = p.reader(|_| Some(blob));
-    (
-        r.read_positions().unwrap().collect(),
-        r.read_indices().unwrap().into_u32().collect(),
-    )
+    let indices = r.read_indices().unwrap().into_u32().collect();
+    let acc = p.get(&gltf::Semantic::Positions).unwrap();
+    if acc.data_type() == gltf::accessor::DataType::F32 {
+        return (r.read_positions().unwrap().collect(), indices);
+    }
+    // KHR_mesh_quantization: integer positions (normalized or not), the node transform
+    // dequantizes them.
+    let doc = serde_json::to_value(g.document.clone().into_json()).unwrap();
+    let pos = read_accessor(&doc, blob, acc.index())
+        .into_iter()
+        .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32])
+        .collect();
+    (pos, indices)
 }
 
 pub trait AsDMat4 {

@@ -1,0 +1,335 @@
+//! Campus manifests: many building models placed in one scene (issue 12, "many buildings in one
+//! tileset"), so that one octree and one tileset cover all of them.
+//!
+//! A manifest is a JSON file (`schemas/manifest.schema.json`, README "Many buildings"): an optional
+//! geographic `origin` (the tileset's east-north-up frame; default [`GeoOrigin::DEFAULT`]) and a list
+//! of `models`, each a file path relative to the manifest's folder with its placement: a
+//! geographic point (`longitude_deg`, `latitude_deg`, `height_m`) or an offset in metres from the
+//! origin (`east_m`, `north_m`, `up_m`), and a `heading_deg` (clockwise from north, the compass
+//! convention). Each model's own anchor (the rule of `convert`: its origin, its footprint centre when
+//! it is in projected coordinates, or its IFC site reference point turned to true north) goes to
+//! its placement. Geographic placements are exact rigid transforms into the origin's frame (the
+//! local east-north-up frame of the placement point, expressed in the origin's), so a building
+//! kilometres away still lands on its point to the millimetre.
+//!
+//! Identity: every element keeps its id, except that an id used by several entries (the same model
+//! placed twice) is prefixed with the entry's `name` and a slash in each of them; every element's
+//! `building` is the entry's name, and its hierarchy path starts with it.
+
+use crate::error::{Error, Result};
+use crate::scene::{Node, NodeId, Scene};
+use crate::tileset::georef::GeoOrigin;
+use glam::{DMat4, DVec3};
+use serde::Deserialize;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Component as PathPart, Path, PathBuf};
+
+/// The manifest file, as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    #[serde(default)]
+    pub origin: Option<ManifestOrigin>,
+    pub models: Vec<ManifestModel>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ManifestOrigin {
+    pub longitude_deg: f64,
+    pub latitude_deg: f64,
+    #[serde(default)]
+    pub height_m: f64,
+}
+
+/// One placed model.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ManifestModel {
+    /// The building's name (default: the file stem); unique in the manifest.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Relative to the manifest's folder, inside it.
+    pub path: String,
+    #[serde(default)]
+    pub longitude_deg: Option<f64>,
+    #[serde(default)]
+    pub latitude_deg: Option<f64>,
+    #[serde(default)]
+    pub height_m: Option<f64>,
+    #[serde(default)]
+    pub east_m: Option<f64>,
+    #[serde(default)]
+    pub north_m: Option<f64>,
+    #[serde(default)]
+    pub up_m: Option<f64>,
+    /// Clockwise from north, degrees: the model's +y (north) axis turns to this bearing.
+    #[serde(default)]
+    pub heading_deg: f64,
+}
+
+/// A checked manifest entry: the model file and its transform from the model's anchored frame into
+/// the origin's east-north-up frame.
+#[derive(Debug, Clone)]
+pub struct Placement {
+    pub name: String,
+    pub file: PathBuf,
+    pub transform: DMat4,
+}
+
+impl Manifest {
+    /// Reads and checks a manifest; every problem is one error naming the manifest.
+    pub fn read(path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
+        let bad = |m: String| Error::input(path, m);
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            bad(if e.kind() == std::io::ErrorKind::NotFound {
+                "no such manifest file".into()
+            } else {
+                format!("cannot read the manifest: {e}")
+            })
+        })?;
+        let m: Manifest =
+            serde_json::from_str(&text).map_err(|e| bad(format!("not a valid manifest: {e}")))?;
+        m.check(path)
+    }
+
+    fn check(&self, path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
+        let bad = |m: String| Error::input(path, m);
+        let origin = match self.origin {
+            None => GeoOrigin::DEFAULT,
+            Some(o) => GeoOrigin::parse(&format!(
+                "{},{},{}",
+                o.longitude_deg, o.latitude_deg, o.height_m
+            ))
+            .map_err(|e| bad(format!("origin: {e}")))?,
+        };
+        if self.models.is_empty() {
+            return Err(bad("the manifest lists no models".into()));
+        }
+        let folder = path.parent().unwrap_or(Path::new(""));
+        let ecef_to_origin = origin.enu_to_ecef().inverse();
+        let mut names = BTreeSet::new();
+        let mut out = Vec::new();
+        for (i, e) in self.models.iter().enumerate() {
+            let what = format!("models[{i}] ('{}')", e.path);
+            let rel = Path::new(&e.path);
+            let escapes = rel.is_absolute()
+                || rel.components().any(|c| {
+                    matches!(
+                        c,
+                        PathPart::ParentDir | PathPart::RootDir | PathPart::Prefix(_)
+                    )
+                });
+            if e.path.is_empty() || escapes {
+                return Err(bad(format!(
+                    "{what}: the path must be relative and stay inside the manifest's folder"
+                )));
+            }
+            let file = folder.join(rel);
+            if !file.is_file() {
+                return Err(bad(format!(
+                    "{what}: no such model file {}",
+                    file.display()
+                )));
+            }
+            let name = match &e.name {
+                Some(n) if n.trim().is_empty() || n.contains('/') => {
+                    return Err(bad(format!(
+                        "{what}: name '{n}' must be non-empty and without '/'"
+                    )))
+                }
+                Some(n) => n.clone(),
+                None => rel
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default(),
+            };
+            if !names.insert(name.clone()) {
+                return Err(bad(format!(
+                    "{what}: the name '{name}' is used twice (give each entry a distinct \"name\")"
+                )));
+            }
+            let numbers = [
+                e.longitude_deg,
+                e.latitude_deg,
+                e.height_m,
+                e.east_m,
+                e.north_m,
+                e.up_m,
+                Some(e.heading_deg),
+            ];
+            if numbers.iter().flatten().any(|v| !v.is_finite()) {
+                return Err(bad(format!("{what}: placement numbers must be finite")));
+            }
+            let geographic = e.longitude_deg.is_some() || e.latitude_deg.is_some();
+            let offset = e.east_m.is_some() || e.north_m.is_some() || e.up_m.is_some();
+            let heading = DMat4::from_rotation_z(-e.heading_deg.to_radians());
+            let transform = match (geographic, offset) {
+                (true, true) => {
+                    return Err(bad(format!(
+                        "{what}: give either longitude_deg/latitude_deg/height_m or east_m/north_m/up_m, not both"
+                    )))
+                }
+                (true, false) => {
+                    let (Some(lon), Some(lat)) = (e.longitude_deg, e.latitude_deg) else {
+                        return Err(bad(format!(
+                            "{what}: a geographic placement needs both longitude_deg and latitude_deg"
+                        )));
+                    };
+                    let here = GeoOrigin::parse(&format!(
+                        "{lon},{lat},{}",
+                        e.height_m.unwrap_or(0.0)
+                    ))
+                    .map_err(|m| bad(format!("{what}: {m}")))?;
+                    ecef_to_origin * here.enu_to_ecef() * heading
+                }
+                (false, _) => {
+                    if e.height_m.is_some() {
+                        return Err(bad(format!(
+                            "{what}: height_m goes with longitude_deg/latitude_deg; an offset uses up_m"
+                        )));
+                    }
+                    let t = DVec3::new(
+                        e.east_m.unwrap_or(0.0),
+                        e.north_m.unwrap_or(0.0),
+                        e.up_m.unwrap_or(0.0),
+                    );
+                    DMat4::from_translation(t) * heading
+                }
+            };
+            out.push(Placement {
+                name,
+                file,
+                transform,
+            });
+        }
+        Ok((origin, out))
+    }
+}
+
+/// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
+/// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
+/// origin, no turn), so `convert` places the campus there unless `--origin` moves it.
+pub fn read_manifest(path: &Path) -> Result<Scene> {
+    let (origin, placements) = Manifest::read(path)?;
+    let mut parts = Vec::with_capacity(placements.len());
+    for p in &placements {
+        let mut s = super::read_input(&p.file)?;
+        // The model's own anchor goes to its placement (the rule of `convert`).
+        let local = match s.georeference {
+            Some(g) => {
+                DMat4::from_rotation_z((-g.true_north_deg.unwrap_or(0.0)).to_radians())
+                    * DMat4::from_translation(-g.anchor)
+            }
+            None => DMat4::from_translation(-crate::convert::choose_anchor(&s.bounds()).0),
+        };
+        s.georeference = None;
+        s.apply_transform(&(p.transform * local));
+        parts.push(s);
+    }
+    // Ids used by more than one entry get the entry's name as a prefix, in every entry.
+    let mut users: BTreeMap<&str, BTreeSet<usize>> = BTreeMap::new();
+    for (i, s) in parts.iter().enumerate() {
+        for c in &s.components {
+            users.entry(c.key.as_str()).or_default().insert(i);
+        }
+    }
+    let clashing: BTreeSet<String> = users
+        .into_iter()
+        .filter(|(_, u)| u.len() > 1)
+        .map(|(k, _)| k.to_string())
+        .collect();
+    let mut scene = Scene::default();
+    for (s, p) in parts.iter_mut().zip(&placements) {
+        for c in &mut s.components {
+            if clashing.contains(&c.key) {
+                c.key = format!("{}/{}", p.name, c.key);
+            }
+        }
+        for info in &mut s.info {
+            info.building = Some(p.name.clone());
+        }
+        // A root node named after the entry heads the model's hierarchy.
+        let root = NodeId(s.nodes.len() as u32);
+        for n in &mut s.nodes {
+            if n.parent.is_none() {
+                n.parent = Some(root);
+            }
+        }
+        for c in &mut s.components {
+            if c.node.is_none() {
+                c.node = Some(root);
+            }
+        }
+        s.nodes.push(Node {
+            name: Some(p.name.clone()),
+            parent: None,
+            extras: None,
+        });
+    }
+    for s in parts {
+        scene.append(s);
+    }
+    scene.georeference = Some(crate::scene::SourceGeoreference {
+        longitude_deg: origin.longitude_deg,
+        latitude_deg: origin.latitude_deg,
+        height_m: origin.height_m,
+        true_north_deg: None,
+        anchor: DVec3::ZERO,
+    });
+    scene.finish();
+    Ok(scene)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check(json: &str) -> std::result::Result<Vec<Placement>, String> {
+        let dir = std::env::temp_dir().join(format!("bimtiles-manifest-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("a.glb"), b"x").unwrap();
+        let p = dir.join("m.json");
+        std::fs::write(&p, json).unwrap();
+        Manifest::read(&p)
+            .map(|(_, v)| v)
+            .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn placements_and_errors() {
+        let v = check(r#"{"models":[{"path":"a.glb","east_m":10,"north_m":-2,"heading_deg":90}]}"#)
+            .unwrap();
+        // Heading 90°: the model's north (+y) turns to east (+x).
+        let p = v[0].transform.transform_point3(DVec3::new(0.0, 1.0, 0.0));
+        assert!((p - DVec3::new(11.0, -2.0, 0.0)).length() < 1e-12, "{p}");
+        for (json, want) in [
+            (r#"{"models":[{"path":"../a.glb"}]}"#, "inside the manifest"),
+            (r#"{"models":[{"path":"b.glb"}]}"#, "no such model file"),
+            (
+                r#"{"models":[{"path":"a.glb","colour":1}]}"#,
+                "unknown field",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb","east_m":1,"longitude_deg":8,"latitude_deg":49}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb"},{"path":"a.glb"}]}"#,
+                "used twice",
+            ),
+            (
+                r#"{"models":[{"path":"a.glb","longitude_deg":8}]}"#,
+                "both longitude_deg",
+            ),
+            (r#"{"models":[]}"#, "no models"),
+            (r#"{"models":[{"path":"a.glb"}"#, "not a valid manifest"),
+        ] {
+            let e = check(json).unwrap_err();
+            assert!(
+                e.contains(want) && e.contains("m.json") && !e.contains('\n'),
+                "{json}: {e}"
+            );
+        }
+    }
+}
