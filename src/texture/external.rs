@@ -92,9 +92,14 @@ impl ExternalTextures {
         Ok((format!("{FROM_TILES}{name}"), new))
     }
 
-    /// Files written.
+    /// Shared texture files in the folder (by any process: a sharded build's jobs each write
+    /// some, the merging process none), not counting temporary names.
     pub fn file_count(&self) -> usize {
-        self.files.lock().map_or(0, |f| f.len())
+        std::fs::read_dir(&self.dir).map_or(0, |d| {
+            d.flatten()
+                .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+                .count()
+        })
     }
 
     /// Bytes of the files written, per pyramid level (each file at the finest level that
