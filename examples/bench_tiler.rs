@@ -4,10 +4,16 @@
 //! Runs `target/release/bimtiles convert` on every GLB and IFC file in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
 //! process (so peak memory is that conversion's), and prints one row per model from its
-//! `report.json`, then a dedup/instancing table (issue 5) from the same reports. Also writes
+//! `report.json`, then a dedup/instancing table (issue 5) from the same reports, then the first
+//! view (issue 4): tiles, levels, bytes and triangles a 3D Tiles client selects to draw the whole
+//! model framed at 1920x1080 with a screen-space error limit of 16 px
+//! ([`bimtiles::tileset::view::first_view`]) against the full model (every leaf), and the same
+//! for `--lod hlod`, `--lod-ratios 0.85,0.7,0.5` and `--lod none` on Mini_Project. Also writes
 //! `target/bench/tiler.json`.
 //!
 //! Usage: cargo run --release --example bench_tiler -- [DATA_DIR] [--budgets 10000,40000]
+//!        cargo run --release --example bench_tiler -- --first-view TILESET_DIR...  (the first-view
+//!        table of tilesets already written)
 
 #[path = "../tests/support/height_field.rs"]
 #[allow(dead_code)]
@@ -64,6 +70,7 @@ fn convert(
     out: &Path,
     budget: usize,
     compression: &str,
+    extra: &[&str],
 ) -> Option<Value> {
     let st = Command::new(bin)
         .args([
@@ -80,6 +87,7 @@ fn convert(
             "--compression",
             compression,
         ])
+        .args(extra)
         .status()
         .ok()?;
     if !st.success() {
@@ -91,6 +99,13 @@ fn convert(
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().is_some_and(|a| a == "--first-view") {
+        first_view_header();
+        for dir in &args[1..] {
+            first_view_row(dir, &first_view(Path::new(dir)));
+        }
+        return;
+    }
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = args
         .iter()
@@ -174,12 +189,12 @@ fn main() {
                 false => input.file_stem().unwrap().to_string_lossy().to_string(),
             };
             let out = work.join(format!("out-{name}-{budget}"));
-            let Some(r) = convert(&bin, input, &out, budget, "draco") else {
+            let Some(r) = convert(&bin, input, &out, budget, "draco", &[]) else {
                 continue;
             };
             let draco_geometry = geometry_bytes(&out);
             let plain = work.join(format!("out-{name}-{budget}-none"));
-            let plain_report = convert(&bin, input, &plain, budget, "none");
+            let plain_report = convert(&bin, input, &plain, budget, "none", &[]);
             let plain_geometry = geometry_bytes(&plain);
             let _ = std::fs::remove_dir_all(&plain);
             let encode_plain_s = plain_report
@@ -203,6 +218,7 @@ fn main() {
                 "instanced_shapes": r["output"]["instanced_shapes"],
                 "stored_triangles": r["output"]["stored_triangles"],
                 "output_triangles": r["output"]["triangles"],
+                "first_view": first_view(&out),
             });
             // Draco's own cost: encode+write with Draco minus without.
             let draco_s =
@@ -265,10 +281,94 @@ fn main() {
             f(&d["seconds"]) / f(&r["seconds"]).max(1e-9) * 100.0
         );
     }
+    // First view (issue 4): what a client loads to draw the whole model framed on screen.
+    println!(
+        "\nfirst view at 1920x1080, SSE 16 px, whole model framed (default options), against all leaves:"
+    );
+    first_view_header();
+    for r in &rows {
+        first_view_row(r["model"].as_str().unwrap_or(""), &r["first_view"]);
+    }
+    // The LOD modes side by side on Mini_Project.
+    let mut modes = Vec::new();
+    if let Some(mini) = inputs.iter().find(|p| {
+        p.file_name()
+            .is_some_and(|n| n == "ISSUE_021_Mini_Project.glb")
+    }) {
+        println!(
+            "\nfirst view of Mini_Project per LOD mode (budget {}):",
+            budgets[0]
+        );
+        first_view_header();
+        for (mode, extra) in [
+            ("hlod", vec!["--lod", "hlod"]),
+            ("ratios 0.85,0.7,0.5", vec!["--lod-ratios", "0.85,0.7,0.5"]),
+            ("none", vec!["--lod", "none"]),
+        ] {
+            let out = work.join("out-mini-lod");
+            if convert(&bin, mini, &out, budgets[0], "draco", &extra).is_some() {
+                let v = first_view(&out);
+                first_view_row(mode, &v);
+                modes.push(json!({"mode": mode, "first_view": v}));
+            }
+            let _ = std::fs::remove_dir_all(&out);
+        }
+    }
+    let rows = json!({"conversions": rows, "mini_project_lod_modes": modes});
     std::fs::write(
         work.join("tiler.json"),
         serde_json::to_vec_pretty(&rows).unwrap(),
     )
     .unwrap();
     println!("written {}", work.join("tiler.json").display());
+}
+
+/// The first view and the full model of the tileset in `dir` (see the module docs), as JSON.
+fn first_view(dir: &Path) -> Value {
+    use bimtiles::tileset::view;
+    match (
+        view::first_view(dir, &view::ViewOptions::default()),
+        view::full_view(dir),
+    ) {
+        (Ok(first), Ok(full)) => json!({
+            "first": first, "full": full,
+            "bytes_share": first.glb_bytes as f64 / full.glb_bytes.max(1) as f64,
+            "triangles_share": first.triangles as f64 / full.triangles.max(1) as f64,
+        }),
+        (a, b) => {
+            eprintln!("first view of {} failed: {a:?} {b:?}", dir.display());
+            Value::Null
+        }
+    }
+}
+
+fn first_view_header() {
+    println!(
+        "{:<26} {:>6} {:>6} {:>10} {:>11} {:>7} {:>10} {:>11} {:>7}",
+        "model",
+        "tiles",
+        "levels",
+        "first MB",
+        "first tris",
+        "full t.",
+        "full MB",
+        "full tris",
+        "bytes %"
+    );
+}
+
+fn first_view_row(name: &str, v: &Value) {
+    let f = |p: &str| v.pointer(p).and_then(Value::as_f64).unwrap_or(0.0);
+    println!(
+        "{:<26} {:>6} {:>6} {:>10.3} {:>11} {:>7} {:>10.3} {:>11} {:>7.1}",
+        name,
+        f("/first/tiles"),
+        f("/first/levels"),
+        f("/first/glb_bytes") / 1e6,
+        f("/first/triangles"),
+        f("/full/tiles"),
+        f("/full/glb_bytes") / 1e6,
+        f("/full/triangles"),
+        f("/bytes_share") * 100.0
+    );
 }

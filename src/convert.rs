@@ -15,9 +15,14 @@ use crate::ingest::InputSet;
 use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
 use crate::simplify::hlod::{simplify_children, tile_error};
+use crate::simplify::lod_chain::{chain_levels, with_lod_chains};
 use crate::tile_content::{AppearanceClasses, TileContent};
 use crate::tileset::georef::GeoOrigin;
 use crate::tileset::metadata::MetadataSchema;
+use crate::tileset::view::{
+    paper_delta_mesh_px, paper_geometric_error_m, sse_px, switch_distance_m, ViewOptions,
+    PAPER_MAX_DELTA_PX,
+};
 use crate::tileset::{tileset_json, Refine, TileFacts};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -43,6 +48,8 @@ pub struct ConvertOptions {
     pub compression: Compression,
     /// Levels of detail: HLOD (default), none, or the paper's discrete chains.
     pub lod: LodMode,
+    /// Which error the simplified tiles declare as geometricError (both are reported).
+    pub error_metric: ErrorMetric,
     /// Options of the QEM simplifier for LOD content (targets are set per tile).
     pub simplify: crate::simplify::SimplifyOptions,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
@@ -72,6 +79,7 @@ impl ConvertOptions {
             octree: OctreeOptions::default(),
             compression: Compression::default(),
             lod: LodMode::default(),
+            error_metric: ErrorMetric::default(),
             simplify: crate::simplify::SimplifyOptions::default(),
             dedup: Some(DedupOptions::default()),
             instancing: true,
@@ -113,6 +121,11 @@ pub enum LodMode {
     /// No simplified content: internal tiles hold the components too large for their children and
     /// refine by adding (`refine: "ADD"`), with a size-bound geometric error.
     None,
+    /// The paper's discrete LODs (III.C, Table IV): every leaf becomes a chain of tiles with its
+    /// bounds, coarsest first, simplified to these ratios of its triangles (finest first, as
+    /// [`crate::simplify::lod_chain::chain_ratios`] gives them), full detail last;
+    /// `refine: "REPLACE"`; internal tiles are empty, with a size-bound error.
+    Ratios(Vec<f32>),
 }
 
 impl LodMode {
@@ -120,6 +133,32 @@ impl LodMode {
         match self {
             LodMode::Hlod => "hlod",
             LodMode::None => "none",
+            LodMode::Ratios(_) => "ratios",
+        }
+    }
+}
+
+/// Which error simplified tiles declare as `geometricError`. The report shows both per level
+/// (`lod_levels`, as the paper's Table I).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ErrorMetric {
+    /// The measured distance between a tile's content and the full detail it stands for (honest:
+    /// checked by an independent measurement in the tests).
+    #[default]
+    Measured,
+    /// The paper's screen-space error (III.C(3), formulas (1), (2)): the geometricError that makes
+    /// a client switch where Δ(mesh) of the longest collapsed edge reaches
+    /// [`PAPER_MAX_DELTA_PX`] at 1920x1080 and 60° ([`paper_geometric_error_m`]). Not a distance
+    /// bound: it can be smaller than the real deviation (not honest in general).
+    PaperSse,
+}
+
+impl ErrorMetric {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ErrorMetric::Measured => "measured",
+            ErrorMetric::PaperSse => "paper-sse",
         }
     }
 }
@@ -179,6 +218,45 @@ pub struct TileReport {
     /// HLOD tiles: bound of the distance from this tile's content to full detail (metres).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coarse_to_full_bound_m: Option<f64>,
+    /// Simplified tiles: the measured error (the geometricError under `--error-metric measured`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_error_m: Option<f64>,
+    /// Simplified tiles: longest edge collapsed between full detail and this content (metres).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_folding_edge_m: Option<f64>,
+    /// Simplified tiles: the paper's error of that edge (the geometricError under
+    /// `--error-metric paper-sse`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paper_error_m: Option<f64>,
+    /// Discrete chains: the tile's LOD (0 = full detail).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lod_level: Option<usize>,
+}
+
+/// One level of detail, as the paper's Table I (LOD level, patches, maximum folding edge length,
+/// range of visibility, Δ(mesh)), with the measured error beside the paper's.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct LodLevelReport {
+    /// "LOD0 (full detail)", "LOD2 (ratio 0.70)" for chains, "HLOD depth 3" for HLOD tiles.
+    pub level: String,
+    pub tiles: usize,
+    /// Triangles drawn by the level's tiles (the paper's "patches").
+    pub patches: usize,
+    /// Longest edge collapsed between full detail and any tile of the level (metres).
+    pub max_folding_edge_m: f64,
+    /// Largest measured error of a tile of the level (metres).
+    pub measured_error_max_m: f64,
+    /// Largest paper error of a tile of the level ([`paper_geometric_error_m`], metres).
+    pub paper_error_max_m: f64,
+    /// Largest declared geometricError of the level (metres), from the selected metric.
+    pub geometric_error_max_m: f64,
+    /// Nearest distance at which a client (1920x1080, 60°, 16 px) still draws the level's
+    /// largest-error tile (metres): the paper's "range of visibility".
+    pub range_of_visibility_m: f64,
+    /// The paper's Δ(mesh) (formula (2), pixels) of the longest folding edge at that distance.
+    pub delta_mesh_px: f64,
+    /// The measured error on screen at that distance (pixels): 16 px or less is honest.
+    pub measured_sse_px: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -218,6 +296,9 @@ pub struct Report {
     pub input: InputReport,
     pub output: OutputReport,
     pub levels: Vec<LevelReport>,
+    /// The levels of detail as the paper's Table I (absent without LOD).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lod_levels: Vec<LodLevelReport>,
     pub tiles: Vec<TileReport>,
     pub georeference: GeoReport,
     /// What dedup found (absent when it was turned off).
@@ -346,6 +427,8 @@ pub(crate) struct Prepared {
     /// White twin materials added to the scene for merging plain colours per tile.
     pub appearance: AppearanceClasses,
     pub plan: TilePlan,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    pub chain_level: Vec<Option<usize>>,
     pub t_dedup: f64,
     pub t_partition: f64,
 }
@@ -419,8 +502,14 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
     };
     let t1 = Instant::now();
     let mut plan = plan_octree(scene, &opts.octree);
-    if opts.lod == LodMode::Hlod {
-        plan = plan.with_content_in_leaves();
+    let mut chain_level = Vec::new();
+    match &opts.lod {
+        LodMode::Hlod => plan = plan.with_content_in_leaves(),
+        LodMode::Ratios(r) => {
+            let c = with_lod_chains(&plan.with_content_in_leaves(), r.len());
+            (plan, chain_level) = (c.plan, c.level);
+        }
+        LodMode::None => {}
     }
     let t_partition = t1.elapsed().as_secs_f64();
     Prepared {
@@ -433,6 +522,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         textures_prepared,
         appearance,
         plan,
+        chain_level,
         t_dedup,
         t_partition,
     }
@@ -477,6 +567,7 @@ pub fn convert_scene(
             &tmp,
             &texture_levels,
             &prep.appearance,
+            &prep.chain_level,
             plan.tiles.len(),
         )?;
         let job = writer.build_subtrees(&[0], &Default::default(), Default::default())?;
@@ -567,6 +658,10 @@ pub(crate) fn make_report(
             simplified_from_triangles: st.simplified_from_triangles,
             full_to_coarse_m: st.full_to_coarse_m,
             coarse_to_full_bound_m: st.coarse_to_full_bound_m,
+            measured_error_m: st.measured_error_m,
+            max_folding_edge_m: st.max_folding_edge_m,
+            paper_error_m: st.paper_error_m,
+            lod_level: prep.chain_level.get(tiles.len()).copied().flatten(),
         });
         let d = t.depth as usize;
         while levels.len() <= d {
@@ -606,6 +701,11 @@ pub(crate) fn make_report(
             metadata_bytes: tiles.iter().map(|t| t.metadata_bytes).sum(),
         },
         levels,
+        lod_levels: if opts.lod == LodMode::None {
+            Vec::new()
+        } else {
+            lod_levels(&tiles, &opts.lod)
+        },
         tiles,
         georeference: GeoReport {
             origin: prep.origin,
@@ -614,9 +714,11 @@ pub(crate) fn make_report(
             anchor_rule: prep.anchor_rule,
         },
         dedup: prep.dedup,
-        geometric_error_metric: match opts.lod {
-            LodMode::Hlod => HLOD_ERROR_METRIC,
-            LodMode::None => SIZE_BOUND_ERROR_METRIC,
+        geometric_error_metric: match (&opts.lod, opts.error_metric) {
+            (LodMode::None, _) => SIZE_BOUND_ERROR_METRIC,
+            (_, ErrorMetric::PaperSse) => PAPER_SSE_ERROR_METRIC,
+            (LodMode::Hlod, _) => HLOD_ERROR_METRIC,
+            (LodMode::Ratios(_), _) => CHAIN_ERROR_METRIC,
         }
         .into(),
         options: json!({
@@ -625,6 +727,8 @@ pub(crate) fn make_report(
             "max_depth": opts.octree.max_depth,
             "compression": format!("{:?}", opts.compression).to_lowercase(),
             "lod": opts.lod.name(),
+            "lod_ratios": match &opts.lod { LodMode::Ratios(r) => json!(r), _ => json!(null) },
+            "error_metric": opts.error_metric.name(),
             "dedup": opts.dedup.is_some(),
             "dedup_tolerance_m": opts.dedup.as_ref().map(|d| d.tolerance_m),
             "instancing": opts.instancing,
@@ -644,6 +748,94 @@ pub const HLOD_ERROR_METRIC: &str = "measured: a tile's geometricError bounds th
 simplified content and the full detail it stands for (symmetric Hausdorff distance: full-detail samples measured \
 against the content, content samples bounded through the children's content and errors; times 1.1, plus the \
 quantization bound with Draco); leaves have 0";
+
+/// The geometric error of discrete LOD chains, as the report describes it.
+pub const CHAIN_ERROR_METRIC: &str = "measured: a chain tile's geometricError bounds the distance between its \
+simplified content and the leaf's full detail (symmetric Hausdorff distance, measured as for HLOD tiles, times 1.1, \
+plus the quantization bound with Draco), strictly decreasing down the chain; full detail has 0; empty internal tiles \
+have their bounding-box diagonal (everything below is missing when they are drawn)";
+
+/// The paper's screen-space error, as the report describes it.
+pub const PAPER_SSE_ERROR_METRIC: &str = "paper-sse: a simplified tile's geometricError is the paper's (III.C(3), \
+formulas (1) and (2)): the error that makes a client switch (1920x1080, 60 degrees, 16 px) where Delta(mesh) of the \
+longest edge collapsed for the tile reaches 16 px, 3.77 x that edge length; held above the children's. It is not a \
+distance bound: compare measured_error_m (the honest value) per tile and measured_sse_px per level";
+
+/// The paper's Table I from the tile reports: one row for full detail, then one per chain level
+/// (chains) or per HLOD depth, deepest first.
+fn lod_levels(tiles: &[TileReport], lod: &LodMode) -> Vec<LodLevelReport> {
+    let v = ViewOptions::default();
+    let mut rows: BTreeMap<(i64, String), LodLevelReport> = BTreeMap::new();
+    for t in tiles.iter().filter(|t| t.content.is_some()) {
+        let key = match (lod, t.lod_level, t.measured_error_m) {
+            (LodMode::Ratios(r), Some(k), _) if k > 0 => {
+                (k as i64, format!("LOD{k} (ratio {:.2})", r[k - 1]))
+            }
+            (LodMode::Hlod, _, Some(_)) => {
+                (1000 - t.depth as i64, format!("HLOD depth {}", t.depth))
+            }
+            _ => (0, "LOD0 (full detail)".to_string()),
+        };
+        let row = rows.entry(key.clone()).or_insert_with(|| LodLevelReport {
+            level: key.1,
+            tiles: 0,
+            patches: 0,
+            max_folding_edge_m: 0.0,
+            measured_error_max_m: 0.0,
+            paper_error_max_m: 0.0,
+            geometric_error_max_m: 0.0,
+            range_of_visibility_m: 0.0,
+            delta_mesh_px: 0.0,
+            measured_sse_px: 0.0,
+        });
+        row.tiles += 1;
+        row.patches += t.triangles;
+        row.max_folding_edge_m = row
+            .max_folding_edge_m
+            .max(t.max_folding_edge_m.unwrap_or(0.0));
+        row.measured_error_max_m = row
+            .measured_error_max_m
+            .max(t.measured_error_m.unwrap_or(0.0));
+        row.paper_error_max_m = row.paper_error_max_m.max(t.paper_error_m.unwrap_or(0.0));
+        row.geometric_error_max_m = row.geometric_error_max_m.max(t.geometric_error_m);
+    }
+    rows.into_values()
+        .map(|mut r| {
+            r.range_of_visibility_m = switch_distance_m(r.geometric_error_max_m, &v);
+            if r.range_of_visibility_m > 0.0 {
+                r.delta_mesh_px =
+                    paper_delta_mesh_px(r.max_folding_edge_m, r.range_of_visibility_m, &v);
+                r.measured_sse_px = sse_px(r.measured_error_max_m, r.range_of_visibility_m, &v);
+            }
+            r
+        })
+        .collect()
+}
+
+/// The geometricError a simplified tile declares under `metric`, from its measured error and its
+/// longest folding edge, held strictly above its children's (3D Tiles); also the paper's value.
+fn declared_error(
+    metric: ErrorMetric,
+    measured_m: f64,
+    folding_edge_m: f64,
+    children_max_m: f64,
+) -> (f64, f64) {
+    let paper_m =
+        paper_geometric_error_m(folding_edge_m, &ViewOptions::default(), PAPER_MAX_DELTA_PX);
+    let base = match metric {
+        ErrorMetric::Measured => measured_m,
+        ErrorMetric::PaperSse => paper_m,
+    };
+    (base.max(children_max_m * (1.0 + 1e-6) + 1e-6), paper_m)
+}
+
+/// How far Draco quantization moves decoded vertices (metres), added to measured errors.
+fn quantization_m(c: Compression) -> f64 {
+    match c {
+        Compression::Draco | Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+        Compression::None => 0.0,
+    }
+}
 
 /// The geometric error without LOD (additive refinement), as the report describes it.
 pub const SIZE_BOUND_ERROR_METRIC: &str = "size-bound: a tile's geometricError is the largest bounding-box diagonal \
@@ -683,6 +875,9 @@ pub(crate) struct TileStats {
     pub simplified_from_triangles: Option<usize>,
     pub full_to_coarse_m: Option<f64>,
     pub coarse_to_full_bound_m: Option<f64>,
+    pub measured_error_m: Option<f64>,
+    pub max_folding_edge_m: Option<f64>,
+    pub paper_error_m: Option<f64>,
 }
 
 /// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
@@ -696,6 +891,8 @@ pub(crate) struct TileWriter<'a> {
     dir: &'a Path,
     textures: &'a crate::texture::TextureLevels<'a>,
     appearance: &'a AppearanceClasses,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    chain_level: &'a [Option<usize>],
     schema: MetadataSchema,
     encoding: TileEncoding,
     pb: indicatif::ProgressBar,
@@ -718,6 +915,7 @@ impl<'a> TileWriter<'a> {
         dir: &'a Path,
         textures: &'a crate::texture::TextureLevels<'a>,
         appearance: &'a AppearanceClasses,
+        chain_level: &'a [Option<usize>],
         progress_len: usize,
     ) -> Result<Self> {
         let tiles_dir = dir.join("tiles");
@@ -729,6 +927,7 @@ impl<'a> TileWriter<'a> {
             dir,
             textures,
             appearance,
+            chain_level,
             // The metadata schema, once for the tileset (schema.json), referenced by every tile.
             schema: MetadataSchema::from_scene(scene),
             encoding: TileEncoding {
@@ -754,7 +953,7 @@ impl<'a> TileWriter<'a> {
         let uri = format!("tiles/{}.glb", tile.path);
         let path = self.dir.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
-        let texture_error = if opts.lod == LodMode::Hlod {
+        let texture_error = if opts.lod != LodMode::None {
             st.geometric_error_m
         } else {
             0.0
@@ -796,7 +995,7 @@ impl<'a> TileWriter<'a> {
     ) -> Result<JobOutput> {
         let (scene, plan, opts) = (self.scene, self.plan, self.opts);
         let write = |i: usize, content: &TileContent, st: TileStats| self.write(i, content, st);
-        match opts.lod {
+        match &opts.lod {
             LodMode::None => {
                 let mut owned = Vec::new();
                 let mut stack: Vec<usize> = roots.iter().rev().copied().collect();
@@ -859,6 +1058,23 @@ impl<'a> TileWriter<'a> {
                     roots: roots.iter().copied().zip(built).collect(),
                 })
             }
+            LodMode::Ratios(ratios) => {
+                // Chains sit below whole leaves: a job builds them over the whole tree, or none.
+                if stop.contains(&0) {
+                    return Ok(JobOutput::default());
+                }
+                if roots != [0] || !stop.is_empty() {
+                    return Err(Error::output(
+                        self.dir,
+                        "--lod-ratios chains are built by convert, not by sharded jobs",
+                    ));
+                }
+                let tiles = build_chains(scene, plan, self.chain_level, ratios, opts, &write)?;
+                Ok(JobOutput {
+                    tiles,
+                    roots: Vec::new(),
+                })
+            }
         }
     }
 
@@ -910,7 +1126,7 @@ impl<'a> TileWriter<'a> {
             "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
         }});
         let refine = match opts.lod {
-            LodMode::Hlod => Refine::Replace,
+            LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
             LodMode::None => Refine::Add,
         };
         let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
@@ -945,6 +1161,8 @@ pub(crate) struct BuiltSubtree {
     pub geometric_error_m: f64,
     /// Bound of the distance from `content` to full detail (0 for leaves).
     pub coarse_to_full_m: f64,
+    /// Longest edge collapsed between full detail and `content` (0 for leaves).
+    pub max_folding_edge_m: f64,
     /// Triangles per cut component in the subtree (only components cut across tiles).
     pub cut_triangles: BTreeMap<ComponentId, usize>,
 }
@@ -1008,6 +1226,7 @@ impl HlodBuilder<'_> {
                 content: content.expand(),
                 geometric_error_m: 0.0,
                 coarse_to_full_m: 0.0,
+                max_folding_edge_m: 0.0,
                 cut_triangles,
             }
         } else {
@@ -1022,17 +1241,7 @@ impl HlodBuilder<'_> {
                     *cut_triangles.entry(c).or_default() += n;
                 }
             }
-            // Components that go on outside this subtree keep their borders.
-            let continuing: Vec<ComponentId> = cut_triangles
-                .iter()
-                .filter(|&(&c, &n)| {
-                    n < self
-                        .scene
-                        .mesh(self.scene.component(c).mesh)
-                        .triangle_count()
-                })
-                .map(|(&c, _)| c)
-                .collect();
+            let continuing = continuing(self.scene, &cut_triangles);
             let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
             let r = simplify_children(
                 &contents,
@@ -1053,24 +1262,28 @@ impl HlodBuilder<'_> {
                 &r.content,
                 &children,
                 &leaves,
+                0,
                 &self.opts.simplify,
             );
             // Quantization moves decoded vertices by up to this much on top.
-            let quantization_m = match self.opts.compression {
-                Compression::Draco | Compression::Quantized => {
-                    DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt()
-                }
-                Compression::None => 0.0,
-            };
+            let measured = err.error_m + quantization_m(self.opts.compression);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
+            let folding = kids
+                .iter()
+                .map(|k| k.max_folding_edge_m)
+                .fold(r.max_collapsed_edge_m, f64::max);
             // Strictly above the children's, whatever the sampling found.
-            let ge = (err.error_m + quantization_m).max(children_max * (1.0 + 1e-6) + 1e-6);
+            let (ge, paper) =
+                declared_error(self.opts.error_metric, measured, folding, children_max);
             drop(kids);
             let st = TileStats {
                 geometric_error_m: ge,
                 simplified_from_triangles: Some(r.input_triangles),
                 full_to_coarse_m: Some(err.full_to_coarse_m),
                 coarse_to_full_bound_m: Some(err.coarse_to_full_m),
+                measured_error_m: Some(measured),
+                max_folding_edge_m: Some(folding),
+                paper_error_m: Some(paper),
                 ..Default::default()
             };
             let written = (self.write)(i, &r.content, st)?;
@@ -1079,11 +1292,132 @@ impl HlodBuilder<'_> {
                 content: r.content,
                 geometric_error_m: ge,
                 coarse_to_full_m: err.coarse_to_full_m,
+                max_folding_edge_m: folding,
                 cut_triangles,
             }
         };
         Ok(built)
     }
+}
+
+/// Components of `cut_triangles` (triangles per component cut across tiles, in a subtree) that go
+/// on outside the subtree: their open borders stay locked (no cracks). Sorted.
+fn continuing(scene: &Scene, cut_triangles: &BTreeMap<ComponentId, usize>) -> Vec<ComponentId> {
+    cut_triangles
+        .iter()
+        .filter(|&(&c, &n)| n < scene.mesh(scene.component(c).mesh).triangle_count())
+        .map(|(&c, _)| c)
+        .collect()
+}
+
+/// Discrete LOD chains: each chain (found at its full-detail tile, level 0) is built and written
+/// at once, chains in parallel; then the empty internal tiles get their size-bound error, bottom
+/// up, strictly above their children's.
+fn build_chains(
+    scene: &Scene,
+    plan: &TilePlan,
+    chain_level: &[Option<usize>],
+    ratios: &[f32],
+    opts: &ConvertOptions,
+    write: &WriteTile<'_>,
+) -> Result<Vec<(usize, Aabb, TileStats)>> {
+    let n = ratios.len();
+    let fulls: Vec<usize> = (0..plan.tiles.len())
+        .filter(|&i| chain_level[i] == Some(0))
+        .collect();
+    let built: Vec<Vec<(usize, Aabb, TileStats)>> = fulls
+        .par_iter()
+        .map(|&i| -> Result<Vec<(usize, Aabb, TileStats)>> {
+            let tile = &plan.tiles[i];
+            let center = tile.content_bounds.center();
+            let content = gather(scene, opts, &tile.content, center);
+            let mut out = vec![{
+                let (b, st) = write(i, &content, TileStats::default())?;
+                (i, b, st)
+            }];
+            let full = content.expand();
+            let mut cut = BTreeMap::new();
+            for item in &tile.content {
+                if let Some(t) = &item.triangles {
+                    *cut.entry(item.component).or_default() += t.len();
+                }
+            }
+            let levels = chain_levels(
+                scene,
+                tile,
+                &full,
+                &continuing(scene, &cut),
+                ratios,
+                &opts.simplify,
+            )
+            .map_err(|e| {
+                Error::output(
+                    format!("tiles/{}.glb", tile.path),
+                    format!("simplification failed: {e}"),
+                )
+            })?;
+            // Finest first: chain tile i - k holds level k.
+            let mut below = 0.0;
+            for (k, l) in levels.iter().enumerate() {
+                let measured = l.error.error_m + quantization_m(opts.compression);
+                let (ge, paper) =
+                    declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
+                below = ge;
+                let st = TileStats {
+                    geometric_error_m: ge,
+                    simplified_from_triangles: Some(full.triangle_count()),
+                    full_to_coarse_m: Some(l.error.full_to_coarse_m),
+                    coarse_to_full_bound_m: Some(l.error.coarse_to_full_m),
+                    measured_error_m: Some(measured),
+                    max_folding_edge_m: Some(l.max_collapsed_edge_m),
+                    paper_error_m: Some(paper),
+                    ..Default::default()
+                };
+                let at = i - (k + 1);
+                debug_assert_eq!(chain_level[at], Some(k + 1));
+                let (b, st) = write(at, &l.content, st)?;
+                out.push((at, b, st));
+            }
+            debug_assert_eq!(levels.len(), n);
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
+    for (i, b, st) in built.into_iter().flatten() {
+        slots[i] = Some((b, st));
+    }
+    // Internal tiles (pre-order: children after parents).
+    for i in (0..plan.tiles.len()).rev() {
+        if slots[i].is_some() {
+            continue;
+        }
+        let t = &plan.tiles[i];
+        let children_max = t
+            .children
+            .iter()
+            .filter_map(|&c| slots[c].as_ref().map(|s| s.1.geometric_error_m))
+            .fold(0.0, f64::max);
+        let ge = if t.children.is_empty() {
+            0.0
+        } else {
+            t.bounds.diagonal().max(children_max * (1.0 + 1e-6) + 1e-6)
+        };
+        slots[i] = Some((
+            Aabb::EMPTY,
+            TileStats {
+                geometric_error_m: ge,
+                ..Default::default()
+            },
+        ));
+    }
+    Ok(slots
+        .into_iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let (b, st) = s.expect("every tile built");
+            (i, b, st)
+        })
+        .collect())
 }
 
 /// What `simplify_model` did.

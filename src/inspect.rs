@@ -1,6 +1,7 @@
 //! Reads a written tileset back and summarises it per level: tiles, triangles, bytes and geometric
 //! error. It reads only what is on disk (tileset.json and the GLB headers), so it also describes
-//! tilesets made by other tools.
+//! tilesets made by other tools; a bimtiles `report.json` beside them adds the levels of detail as
+//! the paper's Table I (both error metrics, see [`crate::convert::LodLevelReport`]).
 
 use crate::error::{Error, Result};
 use serde::Serialize;
@@ -26,6 +27,25 @@ pub struct TilesetSummary {
     pub triangles: u64,
     pub bytes: u64,
     pub levels: Vec<LevelSummary>,
+    /// From `report.json`, when bimtiles wrote one with levels of detail.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lod_levels: Vec<crate::convert::LodLevelReport>,
+}
+
+/// The `lod_levels` table of the `report.json` in `dir`, empty if there is none (other tools,
+/// `--lod none`); an unreadable one is an error naming it.
+fn read_lod_levels(dir: &Path) -> Result<Vec<crate::convert::LodLevelReport>> {
+    let path = dir.join("report.json");
+    let Ok(text) = std::fs::read(&path) else {
+        return Ok(Vec::new());
+    };
+    let r: Value = serde_json::from_slice(&text)
+        .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+    match r.get("lod_levels") {
+        None => Ok(Vec::new()),
+        Some(l) => serde_json::from_value(l.clone())
+            .map_err(|e| Error::input(&path, format!("unreadable lod_levels: {e}"))),
+    }
 }
 
 /// Triangle count of a GLB: sum of index counts (or vertex counts) / 3 over triangle primitives.
@@ -105,6 +125,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         triangles: levels.iter().map(|l| l.triangles).sum(),
         bytes: levels.iter().map(|l| l.bytes).sum(),
         levels,
+        lod_levels: read_lod_levels(dir)?,
     })
 }
 
@@ -146,6 +167,42 @@ impl std::fmt::Display for TilesetSummary {
                 l.geometric_error_min_m,
                 l.geometric_error_max_m
             )?;
+        }
+        if !self.lod_levels.is_empty() {
+            writeln!(
+                f,
+                "\nlevels of detail (paper Table I; distances and pixels at 1920x1080, 60°, 16 px):"
+            )?;
+            writeln!(
+                f,
+                "{:<20} {:>6} {:>10} {:>12} {:>11} {:>10} {:>10} {:>12} {:>10} {:>9}",
+                "LOD level",
+                "tiles",
+                "patches",
+                "fold edge m",
+                "measured m",
+                "paper m",
+                "declared m",
+                "visible ≥ m",
+                "Δ(mesh)px",
+                "real px"
+            )?;
+            for l in &self.lod_levels {
+                writeln!(
+                    f,
+                    "{:<20} {:>6} {:>10} {:>12.3} {:>11.4} {:>10.4} {:>10.4} {:>12.1} {:>10.1} {:>9.1}",
+                    l.level,
+                    l.tiles,
+                    l.patches,
+                    l.max_folding_edge_m,
+                    l.measured_error_max_m,
+                    l.paper_error_max_m,
+                    l.geometric_error_max_m,
+                    l.range_of_visibility_m,
+                    l.delta_mesh_px,
+                    l.measured_sse_px
+                )?;
+            }
         }
         Ok(())
     }

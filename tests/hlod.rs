@@ -203,7 +203,8 @@ fn measure_hlod(dir: &std::path::Path) -> Vec<(usize, f64, f64, f64)> {
     }
     let mut out = Vec::new();
     for (i, t) in tiles.iter().enumerate() {
-        if ch[i].is_empty() {
+        // Leaves are full detail; empty tiles (above discrete LOD chains) stand for nothing.
+        if ch[i].is_empty() || t.triangles == 0 {
             continue;
         }
         let full: Vec<Tri> = leaves_below[i]
@@ -461,5 +462,232 @@ fn no_cracks_between_tiles_at_any_level() {
             "depth {depth}: {} tiles, {checked} points where tiles meet, largest gap {worst:.2e} m",
             front.len()
         );
+    }
+}
+
+/// The paper's Δ(mesh) criterion as a geometricError, computed here from the formulas (1), (2)
+/// written out: e = L · 16 px · sqrt(1920 / (2 · 1080 · 16)) (1920x1080, Δ = 16, 60°).
+fn paper_error_by_hand(edge_m: f64) -> f64 {
+    edge_m * 16.0 * (1920.0f64 / (2.0 * 1080.0 * 16.0)).sqrt()
+}
+
+/// The sample converted in `name` with 2000-triangle tiles, no compression and `extra` options.
+fn sample_with(name: &str, extra: &[&str]) -> (std::path::PathBuf, serde_json::Value) {
+    let out = tmpdir(name).join("tiles");
+    let mut args = vec!["--max-tile-triangles", "2000", "--compression", "none"];
+    args.extend_from_slice(extra);
+    let report = convert(&sample(), &out, &args);
+    (out, report)
+}
+
+#[test]
+fn sample_paper_sse_metric_declares_the_papers_error_and_reports_both() {
+    let (out, report) = sample_with("hlod-paper-sse", &["--error-metric", "paper-sse"]);
+    assert_eq!(report["options"]["error_metric"], "paper-sse");
+    assert!(report["geometric_error_metric"]
+        .as_str()
+        .unwrap()
+        .starts_with("paper-sse"));
+    check_tileset(
+        &out,
+        report["input"]["triangles"].as_u64().unwrap() as usize,
+    );
+    let (_, tiles) = decode_tileset(&out);
+    let by_uri: HashMap<&str, &DecodedTile> = tiles
+        .iter()
+        .filter_map(|t| Some((t.uri.as_deref()?, t)))
+        .collect();
+    let mut simplified = 0;
+    for t in report["tiles"].as_array().unwrap() {
+        let Some(edge) = t["max_folding_edge_m"].as_f64() else {
+            assert_eq!(t["geometric_error_m"], 0.0, "full detail");
+            continue;
+        };
+        simplified += 1;
+        let declared = by_uri[t["content"].as_str().unwrap()].geometric_error;
+        let paper = paper_error_by_hand(edge);
+        assert!((t["paper_error_m"].as_f64().unwrap() - paper).abs() < 1e-9 * paper.max(1.0));
+        // The paper's value, unless held above a child's (3D Tiles: errors decrease downwards).
+        assert!(declared >= paper - 1e-9, "{declared} < {paper}");
+        assert!(edge > 0.0, "an internal tile collapsed edges");
+        // Both metrics are in the report: the measured one is the honest distance.
+        assert!(t["measured_error_m"].as_f64().unwrap() > 0.0);
+    }
+    assert!(simplified > 0);
+    // Table I: the HLOD rows switch where Δ(mesh) = 16 px (or later, when held by a child).
+    let rows = report["lod_levels"].as_array().unwrap();
+    assert_eq!(rows[0]["level"], "LOD0 (full detail)");
+    assert_eq!(rows[0]["max_folding_edge_m"], 0.0);
+    for r in &rows[1..] {
+        let d = r["delta_mesh_px"].as_f64().unwrap();
+        assert!(d <= 16.0 + 1e-6 && d > 0.0, "{r}");
+        let range = r["range_of_visibility_m"].as_f64().unwrap();
+        let ge = r["geometric_error_max_m"].as_f64().unwrap();
+        // 3D Tiles SSE of the declared error at that range is 16 px.
+        let sse = ge * 1080.0 / (2.0 * range * (30f64).to_radians().tan());
+        assert!((sse - 16.0).abs() < 1e-6, "{sse}");
+    }
+    // inspect shows the same table, as JSON and for people.
+    let o = run(&["inspect", out.to_str().unwrap(), "--json"]);
+    assert!(o.status.success());
+    let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(s["lod_levels"], report["lod_levels"]);
+    let o = run(&["inspect", out.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("Table I") && text.contains("HLOD depth 0"),
+        "{text}"
+    );
+}
+
+#[test]
+fn measured_metric_reports_the_papers_delta_beside_it() {
+    let (_, report) = sample_with("hlod-measured-table", &[]);
+    let (mut simplified, mut held) = (0, 0);
+    for t in report["tiles"].as_array().unwrap() {
+        if let Some(m) = t["measured_error_m"].as_f64() {
+            // The measured error is declared, unless held above a child's.
+            let declared = t["geometric_error_m"].as_f64().unwrap();
+            assert!(declared >= m, "{t}");
+            simplified += 1;
+            held += usize::from(declared > m);
+            let edge = t["max_folding_edge_m"].as_f64().unwrap();
+            let paper = paper_error_by_hand(edge);
+            assert!((t["paper_error_m"].as_f64().unwrap() - paper).abs() < 1e-9 * paper.max(1.0));
+        }
+    }
+    assert!(simplified > 0 && held < simplified);
+    // Under the measured metric the real error on screen is 16 px where the level switches.
+    for r in &report["lod_levels"].as_array().unwrap()[1..] {
+        let px = r["measured_sse_px"].as_f64().unwrap();
+        assert!(px <= 16.0 + 1e-6 && px > 1.0, "{r}");
+    }
+}
+
+/// Discrete LOD chains: structure, triangle ratios and honest, tight errors.
+fn check_chains(name: &str, out: &std::path::Path, report: &serde_json::Value, ratios: &[f64]) {
+    let tiles = check_tileset(out, report["input"]["triangles"].as_u64().unwrap() as usize);
+    assert_eq!(report["options"]["lod"], "ratios");
+    let ch = children(&tiles);
+    // Per level: triangles over the chains, and every chain tile's only child is the next level,
+    // with the same bounds (up to where simplified vertices moved) and a smaller error.
+    let mut per_level = vec![0usize; ratios.len() + 1];
+    let rep: HashMap<&str, &serde_json::Value> = report["tiles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|t| Some((t["content"].as_str()?, t)))
+        .collect();
+    for (i, t) in tiles.iter().enumerate() {
+        let Some(uri) = &t.uri else {
+            continue;
+        };
+        let k = rep[uri.as_str()]["lod_level"].as_u64().unwrap() as usize;
+        per_level[k] += t.triangles;
+        if k > 0 {
+            assert_eq!(ch[i].len(), 1, "{name}: a chain tile has one child");
+            let c = &tiles[ch[i][0]];
+            assert_eq!(rep[c.uri.as_deref().unwrap()]["lod_level"], k as u64 - 1);
+            assert!(c.geometric_error < t.geometric_error);
+            assert!((c.box_min - t.box_min).abs().max_element() < 0.5);
+        } else {
+            assert!(ch[i].is_empty() && t.geometric_error == 0.0);
+        }
+    }
+    for (k, r) in ratios.iter().enumerate() {
+        let got = per_level[k + 1] as f64 / per_level[0] as f64;
+        eprintln!(
+            "{name}: LOD{} keeps {got:.3} of the triangles (ratio {r})",
+            k + 1
+        );
+        assert!(
+            (got - r).abs() < 0.05,
+            "{name}: LOD{} has {got} of full, not {r}",
+            k + 1
+        );
+    }
+    let rows = report["lod_levels"].as_array().unwrap();
+    assert_eq!(rows.len(), ratios.len() + 1);
+    check_honest_and_tight(name, out);
+}
+
+#[test]
+fn sample_lod_chains_are_honest_and_keep_their_ratios() {
+    let (out, report) = sample_with("chains-sample", &["--lod-ratios", "0.85,0.7,0.5"]);
+    check_chains("sample", &out, &report, &[0.85, 0.7, 0.5]);
+    if let Some((_, errors, _)) = gltf_validator(&out) {
+        assert_eq!(errors, 0);
+    }
+    // Bad ratios are a one-line error, nothing written.
+    let bad = tmpdir("chains-bad").join("tiles");
+    let o = run(&[
+        "convert",
+        "--out",
+        bad.to_str().unwrap(),
+        "--lod-ratios",
+        "0.5,1.5",
+    ]);
+    assert!(!o.status.success() && !bad.exists());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--lod-ratios"));
+}
+
+#[test]
+fn shared_model_lod_chains_are_honest_and_keep_their_ratios() {
+    let Some(model) = shared_models()
+        .into_iter()
+        .find(|m| m.to_string_lossy().contains("AC20-FZK-Haus.glb"))
+    else {
+        eprintln!("SKIPPED: AC20-FZK-Haus not found");
+        return;
+    };
+    let out = tmpdir("chains-fzk").join("tiles");
+    let report = convert(
+        &model,
+        &out,
+        &[
+            "--max-tile-triangles",
+            "5000",
+            "--compression",
+            "none",
+            "--lod-ratios",
+            "0.85,0.7,0.5",
+        ],
+    );
+    check_chains("AC20-FZK-Haus", &out, &report, &[0.85, 0.7, 0.5]);
+    if let Some((_, errors, _)) = gltf_validator(&out) {
+        assert_eq!(errors, 0);
+    }
+}
+
+#[test]
+fn railway_root_is_within_the_budget() {
+    // LoD3_Railway's many small closed parts stalled the simplifier above the budget (the root
+    // kept 2,170 triangles for 2,000). At the root no part continues outside, so nothing is
+    // locked and the budget holds. Below it, parts cut across tiles keep their borders locked (no
+    // cracks), and tiles made mostly of such borders can still overshoot (r0: 2,453).
+    let Some(model) = shared_models()
+        .into_iter()
+        .find(|m| m.to_string_lossy().contains("LoD3_Railway.glb"))
+    else {
+        eprintln!("SKIPPED: LoD3_Railway not found");
+        return;
+    };
+    let out = tmpdir("hlod-railway-budget").join("tiles");
+    let report = convert(&model, &out, &["--max-tile-triangles", "2000"]);
+    let tiles = report["tiles"].as_array().unwrap();
+    assert_eq!(tiles[0]["path"], "r");
+    assert!(tiles[0]["simplified_from_triangles"].as_u64().unwrap() > 2000);
+    assert!(
+        tiles[0]["stored_triangles"].as_u64().unwrap() <= 2000,
+        "{}",
+        tiles[0]
+    );
+    for t in tiles {
+        if t["simplified_from_triangles"].is_u64() && t["stored_triangles"].as_u64() > Some(2000) {
+            eprintln!(
+                "over budget (locked borders): {} {}",
+                t["path"], t["stored_triangles"]
+            );
+        }
     }
 }

@@ -53,8 +53,6 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
         "--out",
         out.to_str().unwrap(),
         "--quiet",
-        "--compression",
-        "none",
         "--max-tile-triangles",
         "3000",
     ]);

@@ -1,7 +1,7 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{convert_input_set, ConvertOptions, LodMode};
+use bimtiles::convert::{convert_input_set, ConvertOptions, ErrorMetric, LodMode};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
 use bimtiles::ingest::InputSet;
@@ -140,6 +140,16 @@ struct ConvertArgs {
     /// refine ADD).
     #[arg(long, value_enum, default_value = "hlod")]
     lod: LodArg,
+    /// Discrete LOD chains instead of HLOD (the paper's LOD1..LOD3): every leaf tile becomes a
+    /// chain of tiles with its bounds, simplified to these fractions of its triangles, coarsest
+    /// first, full detail last (refine REPLACE). E.g. 0.85,0.7,0.5.
+    #[arg(long, value_delimiter = ',', conflicts_with = "lod")]
+    lod_ratios: Option<Vec<f32>>,
+    /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
+    /// default) or paper-sse (the paper's screen-space error of the longest collapsed edge,
+    /// formulas (1) and (2): not a distance bound). The report shows both per level.
+    #[arg(long, value_enum, default_value = "measured")]
+    error_metric: ErrorMetricArg,
     /// Keep every component as read: no exact-duplicate removal, no sharing of congruent shapes.
     #[arg(long)]
     no_dedup: bool,
@@ -204,6 +214,12 @@ struct PlanArgs {
 enum LodArg {
     Hlod,
     None,
+}
+
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum ErrorMetricArg {
+    Measured,
+    PaperSse,
 }
 
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -436,9 +452,17 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             CompressionArg::Quantized => Compression::Quantized,
             CompressionArg::None => Compression::None,
         },
-        lod: match a.lod {
-            LodArg::Hlod => LodMode::Hlod,
-            LodArg::None => LodMode::None,
+        lod: match (&a.lod_ratios, a.lod) {
+            (Some(r), _) => LodMode::Ratios(
+                bimtiles::simplify::lod_chain::chain_ratios(r)
+                    .map_err(|e| anyhow::anyhow!("--lod-ratios: {e}"))?,
+            ),
+            (None, LodArg::Hlod) => LodMode::Hlod,
+            (None, LodArg::None) => LodMode::None,
+        },
+        error_metric: match a.error_metric {
+            ErrorMetricArg::Measured => ErrorMetric::Measured,
+            ErrorMetricArg::PaperSse => ErrorMetric::PaperSse,
         },
         simplify: SimplifyOptions::default(),
         dedup: (!a.no_dedup).then(|| DedupOptions {
@@ -462,6 +486,11 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             jpeg_quality: a.jpeg_quality,
         },
     };
+    if opts.lod == LodMode::None && opts.error_metric == ErrorMetric::PaperSse {
+        anyhow::bail!(
+            "--error-metric paper-sse needs simplified tiles: use --lod hlod or --lod-ratios"
+        );
+    }
     if !(a.dedup_tolerance_m.is_finite() && a.dedup_tolerance_m >= 0.0) {
         anyhow::bail!(
             "--dedup-tolerance-m must be a distance in metres, got {}",

@@ -268,6 +268,9 @@ pub struct Encoded {
     /// u32 values are exact. f32 data converts exactly: write them as the accessor's
     /// `min`/`max`.
     pub attribute_min_max: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The decoded POSITION values, xyz per point: where the client will draw the vertices
+    /// (bounding volumes of instanced copies are built from them).
+    pub decoded_positions: Vec<[f32; 3]>,
 }
 
 impl Encoded {
@@ -454,12 +457,18 @@ pub fn encode_mesh(
         })?;
         attribute_min_max.push(att.min_max());
     }
+    let decoded_positions = decoded
+        .first_of_kind(AttributeKind::Position)
+        .and_then(|a| a.values.as_f32())
+        .map(|v| v.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect())
+        .unwrap_or_default();
     Ok(Encoded {
         bytes: raw.bytes,
         attribute_ids: raw.attribute_ids,
         point_count: decoded.point_count,
         face_count: decoded.face_count,
         attribute_min_max,
+        decoded_positions,
     })
 }
 

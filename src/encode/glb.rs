@@ -431,8 +431,8 @@ impl MaterialTable<'_> {
 }
 
 /// Writes one primitive (plain or Draco) with its material; with `feature_count`, per-vertex
-/// feature IDs (`EXT_mesh_features`). Returns the primitive and, with Draco, the box of the
-/// decoded positions (glTF y-up, primitive frame).
+/// feature IDs (`EXT_mesh_features`). Returns the primitive and, when compressed, the decoded
+/// positions (glTF y-up, primitive frame): where the client draws the vertices.
 #[allow(clippy::too_many_arguments)]
 fn write_primitive(
     scene: &Scene,
@@ -443,12 +443,12 @@ fn write_primitive(
     property_table: bool,
     enc: &TileEncoding,
     frame: Option<&QuantFrame>,
-) -> std::result::Result<(Value, Option<DecodedBox>), String> {
+) -> std::result::Result<(Value, Option<Vec<DVec3>>), String> {
     let (mut prim, decoded) = match enc.compression {
         Compression::None => (plain_primitive(b, m, feature_count.is_some(), None), None),
         Compression::Quantized => {
             let p = plain_primitive(b, m, feature_count.is_some(), Some(frame));
-            (p, frame.map(|f| f.decoded_box(&m.positions)))
+            (p, frame.map(|f| f.decoded_positions(&m.positions)))
         }
         Compression::Draco => {
             let texels = texture_texels(scene, m.material);
@@ -469,9 +469,6 @@ fn write_primitive(
     }
     Ok((prim, decoded))
 }
-
-/// Min and max corner of decoded (quantized) positions, glTF y-up.
-type DecodedBox = ([f64; 3], [f64; 3]);
 
 /// A point of glTF (y-up) back in the scene frame (z-up).
 fn z_up(v: DVec3) -> DVec3 {
@@ -520,9 +517,8 @@ fn write_glb(
                 enc,
                 frame.as_ref(),
             )?;
-            if let Some((lo, hi)) = decoded {
-                bounds.extend(center + z_up(DVec3::from(lo)));
-                bounds.extend(center + z_up(DVec3::from(hi)));
+            for p in decoded.iter().flatten() {
+                bounds.extend(center + z_up(*p));
             }
             primitives.push(prim);
         }
@@ -544,7 +540,9 @@ fn write_glb(
     for shape in &content.instanced {
         let frame = frame_of(&shape.primitives);
         let mut primitives = Vec::new();
-        let mut decoded_box = Aabb::EMPTY;
+        // Decoded vertices of the shape (scene frame, z-up): every instance's copy of them
+        // goes into the tile's box, so a rotated copy is bounded exactly, not by a turned box.
+        let mut decoded_points: Vec<DVec3> = Vec::new();
         for m in &shape.primitives {
             let (prim, decoded) = write_primitive(
                 scene,
@@ -556,10 +554,7 @@ fn write_glb(
                 enc,
                 frame.as_ref(),
             )?;
-            if let Some((lo, hi)) = decoded {
-                decoded_box.extend(z_up(DVec3::from(lo)));
-                decoded_box.extend(z_up(DVec3::from(hi)));
-            }
+            decoded_points.extend(decoded.iter().flatten().map(|p| z_up(*p)));
             primitives.push(prim);
         }
         meshes.push(json!({"primitives": primitives}));
@@ -581,27 +576,8 @@ fn write_glb(
             rotations.push(r.normalize().as_quat().to_array());
             scales.push(s.as_vec3().to_array());
             fids.push([inst.feature as f32]);
-            if !decoded_box.is_empty() {
-                for k in 0..8 {
-                    let corner = DVec3::new(
-                        if k & 1 == 0 {
-                            decoded_box.min.x
-                        } else {
-                            decoded_box.max.x
-                        },
-                        if k & 2 == 0 {
-                            decoded_box.min.y
-                        } else {
-                            decoded_box.max.y
-                        },
-                        if k & 4 == 0 {
-                            decoded_box.min.z
-                        } else {
-                            decoded_box.max.z
-                        },
-                    );
-                    bounds.extend(center + inst.transform.transform_point3(corner));
-                }
+            for p in &decoded_points {
+                bounds.extend(center + inst.transform.transform_point3(*p));
             }
         }
         let mut attributes = Map::new();
@@ -736,17 +712,12 @@ impl QuantFrame {
         [0, 1, 2].map(|k| self.center[k] + self.scale * q[k] as f64 / I16_MAX)
     }
 
-    /// Box of the dequantized positions (glTF y-up, mesh frame).
-    fn decoded_box(&self, positions: &[[f32; 3]]) -> DecodedBox {
-        let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-        for p in y_up(positions) {
-            let d = self.dequantize(self.quantize(p));
-            for k in 0..3 {
-                lo[k] = lo[k].min(d[k]);
-                hi[k] = hi[k].max(d[k]);
-            }
-        }
-        (lo, hi)
+    /// The dequantized positions (glTF y-up, mesh frame).
+    fn decoded_positions(&self, positions: &[[f32; 3]]) -> Vec<DVec3> {
+        y_up(positions)
+            .into_iter()
+            .map(|p| DVec3::from(self.dequantize(self.quantize(p))))
+            .collect()
     }
 
     /// The node (or instance) transform that dequantizes (clients read a normalized i16 `q` as
@@ -830,14 +801,14 @@ fn plain_primitive(
 
 /// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
 /// decoded data, as KHR_draco_mesh_compression requires; with `feature_count`, the per-vertex
-/// feature IDs go in too. Also returns the decoded positions' box.
+/// feature IDs go in too. Also returns the decoded positions.
 fn draco_primitive(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
     feature_count: Option<usize>,
     enc: &TileEncoding,
     uv_texels: u32,
-) -> std::result::Result<(Value, DecodedBox), String> {
+) -> std::result::Result<(Value, Vec<DVec3>), String> {
     use super::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
     let positions_y_up = y_up(&m.positions);
     let normals_y_up = y_up(&m.normals);
@@ -897,14 +868,12 @@ fn draco_primitive(
     let view = b.view(&encoded.bytes, None);
     let mut attributes = Map::new();
     let mut draco_ids = Map::new();
-    let mut decoded_box = ([0.0; 3], [0.0; 3]);
     for (k, &(name, ct, ty)) in names.iter().enumerate() {
         let mut a = json!({"componentType": ct, "count": encoded.point_count, "type": ty});
         if name == "POSITION" {
             let (min, max) = &encoded.attribute_min_max[k];
             a["min"] = json!(min);
             a["max"] = json!(max);
-            decoded_box = ([min[0], min[1], min[2]], [max[0], max[1], max[2]]);
         }
         b.accessors.push(a);
         attributes.insert(name.into(), json!(b.accessors.len() - 1));
@@ -925,7 +894,11 @@ fn draco_primitive(
             "indices": indices,
             "extensions": {"KHR_draco_mesh_compression": {"bufferView": view, "attributes": draco_ids}}
         }),
-        decoded_box,
+        encoded
+            .decoded_positions
+            .iter()
+            .map(|p| DVec3::from(p.map(f64::from)))
+            .collect(),
     ))
 }
 

@@ -159,6 +159,13 @@ pub fn plan(
     command: serde_json::Value,
 ) -> Result<PlanFile> {
     let dir = &opts.out_dir;
+    if matches!(opts.lod, crate::convert::LodMode::Ratios(_)) {
+        // A chain hangs below a whole leaf; jobs split the tree above leaves (not built yet).
+        return Err(Error::output(
+            dir,
+            "--lod-ratios is supported by convert only, not by sharded builds",
+        ));
+    }
     if dir.exists() {
         if !opts.force {
             return Err(Error::output(
@@ -326,6 +333,7 @@ pub fn build_job(
         dir,
         &textures,
         &l.prep.appearance,
+        &l.prep.chain_level,
         count,
     )?;
     let output = writer.build_subtrees(roots, &Default::default(), Default::default())?;
@@ -434,6 +442,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         dir,
         &textures,
         &l.prep.appearance,
+        &l.prep.chain_level,
         l.file.top.len(),
     )?;
     let stats = writer.merge(outputs, &all_roots, l.prep.origin, l.prep.anchor)?;

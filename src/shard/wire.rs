@@ -9,7 +9,7 @@ use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
 use crate::tile_content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use glam::{DMat4, DVec3};
 
-const MAGIC: &[u8; 8] = b"BIMTJOB1";
+const MAGIC: &[u8; 8] = b"BIMTJOB2";
 const END: &[u8; 4] = b"END.";
 
 /// A job's result as stored.
@@ -116,6 +116,9 @@ impl W {
         self.opt(&s.simplified_from_triangles, |w, &v| w.n(v));
         self.opt(&s.full_to_coarse_m, |w, &v| w.f64(v));
         self.opt(&s.coarse_to_full_bound_m, |w, &v| w.f64(v));
+        self.opt(&s.measured_error_m, |w, &v| w.f64(v));
+        self.opt(&s.max_folding_edge_m, |w, &v| w.f64(v));
+        self.opt(&s.paper_error_m, |w, &v| w.f64(v));
     }
 }
 
@@ -138,6 +141,7 @@ pub(crate) fn encode(f: &JobFile) -> Vec<u8> {
         w.content(&r.content);
         w.f64(r.geometric_error_m);
         w.f64(r.coarse_to_full_m);
+        w.f64(r.max_folding_edge_m);
         w.n(r.cut_triangles.len());
         for (c, n) in &r.cut_triangles {
             w.u32(c.0);
@@ -252,6 +256,13 @@ impl R<'_> {
             })?,
         })
     }
+    fn opt_f64(&mut self) -> Res<Option<f64>> {
+        Ok(if self.flag()? {
+            Some(self.f64()?)
+        } else {
+            None
+        })
+    }
     fn stats(&mut self) -> Res<TileStats> {
         Ok(TileStats {
             uri: if self.flag()? {
@@ -273,16 +284,11 @@ impl R<'_> {
             } else {
                 None
             },
-            full_to_coarse_m: if self.flag()? {
-                Some(self.f64()?)
-            } else {
-                None
-            },
-            coarse_to_full_bound_m: if self.flag()? {
-                Some(self.f64()?)
-            } else {
-                None
-            },
+            full_to_coarse_m: self.opt_f64()?,
+            coarse_to_full_bound_m: self.opt_f64()?,
+            measured_error_m: self.opt_f64()?,
+            max_folding_edge_m: self.opt_f64()?,
+            paper_error_m: self.opt_f64()?,
         })
     }
 }
@@ -302,6 +308,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
         let content = r.content()?;
         let geometric_error_m = r.f64()?;
         let coarse_to_full_m = r.f64()?;
+        let max_folding_edge_m = r.f64()?;
         let cut_triangles = r
             .vec(12, |r| Ok((ComponentId(r.u32()?), r.u64()? as usize)))?
             .into_iter()
@@ -312,6 +319,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
                 content,
                 geometric_error_m,
                 coarse_to_full_m,
+                max_folding_edge_m,
                 cut_triangles,
             },
         ))
@@ -367,6 +375,7 @@ mod tests {
                         uri: Some("tiles/r0.glb".into()),
                         geometric_error_m: 0.1 + 0.2,
                         full_to_coarse_m: Some(1.0 / 3.0),
+                        paper_error_m: Some(0.7),
                         ..Default::default()
                     },
                 )],
@@ -376,6 +385,7 @@ mod tests {
                         content,
                         geometric_error_m: 2.0f64.sqrt(),
                         coarse_to_full_m: 0.5,
+                        max_folding_edge_m: 0.25,
                         cut_triangles: [(ComponentId(4), 12)].into_iter().collect(),
                     },
                 )],

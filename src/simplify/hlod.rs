@@ -36,6 +36,8 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 pub struct HlodContent {
     pub content: TileContent,
     pub input_triangles: usize,
+    /// Longest edge the simplifier collapsed (the paper's maximum folding edge length, metres).
+    pub max_collapsed_edge_m: f64,
 }
 
 /// One tile content as a single triangle soup (all primitives), for distance queries.
@@ -72,7 +74,9 @@ pub struct TileError {
 
 /// Declared error of `content` (the tile's simplified geometry, P) with respect to the full detail
 /// `leaves` below it, given its `children`'s content and their `coarse_to_full_m` bounds (see the
-/// module docs).
+/// module docs). Each leaf is sampled at every vertex, edge midpoint and centroid plus as many
+/// area-weighted points as it has triangles, and at least `min_leaf_samples` (a small leaf alone,
+/// as under a discrete LOD chain, needs more than its triangle count).
 /// All contents must share `content.center`'s frame or carry their own centre (they are
 /// re-anchored).
 pub fn tile_error(
@@ -80,6 +84,7 @@ pub fn tile_error(
     content: &TileContent,
     children: &[(&TileContent, f64)],
     leaves: &[&[ContentItem]],
+    min_leaf_samples: usize,
     opts: &SimplifyOptions,
 ) -> TileError {
     let center = content.center;
@@ -91,7 +96,8 @@ pub fn tile_error(
     leaves.par_iter().for_each(|items| {
         let leaf = TileContent::gather(scene, items, center);
         let (lp, li) = soup(&leaf);
-        let pts = sample_surface_dense(TriMesh::new(&lp, &li), li.len() / 3);
+        let pts =
+            sample_surface_dense(TriMesh::new(&lp, &li), (li.len() / 3).max(min_leaf_samples));
         pts.par_iter().with_min_len(1024).for_each_init(
             || u32::MAX,
             |hint, &x| {
@@ -208,6 +214,9 @@ pub fn simplify_children(
             r = again;
         }
     }
+    if r.triangle_count() > target_triangles {
+        drop_smallest_parts(&mut r, locked.as_deref(), target_triangles);
+    }
     // Back to one primitive per material, vertices compacted per primitive.
     let mut prims: Vec<ContentPrimitive> = merged
         .primitives
@@ -252,7 +261,61 @@ pub fn simplify_children(
     Ok(HlodContent {
         content,
         input_triangles,
+        max_collapsed_edge_m: r.max_collapsed_edge_m,
     })
+}
+
+/// The budget's last resort, when collapses stall above it (many small closed parts, locked
+/// borders; LoD3_Railway's root kept 2,170 triangles for 2,000): whole parts (one feature of one
+/// material: a vertex group) are dropped, smallest box diagonal first, until the tile fits. Parts
+/// with a locked vertex stay (their neighbours rely on their borders). The error measured
+/// afterwards ([`tile_error`]) accounts for what was dropped.
+fn drop_smallest_parts(r: &mut super::SimplifiedMesh, locked: Option<&[bool]>, target: usize) {
+    let mut parts: BTreeMap<u32, (usize, [f32; 3], [f32; 3], bool)> = BTreeMap::new();
+    for t in r.indices.chunks_exact(3) {
+        let e = parts.entry(r.groups[t[0] as usize]).or_insert((
+            0,
+            [f32::MAX; 3],
+            [f32::MIN; 3],
+            false,
+        ));
+        e.0 += 1;
+        for &v in t {
+            let p = r.positions[v as usize];
+            for k in 0..3 {
+                e.1[k] = e.1[k].min(p[k]);
+                e.2[k] = e.2[k].max(p[k]);
+            }
+            e.3 |= locked.is_some_and(|l| l[r.source_vertex[v as usize] as usize]);
+        }
+    }
+    let mut order: Vec<(f32, u32, usize)> = parts
+        .iter()
+        .filter(|(_, p)| !p.3)
+        .map(|(&g, p)| {
+            let d = (0..3).map(|k| (p.2[k] - p.1[k]).powi(2)).sum::<f32>();
+            (d, g, p.0)
+        })
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut live = r.triangle_count();
+    let mut dropped = Vec::new();
+    for (_, g, n) in order {
+        if live <= target {
+            break;
+        }
+        dropped.push(g);
+        live -= n;
+    }
+    dropped.sort_unstable();
+    let keep: Vec<u32> = r
+        .indices
+        .chunks_exact(3)
+        .filter(|t| dropped.binary_search(&r.groups[t[0] as usize]).is_err())
+        .flatten()
+        .copied()
+        .collect();
+    r.indices = keep;
 }
 
 /// Locks the open-border vertices of the features whose component continues outside the tile.
@@ -371,6 +434,37 @@ mod tests {
                 assert_eq!(x < 5.5, f == 0);
             }
         }
+    }
+
+    #[test]
+    fn smallest_unlocked_parts_go_when_over_budget() {
+        // Parts 0..4 of 2 triangles each, part k of size k + 1; part 0 has a locked vertex.
+        let mut r = crate::simplify::SimplifiedMesh::default();
+        for k in 0..5u32 {
+            let s = (k + 1) as f32;
+            let b = r.positions.len() as u32;
+            for p in [[0.0, 0.0, 0.0], [s, 0.0, 0.0], [s, s, 0.0], [0.0, s, 0.0]] {
+                r.positions.push([p[0] + 10.0 * k as f32, p[1], p[2]]);
+                r.groups.push(k);
+                r.source_vertex.push(r.source_vertex.len() as u32);
+            }
+            r.indices.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+        }
+        let mut locked = vec![false; 20];
+        locked[1] = true;
+        // 10 triangles, budget 5: parts 1, 2 and 3 (the smallest unlocked) go, 0 (locked) and 4
+        // stay.
+        drop_smallest_parts(&mut r, Some(&locked), 5);
+        let left: Vec<u32> = r
+            .indices
+            .chunks_exact(3)
+            .map(|t| r.groups[t[0] as usize])
+            .collect();
+        assert_eq!(left, [0, 0, 4, 4]);
+        // Within budget: nothing goes.
+        let before = r.indices.clone();
+        drop_smallest_parts(&mut r, None, 4);
+        assert_eq!(r.indices, before);
     }
 
     #[test]

@@ -9,7 +9,8 @@
 //! [`SimplifyOptions::max_edge_length_m`]). The paper's formulas (1) and (2)
 //! (screen-space size of an edge, `Δ(mesh)`) choose the LOD to display; they
 //! live with the tileset code, which gets a metric distance from here:
-//! [`SimplifiedMesh::error_m`].
+//! [`SimplifiedMesh::error_m`], and the longest edge it collapsed:
+//! [`SimplifiedMesh::max_collapsed_edge_m`].
 //!
 //! Pipeline of [`simplify`]:
 //! 1. validate the input (never panics; see [`SimplifyError`]);
@@ -69,6 +70,7 @@
 mod curvature;
 pub mod hausdorff;
 pub mod hlod;
+pub mod lod_chain;
 mod qem;
 pub mod quadric;
 mod weld;
@@ -206,6 +208,12 @@ pub struct SimplifiedMesh {
     pub error_lower_m: f64,
     /// Largest QEM distance estimate of an applied collapse (not a bound).
     pub qem_error_m: f64,
+    /// Longest edge actually collapsed, metres: the paper's "maximum folding edge length" L
+    /// (III.C(3), Table I), which its formulas (1) and (2) turn into a screen-space error
+    /// ([`crate::tileset::view::paper_delta_mesh_px`]). A connected part dropped whole counts as
+    /// its diameter (it is only dropped when that is within
+    /// [`SimplifyOptions::max_edge_length_m`]). 0 when nothing was collapsed.
+    pub max_collapsed_edge_m: f64,
     /// Triangles in the input.
     pub input_triangles: usize,
 }
@@ -436,6 +444,7 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
         colors: mesh.colors.map(|_| Vec::new()),
         input_triangles,
         qem_error_m: out.max_qem_distance,
+        max_collapsed_edge_m: out.max_collapsed_edge,
         ..Default::default()
     };
     res.indices.reserve(out.tris.len() * 3);

@@ -99,6 +99,9 @@ pub(crate) struct QemOutput {
     /// Largest QEM distance estimate (RMS distance to merged planes) of an
     /// applied collapse, metres.
     pub max_qem_distance: f64,
+    /// Longest edge actually collapsed (the paper's maximum folding edge length, III.C(3)),
+    /// metres; a connected part dropped whole counts as its diameter.
+    pub max_collapsed_edge: f64,
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -1103,6 +1106,7 @@ pub(crate) fn run(
         }
     }
     let mut max_d2: f64 = 0.0;
+    let mut max_edge2: f64 = 0.0;
     let mut touched = vec![false; nv];
     let mut entries: Vec<Entry> = Vec::new();
     let mut ranked: Vec<Ranked> = Vec::new();
@@ -1293,6 +1297,7 @@ pub(crate) fn run(
                 }
                 comp_live[c] = 0;
                 max_d2 = max_d2.max(en.key);
+                max_edge2 = max_edge2.max(4.0 * st.comp_r2[c]);
                 collapses += 1;
                 continue;
             }
@@ -1356,6 +1361,7 @@ pub(crate) fn run(
                 goal_idx += 1;
                 continue;
             };
+            max_edge2 = max_edge2.max((st.pos[u as usize] - st.pos[v as usize]).length_squared());
             let d2 = st.apply(u, v, cand.p, cand.dist2, &su, &e);
             max_d2 = max_d2.max(d2);
             collapses += 1;
@@ -1380,5 +1386,6 @@ pub(crate) fn run(
         attr: st.attr,
         tris,
         max_qem_distance: max_d2.sqrt(),
+        max_collapsed_edge: max_edge2.sqrt(),
     }
 }

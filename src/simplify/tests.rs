@@ -335,6 +335,49 @@ fn max_edge_length_is_respected() {
     .unwrap();
     // Collapsing only edges <= 0.12 m leaves many triangles.
     assert!(r.triangle_count() > 40, "{}", r.triangle_count());
+    // The reported longest collapsed edge is within the limit, and longer than the grid's
+    // shortest edge (something was collapsed).
+    assert!(
+        r.max_collapsed_edge_m <= 0.12 + 1e-6,
+        "{}",
+        r.max_collapsed_edge_m
+    );
+    assert!(
+        r.max_collapsed_edge_m >= 0.05 - 1e-6,
+        "{}",
+        r.max_collapsed_edge_m
+    );
+}
+
+#[test]
+fn max_collapsed_edge_is_the_longest_collapse() {
+    // Nothing to do: no collapse, length 0.
+    let (p, idx) = grid(10, 0.0);
+    let none = simplify(
+        &input(&p, &idx),
+        &SimplifyOptions {
+            target_ratio: 1.0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(none.max_collapsed_edge_m, 0.0);
+    // Coarser targets collapse longer edges (edges grow as the mesh coarsens), never longer
+    // than the grid's extent.
+    let at = |ratio: f32| {
+        simplify(
+            &input(&p, &idx),
+            &SimplifyOptions {
+                target_ratio: ratio,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+        .max_collapsed_edge_m
+    };
+    let (fine, coarse) = (at(0.8), at(0.05));
+    assert!(fine > 0.0 && fine < coarse, "{fine} {coarse}");
+    assert!(coarse <= 2f64.sqrt() + 1e-6, "{coarse}");
 }
 
 #[test]

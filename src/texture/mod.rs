@@ -21,7 +21,8 @@ pub mod external;
 pub mod haar;
 pub mod identical;
 pub mod lod;
-pub mod view;
+/// The first-view selection simulation moved to the tileset module (it serves geometry too).
+pub use crate::tileset::view;
 
 pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
 

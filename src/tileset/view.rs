@@ -1,0 +1,335 @@
+//! Screen-space error, two ways.
+//!
+//! 1. What a 3D Tiles client loads for a first view of the whole model (the measurement behind the
+//!    paper's loading claims, III.C(3), III.F, Table V, and issue 4's first-view figures): tiles
+//!    are selected as CesiumJS does, by screen-space error
+//!    `sse = geometricError * screenHeight / (2 * distance * tan(fovY / 2))`, refining while it is
+//!    above the limit (16 px by default); the selected tiles' GLB bytes, image bytes, drawn
+//!    triangles and levels are summed ([`first_view`]). The camera looks at the root's bounding
+//!    box from a distance at which its bounding sphere fills the vertical field of view, from the
+//!    south-east and above. No frustum culling: the whole model is in view. [`full_view`] is the
+//!    same selection refined to the end (every tile with `geometricError` > 0 refines): the full
+//!    model.
+//! 2. The paper's own formulation (III.C(3), formulas (1) and (2), Table I): the on-screen length
+//!    of a collapsed ("folding") edge of length L at distance d, `SSE(x) = L x / (2 d tan(θ/2))`,
+//!    and the mesh error `Δ(mesh) = Weight·Height / (2xy) · SSE(x) · SSE(y)`
+//!    ([`paper_sse_px`], [`paper_delta_mesh_px`]), and the geometricError that makes a 3D Tiles
+//!    client switch where Δ(mesh) reaches [`PAPER_MAX_DELTA_PX`] ([`paper_geometric_error_m`]).
+
+use glam::DVec3;
+use serde::Serialize;
+use serde_json::Value;
+use std::path::Path;
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ViewOptions {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub fov_y_deg: f64,
+    pub max_sse_px: f64,
+}
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        ViewOptions {
+            width_px: 1920,
+            height_px: 1080,
+            fov_y_deg: 60.0,
+            max_sse_px: 16.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct FirstView {
+    /// Tiles selected (with content).
+    pub tiles: usize,
+    /// Their GLB bytes.
+    pub glb_bytes: u64,
+    /// Image bytes embedded in them.
+    pub texture_bytes: u64,
+    pub images: usize,
+    /// Triangles the selected tiles draw (an instanced mesh once per instance).
+    pub triangles: u64,
+    /// Distinct tree depths (root = 0) among the selected tiles, and the deepest.
+    pub levels: usize,
+    pub max_depth: u32,
+}
+
+/// The largest Δ(mesh) (formula (2), pixels) the paper accepts: Table I's coarsest level was
+/// chosen at Δ(mesh) = 16 ("the LOD level with the largest error within an acceptable range").
+pub const PAPER_MAX_DELTA_PX: f64 = 16.0;
+
+/// Formula (1) of the paper: the on-screen length (pixels) of an edge of `edge_m` metres seen at
+/// `distance_m`, on a screen side of `screen_px` pixels spanning the field of view `fov_deg`:
+/// `SSE(x) = L x / (2 d tan(θ/2))`. The paper uses one θ for both screen sides.
+pub fn paper_sse_px(edge_m: f64, distance_m: f64, screen_px: f64, fov_deg: f64) -> f64 {
+    edge_m * screen_px / (2.0 * distance_m * (fov_deg.to_radians() / 2.0).tan())
+}
+
+/// Formula (2) of the paper: `Δ(mesh) = Weight·Height / (2xy) · SSE(x) · SSE(y)`, the pixels a
+/// triangle with edge `edge_m` covers at `distance_m`. `x`, `y` are the screen's sides in pixels
+/// (`v.width_px`, `v.height_px`); Weight and Height, the viewport's, are the same here (the canvas
+/// fills the screen), so `Δ = SSE(x) SSE(y) / 2`, the area of a right triangle with those legs.
+pub fn paper_delta_mesh_px(edge_m: f64, distance_m: f64, v: &ViewOptions) -> f64 {
+    let (x, y) = (v.width_px as f64, v.height_px as f64);
+    let (weight, height) = (x, y);
+    let sse_x = paper_sse_px(edge_m, distance_m, x, v.fov_y_deg);
+    let sse_y = paper_sse_px(edge_m, distance_m, y, v.fov_y_deg);
+    weight * height / (2.0 * x * y) * sse_x * sse_y
+}
+
+/// The nearest distance (metres) at which a level whose longest collapsed edge is `edge_m` is
+/// acceptable by the paper: where Δ(mesh) falls to `max_delta_px` (the paper's "range of
+/// visibility"). From (2): `Δ = W H L² / (8 d² tan²(θ/2))`.
+pub fn paper_visibility_distance_m(edge_m: f64, v: &ViewOptions, max_delta_px: f64) -> f64 {
+    let (w, h) = (v.width_px as f64, v.height_px as f64);
+    edge_m * (w * h / (8.0 * max_delta_px)).sqrt() / (v.fov_y_deg.to_radians() / 2.0).tan()
+}
+
+/// The `geometricError` (metres) under which a 3D Tiles client (screen-space error limit
+/// `v.max_sse_px`) switches a level away exactly where the paper would:
+/// at [`paper_visibility_distance_m`]. Solving `e h / (2 d tan(θ/2)) = max_sse_px` there gives
+/// `e = L · max_sse_px · sqrt(W / (2 H Δmax))`, 3.77 L at 1920x1080, 16 px and Δmax = 16. It is a
+/// multiple of the longest collapsed edge, not a measured distance: a surface moved by several
+/// collapses can lie farther than that from full detail (not honest in general).
+pub fn paper_geometric_error_m(edge_m: f64, v: &ViewOptions, max_delta_px: f64) -> f64 {
+    let d = paper_visibility_distance_m(edge_m, v, max_delta_px);
+    2.0 * v.max_sse_px * d * (v.fov_y_deg.to_radians() / 2.0).tan() / v.height_px as f64
+}
+
+/// The nearest distance (metres) at which a 3D Tiles client still draws a tile of `geometric_error_m`
+/// instead of refining it (where its screen-space error equals `v.max_sse_px`).
+pub fn switch_distance_m(geometric_error_m: f64, v: &ViewOptions) -> f64 {
+    geometric_error_m * v.height_px as f64
+        / (2.0 * v.max_sse_px * (v.fov_y_deg.to_radians() / 2.0).tan())
+}
+
+/// Screen-space error (pixels) of a `geometric_error_m` at `distance_m`, as CesiumJS computes it.
+pub fn sse_px(geometric_error_m: f64, distance_m: f64, v: &ViewOptions) -> f64 {
+    geometric_error_m * v.height_px as f64
+        / (2.0 * distance_m * (v.fov_y_deg.to_radians() / 2.0).tan())
+}
+
+/// An oriented box: centre and three half-axis vectors (the 3D Tiles `box`).
+struct Obb {
+    center: DVec3,
+    axes: [DVec3; 3],
+}
+
+impl Obb {
+    fn from_json(b: &Value) -> Option<Obb> {
+        let v: Vec<f64> = b.as_array()?.iter().filter_map(Value::as_f64).collect();
+        (v.len() == 12).then(|| Obb {
+            center: DVec3::new(v[0], v[1], v[2]),
+            axes: [
+                DVec3::new(v[3], v[4], v[5]),
+                DVec3::new(v[6], v[7], v[8]),
+                DVec3::new(v[9], v[10], v[11]),
+            ],
+        })
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        let d = p - self.center;
+        let mut sq = 0.0;
+        for a in &self.axes {
+            let len = a.length();
+            if len == 0.0 {
+                continue;
+            }
+            let t = d.dot(*a / len);
+            let out = (t.abs() - len).max(0.0);
+            sq += out * out;
+        }
+        sq.sqrt()
+    }
+
+    fn radius(&self) -> f64 {
+        (self.axes[0] + self.axes[1] + self.axes[2])
+            .length()
+            .max((self.axes[0] - self.axes[1] + self.axes[2]).length())
+            .max((self.axes[0] + self.axes[1] - self.axes[2]).length())
+            .max((self.axes[0] - self.axes[1] - self.axes[2]).length())
+    }
+}
+
+/// The JSON chunk of a GLB.
+fn glb_json(glb: &[u8]) -> Result<Value, String> {
+    if glb.len() < 20 || &glb[0..4] != b"glTF" {
+        return Err("not a GLB".into());
+    }
+    let n = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
+    serde_json::from_slice(glb.get(20..20 + n).ok_or("short GLB")?).map_err(|e| e.to_string())
+}
+
+/// Image bytes embedded in a GLB, and how many images.
+pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
+    let json = glb_json(glb)?;
+    let views = json["bufferViews"].as_array().cloned().unwrap_or_default();
+    let images = json["images"].as_array().cloned().unwrap_or_default();
+    let bytes = images
+        .iter()
+        .filter_map(|i| i["bufferView"].as_u64())
+        .filter_map(|v| views.get(v as usize)?["byteLength"].as_u64())
+        .sum();
+    Ok((bytes, images.len()))
+}
+
+/// Triangles a GLB draws: index (or vertex) count / 3 of each triangle primitive of each node's
+/// mesh, times the node's instance count (`EXT_mesh_gpu_instancing`).
+pub fn glb_drawn_triangles(glb: &[u8]) -> Result<u64, String> {
+    let json = glb_json(glb)?;
+    let accessors = json["accessors"].as_array().cloned().unwrap_or_default();
+    let count = |a: &Value| {
+        a.as_u64()
+            .and_then(|i| accessors.get(i as usize)?["count"].as_u64())
+            .unwrap_or(0)
+    };
+    let meshes = json["meshes"].as_array().cloned().unwrap_or_default();
+    let mesh_tris: Vec<u64> = meshes
+        .iter()
+        .map(|m| {
+            m["primitives"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter(|p| p["mode"].as_u64().unwrap_or(4) == 4)
+                .map(|p| {
+                    if p["indices"].is_null() {
+                        count(&p["attributes"]["POSITION"]) / 3
+                    } else {
+                        count(&p["indices"]) / 3
+                    }
+                })
+                .sum()
+        })
+        .collect();
+    let mut tris = 0;
+    for node in json["nodes"].as_array().into_iter().flatten() {
+        let Some(m) = node["mesh"].as_u64() else {
+            continue;
+        };
+        let inst = &node["extensions"]["EXT_mesh_gpu_instancing"]["attributes"];
+        let copies = inst
+            .as_object()
+            .and_then(|a| a.values().next())
+            .map_or(1, count);
+        tris += mesh_tris.get(m as usize).copied().unwrap_or(0) * copies;
+    }
+    Ok(tris)
+}
+
+/// Selects the tiles of the tileset in `dir` for a whole-model view and sums their bytes.
+pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
+    let ts: Value = serde_json::from_slice(
+        &std::fs::read(dir.join("tileset.json")).map_err(|e| e.to_string())?,
+    )
+    .map_err(|e| e.to_string())?;
+    let root = &ts["root"];
+    let rb = Obb::from_json(&root["boundingVolume"]["box"]).ok_or("root has no box")?;
+    let dir_view = DVec3::new(1.0, -1.0, 0.7).normalize();
+    let eye = rb.center + dir_view * (rb.radius() / (v.fov_y_deg.to_radians() / 2.0).sin());
+    let mut out = FirstView::default();
+    let default_refine = root["refine"].as_str().unwrap_or("REPLACE").to_string();
+    let mut depths = std::collections::BTreeSet::new();
+    let mut stack = vec![(root, default_refine, 0u32)];
+    while let Some((t, inherited, depth)) = stack.pop() {
+        let refine = t["refine"].as_str().map_or(inherited, str::to_string);
+        let ge = t["geometricError"].as_f64().unwrap_or(0.0);
+        let dist = Obb::from_json(&t["boundingVolume"]["box"]).map_or(0.0, |b| b.distance(eye));
+        let sse = if dist <= 0.0 {
+            f64::INFINITY
+        } else {
+            sse_px(ge, dist, v)
+        };
+        let children = t["children"].as_array().filter(|c| !c.is_empty());
+        let refines = sse > v.max_sse_px && children.is_some();
+        if !refines || refine == "ADD" {
+            if let Some(uri) = t["content"]["uri"].as_str() {
+                let glb = std::fs::read(dir.join(uri)).map_err(|e| format!("{uri}: {e}"))?;
+                let (bytes, n) = glb_image_bytes(&glb).map_err(|e| format!("{uri}: {e}"))?;
+                out.tiles += 1;
+                out.glb_bytes += glb.len() as u64;
+                out.texture_bytes += bytes;
+                out.images += n;
+                out.triangles += glb_drawn_triangles(&glb).map_err(|e| format!("{uri}: {e}"))?;
+                depths.insert(depth);
+            }
+        }
+        if refines {
+            for c in children.into_iter().flatten() {
+                stack.push((c, refine.clone(), depth + 1));
+            }
+        }
+    }
+    out.levels = depths.len();
+    out.max_depth = depths.last().copied().unwrap_or(0);
+    Ok(out)
+}
+
+/// The whole model at full detail, as [`first_view`] counts it: the selection refined to the end
+/// (a screen-space error limit of 0 refines every tile whose `geometricError` is above 0).
+pub fn full_view(dir: &Path) -> Result<FirstView, String> {
+    first_view(
+        dir,
+        &ViewOptions {
+            max_sse_px: 0.0,
+            ..ViewOptions::default()
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obb_distance_and_radius() {
+        let b = Obb::from_json(&serde_json::json!([0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3])).unwrap();
+        assert_eq!(b.distance(DVec3::new(0.5, 0.0, 0.0)), 0.0);
+        assert!((b.distance(DVec3::new(4.0, 0.0, 0.0)) - 3.0).abs() < 1e-12);
+        assert!((b.distance(DVec3::new(4.0, 6.0, 0.0)) - 5.0).abs() < 1e-12);
+        assert!((b.radius() - 14f64.sqrt()).abs() < 1e-12);
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() <= 1e-9 * b.abs().max(1.0)
+    }
+
+    /// Formulas (1) and (2) against values computed by hand.
+    #[test]
+    fn paper_formulas_by_hand() {
+        let v = ViewOptions::default(); // 1920 x 1080, 60 deg, 16 px
+        let t = (30f64).to_radians().tan(); // 0.5773502691896257
+                                            // (1): L = 0.05 m at d = 10 m on 1920 px: 0.05 * 1920 / (20 * 0.57735) = 8.3138 px.
+        assert!(close(
+            paper_sse_px(0.05, 10.0, 1920.0, 60.0),
+            96.0 / (20.0 * t)
+        ));
+        assert!((paper_sse_px(0.05, 10.0, 1920.0, 60.0) - 8.313843876).abs() < 1e-8);
+        // On 1080 px: 54 / 11.547 = 4.6765 px.
+        assert!((paper_sse_px(0.05, 10.0, 1080.0, 60.0) - 4.676537180).abs() < 1e-8);
+        // (2): Weight·Height / (2xy) = 1/2 here: 8.313843876 * 4.676537180 / 2 = 19.44 px.
+        assert!((paper_delta_mesh_px(0.05, 10.0, &v) - 19.44).abs() < 1e-9);
+        // No collapse, no error; twice as far, a quarter.
+        assert_eq!(paper_delta_mesh_px(0.0, 10.0, &v), 0.0);
+        assert!(close(
+            paper_delta_mesh_px(0.05, 20.0, &v),
+            paper_delta_mesh_px(0.05, 10.0, &v) / 4.0
+        ));
+        // Range of visibility at Δ = 16 px: d = 0.05 sqrt(1920 * 1080 / 128) / t = 11.0227 m,
+        // where Δ is indeed 16.
+        let d = paper_visibility_distance_m(0.05, &v, 16.0);
+        assert!((d - 0.05 * 16200f64.sqrt() / t).abs() < 1e-9);
+        assert!((d - 11.022703842).abs() < 1e-8);
+        assert!(close(paper_delta_mesh_px(0.05, d, &v), 16.0));
+        // The geometricError switching there: 3.771236 L = 0.188562 m, whose screen-space error
+        // at d is the client's 16 px.
+        let e = paper_geometric_error_m(0.05, &v, 16.0);
+        assert!((e - 0.05 * 16.0 * (1920.0f64 / (2.0 * 1080.0 * 16.0)).sqrt()).abs() < 1e-12);
+        assert!((e - 0.188561808).abs() < 1e-8);
+        assert!(close(sse_px(e, d, &v), 16.0));
+        assert!(close(switch_distance_m(e, &v), d));
+    }
+}
