@@ -123,8 +123,7 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
         );
     }
     // Same triangles (count and total area) and the same texture colour at every vertex.
-    let (before, in_tris, in_area) =
-        textured_vertices(&input, DVec3::ZERO);
+    let (before, in_tris, in_area) = textured_vertices(&input, DVec3::ZERO);
     let mut colors: HashMap<(i64, i64, i64), Vec<[u8; 4]>> = HashMap::new();
     for v in &before {
         if let Some(c) = v.color {

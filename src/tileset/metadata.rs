@@ -17,6 +17,12 @@ pub const BASE_SCHEMA: &str = include_str!("../../schemas/bimtiles.schema.json")
 pub const CLASS_ID: &str = "element";
 /// The enum name that stands for "no value" (enum value 0 of every enum).
 pub const NO_VALUE: &str = "(none)";
+
+/// A text property-set entry becomes an enum when it has at most this many distinct values...
+const ENUM_MAX_VALUES: usize = 4096;
+/// ...and each is used at least this often on average (else the names in schema.json, fetched
+/// once, would outweigh the 2-byte codes saved in the tiles).
+const ENUM_MIN_USES_PER_VALUE: usize = 4;
 /// `noData` of FLOAT64 properties: no real property value is this.
 pub const NO_NUMBER: f64 = f64::MIN;
 
@@ -180,17 +186,70 @@ impl MetadataSchema {
             value_type,
         })
         .collect();
+        // Distinct values of the text-only entries, in first-use order, with their use count.
+        #[derive(Default)]
+        struct Distinct {
+            values: Vec<String>,
+            seen: std::collections::HashSet<String>,
+            uses: usize,
+        }
+        let mut text_values: HashMap<(String, String), Distinct> = HashMap::new();
+        for info in &scene.info {
+            for p in &info.properties {
+                if let PropertyValue::Text(t) = &p.value {
+                    if kinds[&(p.set.clone(), p.name.clone())] == (true, false, false)
+                        && !t.is_empty()
+                    {
+                        let d = text_values
+                            .entry((p.set.clone(), p.name.clone()))
+                            .or_default();
+                        d.uses += 1;
+                        if d.values.len() <= ENUM_MAX_VALUES && d.seen.insert(t.clone()) {
+                            d.values.push(t.clone());
+                        }
+                    }
+                }
+            }
+        }
         let mut pset_keys = Vec::new();
         for ((set, name), (text, number, boolean)) in kinds {
-            let value_type = match (text, number, boolean) {
-                (false, true, false) => ValueType::Float64,
-                (false, false, true) => ValueType::Enum("boolean".into()),
-                _ => ValueType::Text,
-            };
             let mut id = identifier(&format!("{set}_{name}"));
             while properties.iter().any(|p| p.id == id) {
                 id.push('_');
             }
+            let value_type = match (text, number, boolean) {
+                (false, true, false) => ValueType::Float64,
+                (false, false, true) => ValueType::Enum("boolean".into()),
+                _ => match text_values.get(&(set.clone(), name.clone())) {
+                    // A text entry with few values, each used often ("Material: Concrete"): an
+                    // enum, 2 bytes a row and the names once in schema.json, instead of the
+                    // string and its 4-byte offset in every tile.
+                    Some(Distinct { values, uses, .. })
+                        if values.len() <= ENUM_MAX_VALUES
+                            && *uses >= ENUM_MIN_USES_PER_VALUE * values.len()
+                            && !values.iter().any(|v| v == NO_VALUE) =>
+                    {
+                        let mut enum_id = format!("pset_{id}");
+                        while enums.contains_key(&enum_id) {
+                            enum_id.push('_');
+                        }
+                        let names: Vec<String> = std::iter::once(NO_VALUE.to_string())
+                            .chain(values.iter().cloned())
+                            .collect();
+                        enum_codes.insert(
+                            enum_id.clone(),
+                            names
+                                .iter()
+                                .enumerate()
+                                .map(|(i, n)| (n.clone(), i as u16))
+                                .collect(),
+                        );
+                        enums.insert(enum_id.clone(), names);
+                        ValueType::Enum(enum_id)
+                    }
+                    _ => ValueType::Text,
+                },
+            };
             properties.push(PropertyDef {
                 id,
                 column: Column::Pset(pset_keys.len()),
@@ -260,6 +319,9 @@ impl MetadataSchema {
                     }
                     (ValueType::Enum(_), PropertyValue::Bool(b)) => {
                         self.code("boolean", Some(if *b { "true" } else { "false" }))
+                    }
+                    (ValueType::Enum(e), PropertyValue::Text(s)) => {
+                        self.code(e, Some(s.as_str()).filter(|s| !s.is_empty()))
                     }
                     (_, PropertyValue::Text(s)) => text(Some(s.clone())),
                     (_, PropertyValue::Number(x)) => Some(MetaValue::Text(x.to_string())),
@@ -494,6 +556,50 @@ mod tests {
             2
         );
         assert_eq!(sub["enums"].as_object().unwrap().len(), 1);
+    }
+
+    #[test]
+    fn repeated_text_values_become_an_enum_and_unique_ones_stay_text() {
+        let infos = (0..12)
+            .map(|i| ElementInfo {
+                properties: vec![
+                    prop(
+                        "Pset",
+                        "Finish",
+                        PropertyValue::Text(["Paint", "Tile", ""][i % 3].into()),
+                    ),
+                    prop("Pset", "Tag", PropertyValue::Text(format!("T-{i}"))),
+                ],
+                ..Default::default()
+            })
+            .collect();
+        let s = scene_with(infos);
+        let m = MetadataSchema::from_scene(&s);
+        let idx = |id: &str| m.properties.iter().position(|p| p.id == id).unwrap();
+        let finish = idx("Pset_Finish");
+        let ValueType::Enum(e) = &m.properties[finish].value_type else {
+            panic!(
+                "Finish should be an enum: {:?}",
+                m.properties[finish].value_type
+            );
+        };
+        assert_eq!(m.enums[e], vec!["(none)", "Paint", "Tile"]);
+        assert_eq!(
+            m.value(&s, ComponentId(1), finish),
+            Some(MetaValue::Code(2))
+        );
+        assert_eq!(
+            m.value(&s, ComponentId(2), finish),
+            None,
+            "empty text is no value"
+        );
+        assert_eq!(m.properties[idx("Pset_Tag")].value_type, ValueType::Text);
+        let json = m.to_json(None);
+        assert_eq!(
+            json["classes"]["element"]["properties"]["Pset_Finish"]["enumType"],
+            json!(e)
+        );
+        assert_eq!(json["enums"][e]["values"][2]["name"], "Tile");
     }
 
     #[test]
