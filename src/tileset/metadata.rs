@@ -83,6 +83,15 @@ pub struct MetadataSchema {
     base: Value,
 }
 
+/// Enum value name → code (its index in `names`).
+fn codes_of(names: &[String]) -> HashMap<String, u16> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (n.clone(), i as u16))
+        .collect()
+}
+
 /// A schema identifier from any text: non-alphanumerics become '_', no leading digit.
 pub fn identifier(s: &str) -> String {
     let mut id: String = s
@@ -110,14 +119,7 @@ impl MetadataSchema {
                 .iter()
                 .map(|v| v["name"].as_str().expect("enum value name").to_string())
                 .collect();
-            enum_codes.insert(
-                id.clone(),
-                names
-                    .iter()
-                    .enumerate()
-                    .map(|(i, n)| (n.clone(), i as u16))
-                    .collect(),
-            );
+            enum_codes.insert(id.clone(), codes_of(&names));
             enums.insert(id.clone(), names);
         }
         let mut add = |enum_id: &str, v: &Option<String>| {
@@ -236,14 +238,7 @@ impl MetadataSchema {
                         let names: Vec<String> = std::iter::once(NO_VALUE.to_string())
                             .chain(values.iter().cloned())
                             .collect();
-                        enum_codes.insert(
-                            enum_id.clone(),
-                            names
-                                .iter()
-                                .enumerate()
-                                .map(|(i, n)| (n.clone(), i as u16))
-                                .collect(),
-                        );
+                        enum_codes.insert(enum_id.clone(), codes_of(&names));
                         enums.insert(enum_id.clone(), names);
                         ValueType::Enum(enum_id)
                     }
