@@ -516,6 +516,58 @@ fn georef_from_site_and_map_conversion() {
     assert_eq!(report.georef, Some(g));
 }
 
+/// IfcOpenHouse with only an IfcMapConversion (no IfcSite reference coordinates), in ETRS89 / UTM
+/// zone 32N: the project origin is placed at the map point, turned by the map's x axis (30°) and
+/// the meridian convergence there; a CRS that is not UTM gives no georeference.
+#[test]
+fn georef_from_a_map_conversion_alone() {
+    let Some(d) = data_dir() else { return };
+    let f = d.join("IfcOpenHouse_IFC4.ifc");
+    let Ok(text) = std::fs::read_to_string(&f) else {
+        return;
+    };
+    if !text.contains("#11=IFCGEOMETRICREPRESENTATIONCONTEXT") || text.contains("IFCMAPCONVERSION")
+    {
+        eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
+        return;
+    }
+    let with_crs = |crs: &str| {
+        text.replacen(
+            "ENDSEC;\nEND-ISO",
+            &format!("#900001=IFCPROJECTEDCRS('{crs}',$,$,$,$,$,$);\n#900002=IFCMAPCONVERSION(#11,#900001,458000.,5438000.,100.,0.8660254037844387,0.5,1.);\nENDSEC;\nEND-ISO"),
+            1,
+        )
+    };
+    let tmp = std::env::temp_dir().join(format!("bimtiles-mapconv-{}.ifc", std::process::id()));
+    std::fs::write(&tmp, with_crs("EPSG:25832")).unwrap();
+    let g = read_ifc_georef(&tmp).expect("a UTM map conversion places the model");
+    let (_, report) = read_ifc_with_report(&tmp).unwrap();
+    std::fs::write(&tmp, with_crs("EPSG:31467")).unwrap();
+    let gauss_krueger = read_ifc_georef(&tmp);
+    std::fs::remove_file(&tmp).ok();
+    println!("{g:?}");
+    // E 458,000 N 5,438,000 in zone 32 (9°E) lies just north of Karlsruhe: a Transverse Mercator
+    // point 42 km west of the central meridian, so about 0.57° west of it.
+    assert!((49.05..49.12).contains(&g.latitude_deg), "{g:?}");
+    assert!((8.40..8.45).contains(&g.longitude_deg), "{g:?}");
+    assert!((g.height_m - 100.0).abs() < 1e-9);
+    assert_eq!(
+        g.anchor,
+        glam::DVec3::ZERO,
+        "the project origin is the map point"
+    );
+    // x axis 30° from grid east, and grid north there is west of true north.
+    let convergence = ((g.longitude_deg - 9.0).to_radians().tan()
+        * g.latitude_deg.to_radians().sin())
+    .atan()
+    .to_degrees();
+    assert!(convergence < -0.4 && convergence > -0.5, "{convergence}");
+    let north = g.true_north_deg.expect("turned");
+    assert!((north - (convergence - 30.0)).abs() < 1e-6, "{north}");
+    assert_eq!(report.georef, Some(g));
+    assert_eq!(gauss_krueger, None, "no projection for a non-UTM CRS");
+}
+
 /// Moving and turning the site (far away, 30° about z) moves every element with it, to the
 /// millimetre, and keeps mesh positions small (precision survives projected coordinates).
 #[test]

@@ -3,6 +3,7 @@
 
 pub mod georef;
 pub mod metadata;
+pub mod projection;
 pub mod view;
 
 use crate::partition::octree::TilePlan;
