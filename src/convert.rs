@@ -18,9 +18,10 @@ use crate::simplify::hlod::{simplify_children, tile_error};
 use crate::simplify::lod_chain::{chain_levels, with_lod_chains};
 use crate::tile_content::{AppearanceClasses, TileContent};
 use crate::tileset::georef::GeoOrigin;
-use crate::tileset::metadata::MetadataSchema;
+use crate::tileset::metadata::{MetadataSchema, TableScope};
 use crate::tileset::view::{
-    paper_delta_mesh_px, paper_geometric_error_m, sse_px, switch_distance_m, ViewOptions,
+    framed_error_m, paper_delta_mesh_px, paper_geometric_error_m, sse_px, switch_distance_m,
+    ViewOptions,
     PAPER_MAX_DELTA_PX,
 };
 use crate::tileset::{tileset_json, Refine, TileFacts};
@@ -52,6 +53,14 @@ pub struct ConvertOptions {
     pub error_metric: ErrorMetric,
     /// Options of the QEM simplifier for LOD content (targets are set per tile).
     pub simplify: crate::simplify::SimplifyOptions,
+    /// HLOD tiles are made coarser (their triangle target halved, each step measured) while their
+    /// measured error stays under this fraction of their framed error
+    /// ([`crate::tileset::view::framed_error_m`] of the tile's bounding sphere: the error at which
+    /// a viewer that sees the whole tile draws it). 0: the tile budget and
+    /// [`HLOD_CHILDREN_DIVISOR`] alone set how coarse they are. See [`DEFAULT_HLOD_ERROR_FRACTION`].
+    pub hlod_error_fraction: f64,
+    /// Which properties simplified (HLOD, LOD chain) tiles carry; full-detail tiles carry all.
+    pub coarse_tile_properties: CoarseTileProperties,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
     pub dedup: Option<DedupOptions>,
     /// Write a shape drawn several times in a tile once, placed per instance
@@ -81,6 +90,8 @@ impl ConvertOptions {
             lod: LodMode::default(),
             error_metric: ErrorMetric::default(),
             simplify: crate::simplify::SimplifyOptions::default(),
+            hlod_error_fraction: DEFAULT_HLOD_ERROR_FRACTION,
+            coarse_tile_properties: CoarseTileProperties::default(),
             dedup: Some(DedupOptions::default()),
             instancing: true,
             min_instanced_triangles_saved: None,
@@ -109,6 +120,17 @@ pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize 
 /// +20–26% bytes, so without compression materials stay apart.
 pub fn default_merge_plain_materials(compression: Compression) -> bool {
     compression == Compression::Draco
+}
+
+/// Which properties the tables of simplified tiles carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CoarseTileProperties {
+    /// What names an element (id, name, path, class, storey, building, site, material, source,
+    /// aliases): picking a coarse tile names the element; its property sets come with full detail.
+    #[default]
+    Identity,
+    /// Every property in every tile.
+    All,
 }
 
 /// How levels of detail are made.
@@ -829,6 +851,18 @@ fn declared_error(
     (base.max(children_max_m * (1.0 + 1e-6) + 1e-6), paper_m)
 }
 
+/// Default of [`ConvertOptions::hlod_error_fraction`]. A client measures the distance to the
+/// bounding box, which from a corner is nearer than the sphere [`framed_error_m`] assumes (0.91 of
+/// it on Mini_Project's root); 0.8 keeps a first view of the whole model on the root alone.
+pub const DEFAULT_HLOD_ERROR_FRACTION: f64 = 0.8;
+
+/// An HLOD tile keeps at most this fraction (1/n) of what its children draw, and the tile budget:
+/// about one child's worth in an octree, so every level costs about the same to draw.
+pub const HLOD_CHILDREN_DIVISOR: usize = 4;
+
+/// Coarsening an HLOD tile below the budget stops at this many triangles.
+pub const HLOD_MIN_TRIANGLES: usize = 500;
+
 /// How far Draco quantization moves decoded vertices (metres), added to measured errors.
 fn quantization_m(c: Compression) -> f64 {
     match c {
@@ -964,9 +998,13 @@ impl<'a> TileWriter<'a> {
         let image = |id: crate::scene::ImageId| {
             textures.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0))
         };
+        let scope = match (st.simplified_from_triangles, opts.coarse_tile_properties) {
+            (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
+            _ => TableScope::All,
+        };
         let make_table = |features: &[crate::scene::ComponentId]| {
             self.schema
-                .property_table(scene, features, "../schema.json")
+                .property_table(scene, features, "../schema.json", scope)
         };
         let enc =
             encode_content_with_images(scene, content, &self.encoding, Some(&make_table), &image)
@@ -1243,28 +1281,57 @@ impl HlodBuilder<'_> {
             }
             let continuing = continuing(self.scene, &cut_triangles);
             let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
-            let r = simplify_children(
-                &contents,
-                tile.bounds.center(),
-                &continuing,
-                self.opts.octree.max_tile_triangles,
-                &self.opts.simplify,
-            )
-            .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
-            drop(contents);
             let children: Vec<(&TileContent, f64)> = kids
                 .iter()
                 .map(|k| (&k.content, k.coarse_to_full_m))
                 .collect();
             let leaves = self.leaves_below(i);
-            let err = tile_error(
-                self.scene,
-                &r.content,
-                &children,
-                &leaves,
-                0,
-                &self.opts.simplify,
-            );
+            // How coarse the tile may get: its framed error (what a viewer that sees all of it
+            // accepts), a fraction of it for the margin between the view's box distance and the
+            // bounding sphere. `None`: the budget alone.
+            let allowed_m = (self.opts.hlod_error_fraction > 0.0).then(|| {
+                self.opts.hlod_error_fraction
+                    * framed_error_m(tile.bounds.diagonal() / 2.0, &ViewOptions::default())
+            });
+            let build_at = |target: usize| -> Result<_> {
+                let r = simplify_children(
+                    &contents,
+                    tile.bounds.center(),
+                    &continuing,
+                    target,
+                    &self.opts.simplify,
+                )
+                .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
+                let err = tile_error(
+                    self.scene,
+                    &r.content,
+                    &children,
+                    &leaves,
+                    0,
+                    &self.opts.simplify,
+                );
+                Ok((r, err))
+            };
+            let input_triangles: usize = contents.iter().map(|c| c.triangle_count()).sum();
+            let mut target = self
+                .opts
+                .octree
+                .max_tile_triangles
+                .min(input_triangles.div_ceil(HLOD_CHILDREN_DIVISOR))
+                .max(1);
+            let (mut r, mut err) = build_at(target)?;
+            // Coarser while the measured error leaves room (halving the triangles about doubles
+            // it): the first view of a model is its root alone, as small as its error allows.
+            if let Some(allowed) = allowed_m {
+                while err.error_m < allowed && target / 2 >= HLOD_MIN_TRIANGLES {
+                    let (r2, err2) = build_at(target / 2)?;
+                    if err2.error_m > allowed {
+                        break;
+                    }
+                    (r, err, target) = (r2, err2, target / 2);
+                }
+            }
+            drop((contents, children, leaves));
             // Quantization moves decoded vertices by up to this much on top.
             let measured = err.error_m + quantization_m(self.opts.compression);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);

@@ -1,7 +1,9 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{convert_input_set, ConvertOptions, ErrorMetric, LodMode};
+use bimtiles::convert::{
+    convert_input_set, CoarseTileProperties, ConvertOptions, ErrorMetric, LodMode,
+};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
 use bimtiles::ingest::InputSet;
@@ -145,6 +147,17 @@ struct ConvertArgs {
     /// first, full detail last (refine REPLACE). E.g. 0.85,0.7,0.5.
     #[arg(long, value_delimiter = ',', conflicts_with = "lod")]
     lod_ratios: Option<Vec<f32>>,
+    /// How coarse HLOD tiles get: their triangles are halved, each step measured, while their
+    /// error stays under this fraction of the error at which a viewer that frames the tile draws
+    /// it (16 px SSE at 1080 px, 60° field of view). 0: no coarser than the tile budget and a
+    /// quarter of what the children draw.
+    #[arg(long, default_value_t = bimtiles::convert::DEFAULT_HLOD_ERROR_FRACTION)]
+    hlod_error_fraction: f64,
+    /// Properties in the tables of simplified (coarse) tiles: identity (id, name, path, class,
+    /// storey, building, site, material, source, aliases; property sets only in full-detail
+    /// tiles, so a first view stays small) or all.
+    #[arg(long, value_enum, default_value = "identity")]
+    coarse_properties: CoarsePropertiesArg,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
     /// default) or paper-sse (the paper's screen-space error of the longest collapsed edge,
     /// formulas (1) and (2): not a distance bound). The report shows both per level.
@@ -220,6 +233,12 @@ enum LodArg {
 enum ErrorMetricArg {
     Measured,
     PaperSse,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum CoarsePropertiesArg {
+    Identity,
+    All,
 }
 
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -465,6 +484,11 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             ErrorMetricArg::PaperSse => ErrorMetric::PaperSse,
         },
         simplify: SimplifyOptions::default(),
+        hlod_error_fraction: a.hlod_error_fraction,
+        coarse_tile_properties: match a.coarse_properties {
+            CoarsePropertiesArg::Identity => CoarseTileProperties::Identity,
+            CoarsePropertiesArg::All => CoarseTileProperties::All,
+        },
         dedup: (!a.no_dedup).then(|| DedupOptions {
             tolerance_m: a.dedup_tolerance_m,
             ..DedupOptions::default()
@@ -489,6 +513,12 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
     if opts.lod == LodMode::None && opts.error_metric == ErrorMetric::PaperSse {
         anyhow::bail!(
             "--error-metric paper-sse needs simplified tiles: use --lod hlod or --lod-ratios"
+        );
+    }
+    if !(a.hlod_error_fraction.is_finite() && a.hlod_error_fraction >= 0.0) {
+        anyhow::bail!(
+            "--hlod-error-fraction must be a number >= 0, got {}",
+            a.hlod_error_fraction
         );
     }
     if !(a.dedup_tolerance_m.is_finite() && a.dedup_tolerance_m >= 0.0) {

@@ -105,6 +105,16 @@ pub fn switch_distance_m(geometric_error_m: f64, v: &ViewOptions) -> f64 {
         / (2.0 * v.max_sse_px * (v.fov_y_deg.to_radians() / 2.0).tan())
 }
 
+/// The geometricError at the screen-space limit for a tile framed on screen: its bounding sphere
+/// (`radius_m`) fills the vertical field of view, and the distance is to the sphere's surface, as a
+/// client measures it to a bounding volume. A tile with at most this error is drawn, not refined,
+/// once the viewer has backed off far enough to see all of it; HLOD content need not be finer.
+pub fn framed_error_m(radius_m: f64, v: &ViewOptions) -> f64 {
+    let half_fov = (v.fov_y_deg.to_radians() / 2.0).max(1e-6);
+    let distance_m = radius_m / half_fov.sin() - radius_m;
+    v.max_sse_px * 2.0 * distance_m * half_fov.tan() / v.height_px as f64
+}
+
 /// Screen-space error (pixels) of a `geometric_error_m` at `distance_m`, as CesiumJS computes it.
 pub fn sse_px(geometric_error_m: f64, distance_m: f64, v: &ViewOptions) -> f64 {
     geometric_error_m * v.height_px as f64
@@ -298,6 +308,16 @@ mod tests {
     }
 
     /// Formulas (1) and (2) against values computed by hand.
+    #[test]
+    fn a_framed_tile_at_its_error_is_at_the_limit() {
+        let v = ViewOptions::default();
+        let r = 40.0;
+        let e = framed_error_m(r, &v);
+        // 60°: the eye is 2r from the centre, r from the sphere.
+        assert!(close(sse_px(e, r, &v), v.max_sse_px));
+        assert!(close(e, 16.0 * 2.0 * 40.0 * (30f64).to_radians().tan() / 1080.0));
+    }
+
     #[test]
     fn paper_formulas_by_hand() {
         let v = ViewOptions::default(); // 1920 x 1080, 60 deg, 16 px
