@@ -471,7 +471,16 @@ impl State<'_> {
     /// [`State::edge_info`] of every edge `(a, b)` with `b > a`, in one scan
     /// of `a`'s star (ranking called `edge_info` per edge: a scan of the
     /// star per neighbour). Order: first appearance of `b` in the star.
-    fn star_edges(&self, a: u32, star: &[u32], out: &mut Vec<(u32, EdgeInfo)>) {
+    /// `lower(b)`: also list the edge when `b < a` (its pairs are then
+    /// still seen from `a`; the ranking only reads `count` and
+    /// `constraint`, which do not depend on the side).
+    fn star_edges(
+        &self,
+        a: u32,
+        star: &[u32],
+        lower: impl Fn(u32) -> bool,
+        out: &mut Vec<(u32, EdgeInfo)>,
+    ) {
         out.clear();
         for &c in star {
             let t = &self.tris[(c / 3) as usize];
@@ -480,7 +489,7 @@ impl State<'_> {
             let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
             // As `edge_info`: a corner counts once, for `x1` first.
             for (b, wb, o) in [(x1, w1, x2), (x2, w2, x1)] {
-                if b <= a || (b == x2 && x1 == x2) {
+                if b == a || (b < a && !lower(b)) || (b == x2 && x1 == x2) {
                     continue;
                 }
                 let i = match out.iter().position(|(y, _)| *y == b) {
@@ -543,10 +552,10 @@ impl State<'_> {
             }
             (Mobility::Any, Mobility::Any) => {
                 let mid = (pu + pv) * 0.5;
-                let len = (pu - pv).length();
+                let len2 = (pu - pv).length_squared();
                 if let Some(x) = q.optimize() {
                     // Far-away optima come from ill-conditioned quadrics.
-                    if (x - mid).length() <= 2.0 * len {
+                    if (x - mid).length_squared() <= 4.0 * len2 {
                         pts[n] = x;
                         n += 1;
                     }
@@ -570,6 +579,9 @@ impl State<'_> {
             key: 0.0,
             dist2: 0.0,
         }; 4];
+        let (qu, qv) = (&self.quad[u as usize], &self.quad[v as usize]);
+        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
+        let (iu, iv) = (inv(qu.weight), inv(qv.weight));
         for i in 0..n {
             // The error of a collapse is the larger of the two endpoints' mean
             // squared distances to their own planes (as in meshoptimizer, which
@@ -577,9 +589,7 @@ impl State<'_> {
             // of planes would dilute the planes of a small part (the end cap
             // of a bar) by the large ones of its neighbour.
             let d2 = if MAX_OF_ENDPOINTS {
-                self.quad[u as usize]
-                    .distance2(pts[i])
-                    .max(self.quad[v as usize].distance2(pts[i]))
+                (qu.eval(pts[i]) * iu).max(qv.eval(pts[i]) * iv)
             } else {
                 q.distance2(pts[i])
             };
@@ -1216,17 +1226,19 @@ pub(crate) fn run(
                     if !stref.alive[a as usize] {
                         return (out, star, nb);
                     }
+                    // An edge with an unchanged neighbourhood (two clean
+                    // endpoints) keeps its entry from the last pass
+                    // (`kept`), or stays out of the order if it was found
+                    // invalid. The others are ranked from their smaller
+                    // dirty endpoint.
+                    if !dirty[a as usize] {
+                        return (out, star, nb);
+                    }
                     stref.gather(a, &mut star);
-                    // Every edge (a, b > a) with its triangles, in one scan.
-                    stref.star_edges(a, &star, &mut nb);
-                    for (b, e) in nb.iter() {
-                        let b = *b;
-                        // An edge with an unchanged neighbourhood keeps its
-                        // entry from the last pass (`kept`), or stays out
-                        // of the order if it was found invalid.
-                        if !dirty[a as usize] && !dirty[b as usize] {
-                            continue;
-                        }
+                    // Those edges with their triangles, in one scan.
+                    stref.star_edges(a, &star, |b| !dirty[b as usize], &mut nb);
+                    for &(b, ref e) in nb.iter() {
+                        let (a, b) = (a.min(b), a.max(b));
                         if let Some(ev) = stref.evaluate(a, b, e) {
                             let key = ev.cands[0].key;
                             let f = stref.factor(a, b);
