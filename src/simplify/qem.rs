@@ -1,31 +1,42 @@
 //! The edge-collapse core: Garland–Heckbert quadrics with optimal placement,
 //! the paper's curvature weighting, angle error control and maximum collapsed
-//! edge length, on flat arrays with a lazily updated binary heap.
+//! edge length, on flat arrays, in passes of non-overlapping collapses.
 //!
 //! Data layout: *position vertices* carry position, quadric, curvature and
 //! lock flag; *wedges* (attribute vertices) point to a position vertex;
 //! triangles are wedge triples. Vertex -> corner adjacency (`3 * tri + k`) is
 //! a CSR array rebuilt at the start of every pass.
 //!
-//! Driver (as meshoptimizer's): each pass ranks every live edge (in parallel;
+//! Driver (as meshoptimizer's): each pass ranks the live edges (in parallel;
 //! the order is a total order on `(cost, u, v)`, so the result does not depend
 //! on the thread count), then walks them cheapest first, re-validating each
 //! against the current geometry and skipping edges with an endpoint already
 //! touched in the pass, until the triangle goal is met or costs exceed 1.5x
 //! the cost at the pass's goal rank.
 //!
-//! Speed (the coverage error below is ~10x the cost of a quadric key): the
-//! ranking computes the quadric key of every edge but the coverage only
-//! lazily, for the cheapest edges the pass can reach (see `grow`), and skips
-//! it when its bound (the larger squared distance of an endpoint to the new
-//! position) cannot raise the key; coverage and interior checks take the
-//! current cost as a threshold and stop as soon as they cannot exceed it; an
-//! edge whose neighbourhood is untouched since it was ranked reuses the
-//! ranked coverage when applied. All of these are exact except growing the
-//! known order during a walk, which uses the state at that time. The
-//! ranking reads each vertex's star once for all its edges (`star_edges`),
-//! and the interior check resolves the old star (positions, normals) once
-//! per collapse rather than once per sample point.
+//! Speed:
+//! * incremental ranking: only edges with an endpoint in the closed 1-ring
+//!   of a collapse of the last pass (*dirty*) are ranked again; the others
+//!   keep their entry, and edges found invalid stay out of the order until
+//!   their neighbourhood changes;
+//! * lazy coverage in exact order: the ranking computes the quadric key of
+//!   every edge, the coverage error (~10x the cost of a quadric key) only
+//!   when the walk reaches an edge with both endpoints untouched (most edges
+//!   of a pass are skipped as touched); the walk merges the edges sorted by
+//!   quadric key with a heap of edges whose coverage raised their key, which
+//!   is the exact order by full key. The sorted order is built in chunks
+//!   (partial selection) as the walk reaches them;
+//! * the walk visits edges in cost order, so nearly every load would be a
+//!   cache miss: the data of the edges a few steps ahead is prefetched, one
+//!   dependent load per stage (`State::prefetch`);
+//! * exact early exits: the coverage is skipped when its bound (the larger
+//!   squared distance of an endpoint to the new position) cannot raise the
+//!   key; coverage and interior checks take the current cost as a threshold
+//!   and stop as soon as they cannot exceed it (box and plane distance
+//!   bounds before exact point-triangle distances); an edge whose
+//!   neighbourhood is untouched since its coverage was computed reuses it;
+//!   the ranking reads each vertex's star once for all its edges
+//!   (`star_edges`), the interior check resolves the old star once.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
@@ -75,6 +86,19 @@ const PRUNE: bool = true;
 const COVER_P: bool = true;
 const RANK_COVERAGE: bool = true;
 const INTERIOR: bool = true;
+const PREFETCH: bool = true;
+
+/// Hint to load the cache line holding `x` (no-op off x86-64).
+#[inline(always)]
+fn prefetch<T>(x: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint; it never faults, whatever the address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch(x as *const T as *const i8, std::arch::x86_64::_MM_HINT_T0);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
+}
 
 /// Parameters of one run.
 #[derive(Clone, Debug)]
@@ -104,23 +128,30 @@ pub(crate) struct QemOutput {
     pub max_collapsed_edge: f64,
 }
 
+/// An edge of `ranked` (index) whose full key is known, waiting in the
+/// deferred heap; ordered as [`rank_cmp`] (reversed: a min-heap).
 #[derive(Clone, Copy, PartialEq)]
-struct Entry {
-    key: f64,
-    u: u32,
-    v: u32,
-}
-impl Eq for Entry {}
-impl Ord for Entry {
-    fn cmp(&self, o: &Self) -> Ordering {
-        // Max-heap: the smallest key (then smallest u, v) is the greatest.
-        o.key
-            .total_cmp(&self.key)
-            .then(o.u.cmp(&self.u))
-            .then(o.v.cmp(&self.v))
+struct Deferred(u32, f64, u32, u32);
+impl Deferred {
+    /// Comes before `r` in [`rank_cmp`] order.
+    #[inline]
+    fn before(&self, r: &Ranked) -> bool {
+        self.1
+            .total_cmp(&r.key)
+            .then(self.2.cmp(&r.u))
+            .then(self.3.cmp(&r.v))
+            .is_lt()
     }
 }
-impl PartialOrd for Entry {
+impl Eq for Deferred {}
+impl Ord for Deferred {
+    fn cmp(&self, o: &Self) -> Ordering {
+        o.1.total_cmp(&self.1)
+            .then(o.2.cmp(&self.2))
+            .then(o.3.cmp(&self.3))
+    }
+}
+impl PartialOrd for Deferred {
     fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
         Some(self.cmp(o))
     }
@@ -273,6 +304,65 @@ impl State<'_> {
         )
     }
 
+    /// Software prefetch of the data the walk will read for edge (u, v), in
+    /// stages of one dependent load each (`stage` 0: the vertices' own
+    /// entries; 1: their CSR corners; 2: the corners' triangles; 3: the
+    /// triangles' wedges; 4: the neighbours' positions). Issued for edges a
+    /// few steps ahead in the order, each stage reading what the previous
+    /// one fetched: the walk visits edges in cost order, so without this
+    /// nearly every load is a cache miss.
+    #[inline]
+    fn prefetch(&self, u: u32, v: u32, stage: u32, touched: &[bool]) {
+        for x in [u, v] {
+            let x = x as usize;
+            match stage {
+                0 => {
+                    prefetch(&touched[x]);
+                    prefetch(&self.off[x]);
+                    prefetch(&self.pos[x]);
+                }
+                _ => {
+                    if touched[x] {
+                        return;
+                    }
+                    let (a, b) = (self.off[x] as usize, self.off[x + 1] as usize);
+                    if stage == 1 {
+                        prefetch(&self.corners[a]);
+                        prefetch(&self.corners[b.saturating_sub(1).max(a)]);
+                        continue;
+                    }
+                    for &c in &self.corners[a..b] {
+                        let t = (c / 3) as usize;
+                        match stage {
+                            2 => {
+                                prefetch(&self.tris[t]);
+                                prefetch(&self.tri_alive[t]);
+                            }
+                            3 => {
+                                for &w in &self.tris[t] {
+                                    prefetch(&self.wedge_pos[w as usize]);
+                                }
+                                // The vertex's own wedge: its attributes
+                                // are interpolated by `apply`.
+                                let w = self.tris[t][(c % 3) as usize] as usize;
+                                if let Some(a) = self.attr.get(w * self.stride) {
+                                    prefetch(a);
+                                }
+                            }
+                            _ => {
+                                for &w in &self.tris[t] {
+                                    let y = self.wedge_pos[w as usize] as usize;
+                                    prefetch(&self.pos[y]);
+                                    prefetch(&self.mark[y]);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Live corners of `x` into `out` (from the per-pass CSR).
     #[inline]
     fn gather(&self, x: u32, out: &mut Vec<u32>) {
@@ -381,7 +471,16 @@ impl State<'_> {
     /// [`State::edge_info`] of every edge `(a, b)` with `b > a`, in one scan
     /// of `a`'s star (ranking called `edge_info` per edge: a scan of the
     /// star per neighbour). Order: first appearance of `b` in the star.
-    fn star_edges(&self, a: u32, star: &[u32], out: &mut Vec<(u32, EdgeInfo)>) {
+    /// `lower(b)`: also list the edge when `b < a` (its pairs are then
+    /// still seen from `a`; the ranking only reads `count` and
+    /// `constraint`, which do not depend on the side).
+    fn star_edges(
+        &self,
+        a: u32,
+        star: &[u32],
+        lower: impl Fn(u32) -> bool,
+        out: &mut Vec<(u32, EdgeInfo)>,
+    ) {
         out.clear();
         for &c in star {
             let t = &self.tris[(c / 3) as usize];
@@ -390,7 +489,7 @@ impl State<'_> {
             let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
             // As `edge_info`: a corner counts once, for `x1` first.
             for (b, wb, o) in [(x1, w1, x2), (x2, w2, x1)] {
-                if b <= a || (b == x2 && x1 == x2) {
+                if b == a || (b < a && !lower(b)) || (b == x2 && x1 == x2) {
                     continue;
                 }
                 let i = match out.iter().position(|(y, _)| *y == b) {
@@ -453,10 +552,10 @@ impl State<'_> {
             }
             (Mobility::Any, Mobility::Any) => {
                 let mid = (pu + pv) * 0.5;
-                let len = (pu - pv).length();
+                let len2 = (pu - pv).length_squared();
                 if let Some(x) = q.optimize() {
                     // Far-away optima come from ill-conditioned quadrics.
-                    if (x - mid).length() <= 2.0 * len {
+                    if (x - mid).length_squared() <= 4.0 * len2 {
                         pts[n] = x;
                         n += 1;
                     }
@@ -480,6 +579,9 @@ impl State<'_> {
             key: 0.0,
             dist2: 0.0,
         }; 4];
+        let (qu, qv) = (&self.quad[u as usize], &self.quad[v as usize]);
+        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
+        let (iu, iv) = (inv(qu.weight), inv(qv.weight));
         for i in 0..n {
             // The error of a collapse is the larger of the two endpoints' mean
             // squared distances to their own planes (as in meshoptimizer, which
@@ -487,9 +589,7 @@ impl State<'_> {
             // of planes would dilute the planes of a small part (the end cap
             // of a bar) by the large ones of its neighbour.
             let d2 = if MAX_OF_ENDPOINTS {
-                self.quad[u as usize]
-                    .distance2(pts[i])
-                    .max(self.quad[v as usize].distance2(pts[i]))
+                (qu.eval(pts[i]) * iu).max(qv.eval(pts[i]) * iv)
             } else {
                 q.distance2(pts[i])
             };
@@ -700,6 +800,8 @@ impl State<'_> {
                 pb,
                 n,
                 l2: n.length_squared(),
+                lo: px.min(pa).min(pb),
+                hi: px.max(pa).max(pb),
                 a,
                 b,
                 survives: !(a == u || a == v || b == u || b == v),
@@ -818,6 +920,10 @@ struct OldTri {
     pb: DVec3,
     n: DVec3,
     l2: f64,
+    /// Bounding box: points whose box distance is not below the best so
+    /// far skip the exact test (most of the star, for a point on one side).
+    lo: DVec3,
+    hi: DVec3,
     a: u32,
     b: u32,
     /// Not on the collapsed edge (it survives with `x` moved).
@@ -832,6 +938,10 @@ impl OldTri {
     /// [`tri_dist2_min`] with the normal already known.
     #[inline]
     fn dist2_min(&self, q: DVec3, best: f64) -> f64 {
+        let d = (self.lo - q).max(q - self.hi).max(DVec3::ZERO);
+        if d.length_squared() >= best {
+            return best;
+        }
         if self.l2 > 0.0 {
             let h = self.n.dot(q - self.px);
             if h * h >= best * self.l2 {
@@ -857,67 +967,27 @@ fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
     best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
 }
 
-/// Grows the known prefix of the pass order (see `run`): the coverage of
-/// the `want - m` next-smallest quadric keys is computed (skipping edges with a
-/// touched endpoint), and the entries whose full key lies in the new range
-/// `[old lim, new lim)` are appended to `entries` in order.
-#[allow(clippy::too_many_arguments)]
-fn grow(
-    st: &State,
-    ranked: &mut [Ranked],
-    entries: &mut Vec<Entry>,
-    m: &mut usize,
-    lim: &mut f64,
-    want: usize,
-    touched: &[bool],
-) {
+/// Total order of the walk: key, then endpoints.
+#[inline]
+fn rank_cmp(a: &Ranked, b: &Ranked) -> Ordering {
+    a.key
+        .total_cmp(&b.key)
+        .then(a.u.cmp(&b.u))
+        .then(a.v.cmp(&b.v))
+}
+
+/// Extends the sorted prefix `ranked[..m]` to `ranked[..want]`: the next
+/// `want - m` smallest entries are selected from the rest and sorted.
+fn extend_order(ranked: &mut [Ranked], m: &mut usize, want: usize) {
     let n = ranked.len();
-    let by_key = |a: &Ranked, b: &Ranked| {
-        a.key
-            .total_cmp(&b.key)
-            .then(a.u.cmp(&b.u))
-            .then(a.v.cmp(&b.v))
-    };
-    if want < n && want > *m {
-        // The `want` smallest quadric keys first; `ranked[want]` is then the
-        // smallest of the rest.
-        ranked[*m..].select_nth_unstable_by(want - *m, by_key);
+    if want <= *m {
+        return;
     }
-    ranked[*m..want]
-        .par_iter_mut()
-        .with_min_len(256)
-        .for_each_init(
-            || (Vec::new(), Vec::new()),
-            |(sa, sb), r| {
-                if r.f > 0.0 && !touched[r.u as usize] && !touched[r.v as usize] {
-                    st.gather(r.u, sa);
-                    st.gather(r.v, sb);
-                    let d1 = st.coverage2(r.u, r.v, r.p, sa, sb, r.key / r.f);
-                    r.key = r.key.max(d1 * r.f);
-                    r.f = 0.0;
-                }
-            },
-        );
+    if want < n {
+        ranked[*m..].select_nth_unstable_by(want - *m, rank_cmp);
+    }
+    ranked[*m..want].par_sort_unstable_by(rank_cmp);
     *m = want;
-    let old = *lim;
-    *lim = if want == n {
-        f64::INFINITY
-    } else {
-        ranked[want].key
-    };
-    let start = entries.len();
-    let new_lim = *lim;
-    entries.extend(
-        ranked[..want]
-            .iter()
-            .filter(|r| r.key >= old && (r.key < new_lim || want == n))
-            .map(|r| Entry {
-                key: r.key,
-                u: r.u,
-                v: r.v,
-            }),
-    );
-    entries[start..].par_sort_unstable_by(|a, b| b.cmp(a));
 }
 
 /// Connected components of the position vertices and their squared radii.
@@ -1108,25 +1178,40 @@ pub(crate) fn run(
     let mut max_d2: f64 = 0.0;
     let mut max_edge2: f64 = 0.0;
     let mut touched = vec![false; nv];
-    let mut entries: Vec<Entry> = Vec::new();
+    let mut deferred: std::collections::BinaryHeap<Deferred> = Default::default();
+    let mut popped: Vec<f64> = Vec::new();
+    // Incremental ranking: a vertex is dirty when a collapse of the pass
+    // changed its star (it is in the closed 1-ring of a collapsed edge).
+    // Every input to the evaluation of an edge (quadrics, positions,
+    // constraint flags, stars) is local to its endpoints' stars, so an edge
+    // with two clean endpoints has the same entry (and the same coverage,
+    // and the same validity) as in the last pass: only dirty edges are
+    // ranked again. Validity failures are remembered too (the entry is
+    // dropped) since rejected collapses recur pass after pass.
+    let mut dirty = vec![true; nv];
+    let mut kept: Vec<Ranked> = Vec::new();
     let mut ranked: Vec<Ranked> = Vec::new();
     while st.live > params.target_tris {
         st.rebuild_csr();
+        // Constraint flags of the dirty vertices (the others' stars did not
+        // change).
+        let mut cflag = std::mem::take(&mut st.cflag);
         let stref = &st;
-        let cflag: Vec<bool> = (0..nv as u32)
-            .into_par_iter()
+        cflag
+            .par_iter_mut()
+            .enumerate()
             .with_min_len(4096)
-            .map_init(
+            .for_each_init(
                 || (Vec::new(), Vec::new()),
-                |(star, scratch), a| {
-                    if !stref.alive[a as usize] {
-                        return false;
+                |(star, scratch), (a, cf)| {
+                    if !stref.alive[a] {
+                        *cf = false;
+                    } else if dirty[a] {
+                        stref.gather(a as u32, star);
+                        *cf = stref.constrained(star, scratch);
                     }
-                    stref.gather(a, star);
-                    stref.constrained(star, scratch)
                 },
-            )
-            .collect();
+            );
         st.cflag = cflag;
         let stref = &st;
         ranked.clear();
@@ -1141,11 +1226,19 @@ pub(crate) fn run(
                     if !stref.alive[a as usize] {
                         return (out, star, nb);
                     }
+                    // An edge with an unchanged neighbourhood (two clean
+                    // endpoints) keeps its entry from the last pass
+                    // (`kept`), or stays out of the order if it was found
+                    // invalid. The others are ranked from their smaller
+                    // dirty endpoint.
+                    if !dirty[a as usize] {
+                        return (out, star, nb);
+                    }
                     stref.gather(a, &mut star);
-                    // Every edge (a, b > a) with its triangles, in one scan.
-                    stref.star_edges(a, &star, &mut nb);
-                    for (b, e) in nb.iter() {
-                        let b = *b;
+                    // Those edges with their triangles, in one scan.
+                    stref.star_edges(a, &star, |b| !dirty[b as usize], &mut nb);
+                    for &(b, ref e) in nb.iter() {
+                        let (a, b) = (a.min(b), a.max(b));
                         if let Some(ev) = stref.evaluate(a, b, e) {
                             let key = ev.cands[0].key;
                             let f = stref.factor(a, b);
@@ -1170,9 +1263,11 @@ pub(crate) fn run(
             )
             .map(|(out, _, _)| out)
             .collect();
+        ranked.extend_from_slice(&kept);
         for c in &chunks {
             ranked.extend_from_slice(c);
         }
+        dirty.iter_mut().for_each(|d| *d = false);
         if PRUNE {
             // Whole-part removal: a connected part is dropped for its radius.
             comp_live.iter_mut().for_each(|c| *c = 0);
@@ -1196,89 +1291,96 @@ pub(crate) fn run(
         if ranked.is_empty() {
             break;
         }
-        // Lazy coverage. The full key (quadric key raised by the coverage
-        // error) is never below the quadric key, so once the coverage is
-        // computed for the edges with the `m` smallest quadric keys, the full
-        // keys below the smallest remaining quadric key (`lim`) are known and
-        // in exact order. A pass only walks the front of the order (up to
-        // 1.5x the key at its goal rank), so the known prefix is grown (by
-        // half, on the unmodified state) until it covers that with some slack
-        // (`grow`); most edges never get their coverage computed. If the walk
-        // still runs past the known prefix, it is grown again on the current
-        // state (see `grow`).
+        // Lazy coverage, in exact order. The full key (quadric key raised by
+        // the coverage error) is never below the quadric key, so the walk
+        // merges two ordered sources: the edges by quadric key (`ranked`,
+        // sorted in chunks as the walk reaches them) and a heap of edges
+        // whose full key is known but was larger than the next quadric key
+        // (deferred). The coverage is computed when an edge is reached and
+        // neither endpoint is touched yet: edges skipped as touched (most
+        // of them on dense meshes) never pay for it.
         let tri_goal = st.live - params.target_tris;
         let goal0 = tri_goal / 2;
         let n_ranked = ranked.len();
         touched.iter_mut().for_each(|t| *t = false);
         let mut m = 0usize;
-        let mut lim = f64::NEG_INFINITY;
-        entries.clear();
         let first = (goal0 + goal0 / 2 + 4096).min(n_ranked);
-        loop {
-            let want = if m == 0 {
-                first
-            } else {
-                (m + m / 2).max(m + 4096).min(n_ranked)
-            };
-            grow(
-                &st,
-                &mut ranked,
-                &mut entries,
-                &mut m,
-                &mut lim,
-                want,
-                &touched,
-            );
-            let gi = goal0 + goal0 / 4 + 64;
-            if m == n_ranked || (entries.len() > gi && 1.5 * entries[gi].key < lim) {
-                break;
-            }
-        }
-        if entries.is_empty() {
-            break;
-        }
-        // As in meshoptimizer, the cost of the `tri_goal / 2`-th entry (skipping
-        // invalid ones) times 1.5 bounds what a pass accepts.
-        let mut goal_idx = tri_goal / 2;
+        extend_order(&mut ranked, &mut m, first);
+        // The goal edge's full key is at least the `goal0`-th smallest
+        // quadric key (full keys are never smaller), and at least the key
+        // of the edge at hand: the bound of the pass goal until the walk
+        // reaches the goal edge.
+        let goal_lb = ranked.get(goal0).map_or(f64::INFINITY, |r| r.key);
+        deferred.clear();
+        popped.clear();
+        // As in meshoptimizer, the cost of the `tri_goal / 2`-th edge of the
+        // order (skipping invalid ones) times 1.5 bounds what a pass accepts.
+        let mut goal_idx = goal0;
         let live0 = st.live;
         let mut collapses = 0usize;
         let mut i = 0;
         loop {
-            if i == entries.len() {
-                if m == n_ranked {
-                    break;
-                }
-                // Past the known order: compute more coverage, on the current
-                // state (entries with a touched endpoint are skipped anyway
-                // and keep their quadric key). Their keys are >= `lim`, so
-                // the order stays sorted.
+            if i == m && m < n_ranked {
                 let want = (m + m / 2).max(m + 4096).min(n_ranked);
-                grow(
-                    &st,
-                    &mut ranked,
-                    &mut entries,
-                    &mut m,
-                    &mut lim,
-                    want,
-                    &touched,
-                );
-                if i == entries.len() {
-                    continue;
+                extend_order(&mut ranked, &mut m, want);
+            }
+            let from_heap = match (i < m, deferred.peek()) {
+                (true, Some(d)) => d.before(&ranked[i]),
+                (false, Some(_)) => true,
+                (true, None) => false,
+                (false, None) => break,
+            };
+            if PREFETCH && i < m {
+                for (stage, ahead) in [(0u32, 32usize), (1, 24), (2, 16), (3, 8), (4, 4)] {
+                    if let Some(r) = ranked.get(i + ahead).filter(|_| i + ahead < m) {
+                        if r.u != NONE {
+                            st.prefetch(r.u, r.v, stage, &touched);
+                        }
+                    }
                 }
             }
-            let en = entries[i];
-            i += 1;
+            let ri = if from_heap {
+                deferred.pop().map_or(0, |d| d.0 as usize)
+            } else {
+                i += 1;
+                i - 1
+            };
+            let en = ranked[ri];
             if st.live <= params.target_tris {
                 break;
             }
-            let error_goal = if m == n_ranked || goal_idx < entries.len() {
-                1.5 * entries[goal_idx.min(entries.len() - 1)].key
-            } else {
-                // The goal entry is past the known order: its key is at least
-                // `lim` (no known entry exceeds the goal; fallbacks are judged
-                // against this lower bound).
-                1.5 * lim
-            };
+            let (u, v) = (en.u, en.v);
+            let mut fresh = None;
+            if en.u != NONE && en.f > 0.0 {
+                if touched[u as usize] || touched[v as usize] {
+                    popped.push(en.key);
+                    continue;
+                }
+                // Coverage still to be computed: do it now, on the current
+                // state, and defer the edge if its full key moved it behind
+                // the next edge of the order.
+                st.gather(u, &mut su);
+                st.gather(v, &mut sv);
+                let d1 = st.coverage2(u, v, en.p, &su, &sv, en.key / en.f);
+                let full = en.key.max(d1 * en.f);
+                ranked[ri].key = full;
+                ranked[ri].f = 0.0;
+                if i == m && m < n_ranked {
+                    let want = (m + m / 2).max(m + 4096).min(n_ranked);
+                    extend_order(&mut ranked, &mut m, want);
+                }
+                let r = ranked[ri];
+                let later = (i < m && rank_cmp(&r, &ranked[i]).is_gt())
+                    || deferred.peek().is_some_and(|d| d.before(&r));
+                if later {
+                    deferred.push(Deferred(ri as u32, r.key, r.u, r.v));
+                    continue;
+                }
+                fresh = Some(d1);
+            }
+            let en = ranked[ri];
+            popped.push(en.key);
+            let error_goal = 1.5 * popped.get(goal_idx).copied().unwrap_or(goal_lb.max(en.key));
             if en.key > error_goal && live0 - st.live > tri_goal / 6 {
                 break;
             }
@@ -1293,6 +1395,9 @@ pub(crate) fn run(
                     if st.tri_alive[t as usize] {
                         st.tri_alive[t as usize] = false;
                         st.live -= 1;
+                        for &w in &st.tris[t as usize] {
+                            dirty[st.wedge_pos[w as usize] as usize] = true;
+                        }
                     }
                 }
                 comp_live[c] = 0;
@@ -1301,28 +1406,33 @@ pub(crate) fn run(
                 collapses += 1;
                 continue;
             }
-            let (u, v) = (en.u, en.v);
             if touched[u as usize] || touched[v as usize] {
                 continue;
             }
-            st.gather(u, &mut su);
-            st.gather(v, &mut sv);
+            if fresh.is_none() {
+                st.gather(u, &mut su);
+                st.gather(v, &mut sv);
+            }
             let e = st.edge_info(v, &su);
             let Some(ev) = st.evaluate(u, v, &e) else {
                 goal_idx += 1;
+                ranked[ri].f = -1.0;
                 continue;
             };
             let mut chosen = None;
-            // Nothing around the edge changed since it was ranked: the ranked
-            // key already holds the coverage error of the first placement.
-            let unchanged = [&su, &sv].iter().all(|star| {
-                star.iter().all(|&c| {
-                    let (a, b) = st.corner_others(c);
-                    !touched[a as usize] && !touched[b as usize]
-                })
-            });
+            let mut over_target = false;
+            // The known coverage of the first placement holds if it was just
+            // computed, or if nothing around the edge changed in this pass.
+            let unchanged = (fresh.is_some() && ev.cands[0].p == en.p)
+                || [&su, &sv].iter().all(|star| {
+                    star.iter().all(|&c| {
+                        let (a, b) = st.corner_others(c);
+                        !touched[a as usize] && !touched[b as usize]
+                    })
+                });
             for (ci, cand) in ev.cands[..ev.n].iter().enumerate() {
                 if cand.dist2 > params.target_error2 {
+                    over_target = true;
                     break;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
@@ -1359,8 +1469,21 @@ pub(crate) fn run(
                 chosen.filter(|c| c.key <= en.key * (1.0 + 1e-9) || c.key <= error_goal)
             else {
                 goal_idx += 1;
+                match chosen {
+                    // Next pass (if still clean) it ranks at its real cost.
+                    Some(c) => ranked[ri].key = c.key,
+                    None if !over_target => ranked[ri].f = -1.0,
+                    None => {}
+                }
                 continue;
             };
+            for &c in su.iter().chain(&sv) {
+                let (a, b) = st.corner_others(c);
+                dirty[a as usize] = true;
+                dirty[b as usize] = true;
+            }
+            dirty[u as usize] = true;
+            dirty[v as usize] = true;
             max_edge2 = max_edge2.max((st.pos[u as usize] - st.pos[v as usize]).length_squared());
             let d2 = st.apply(u, v, cand.p, cand.dist2, &su, &e);
             max_d2 = max_d2.max(d2);
@@ -1371,6 +1494,15 @@ pub(crate) fn run(
         if collapses == 0 {
             break;
         }
+        kept.clear();
+        kept.extend(ranked.iter().filter(|r| {
+            r.u != NONE
+                && r.f >= 0.0
+                && st.alive[r.u as usize]
+                && st.alive[r.v as usize]
+                && !dirty[r.u as usize]
+                && !dirty[r.v as usize]
+        }));
     }
 
     let tris: Vec<[u32; 3]> = st

@@ -114,14 +114,27 @@ pub(crate) fn weld(
         };
         let mut heads: HashMap<(u32, i64, i64, i64), u32> = HashMap::default();
         let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
+                                                     // Exact duplicates (BIM exports repeat a corner per face) take the
+                                                     // representative of their first copy, in one probe instead of 8:
+                                                     // the same result, since representatives made since then have
+                                                     // larger ids. Unlocked vertices only (a locked one needs an exact
+                                                     // representative).
+        let mut exact: HashMap<(u32, [u32; 3]), u32> = HashMap::default();
         let tol2 = tolerance * tolerance;
         for i in 0..n {
             if !used[i] {
                 continue;
             }
-            let p = p64(i);
             let g = groups(i);
             let lk = locked(i);
+            let bits = positions[i].map(f32::to_bits);
+            if !lk {
+                if let Some(&r) = exact.get(&(g, bits)) {
+                    rep[i] = r;
+                    continue;
+                }
+            }
+            let p = p64(i);
             let (cx, cy, cz) = cell(p);
             let (sx, sy, sz) = (span(p.x, cx), span(p.y, cy), span(p.z, cz));
             let mut best = NONE;
@@ -158,6 +171,8 @@ pub(crate) fn weld(
             }
             if lk {
                 plocked[best as usize] = true;
+            } else {
+                exact.insert((g, bits), best);
             }
             rep[i] = best;
         }
