@@ -147,10 +147,10 @@ struct ConvertArgs {
     /// first, full detail last (refine REPLACE). E.g. 0.85,0.7,0.5.
     #[arg(long, value_delimiter = ',', conflicts_with = "lod")]
     lod_ratios: Option<Vec<f32>>,
-    /// How coarse HLOD tiles get: their triangles are halved, each step measured, while their
-    /// error stays under this fraction of the error at which a viewer that frames the tile draws
-    /// it (16 px SSE at 1080 px, 60° field of view). 0: no coarser than the tile budget and a
-    /// quarter of what the children draw.
+    /// How coarse HLOD tiles get: up to two smaller triangle targets are tried, each measured,
+    /// while their error stays under this fraction of the error at which a viewer that frames the
+    /// tile draws it (16 px SSE at 1080 px, 60° field of view). 0: no coarser than the tile
+    /// budget and a quarter of what the children draw.
     #[arg(long, default_value_t = bimtiles::convert::DEFAULT_HLOD_ERROR_FRACTION)]
     hlod_error_fraction: f64,
     /// Properties in the tables of simplified (coarse) tiles: identity (id, name, path, class,
