@@ -21,8 +21,7 @@ use crate::tileset::georef::GeoOrigin;
 use crate::tileset::metadata::{MetadataSchema, TableScope};
 use crate::tileset::view::{
     framed_error_m, paper_delta_mesh_px, paper_geometric_error_m, sse_px, switch_distance_m,
-    ViewOptions,
-    PAPER_MAX_DELTA_PX,
+    ViewOptions, PAPER_MAX_DELTA_PX,
 };
 use crate::tileset::{tileset_json, Refine, TileFacts};
 use glam::{DMat4, DVec3};

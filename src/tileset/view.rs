@@ -315,7 +315,10 @@ mod tests {
         let e = framed_error_m(r, &v);
         // 60°: the eye is 2r from the centre, r from the sphere.
         assert!(close(sse_px(e, r, &v), v.max_sse_px));
-        assert!(close(e, 16.0 * 2.0 * 40.0 * (30f64).to_radians().tan() / 1080.0));
+        assert!(close(
+            e,
+            16.0 * 2.0 * 40.0 * (30f64).to_radians().tan() / 1080.0
+        ));
     }
 
     #[test]
