@@ -367,6 +367,72 @@ fn shuffled_vertex_order_is_found_by_the_frame_search() {
     assert_eq!(r.matched_by_search, 2);
 }
 
+/// `prims` with every vertex moved by up to `amplitude` along each axis (deterministic).
+fn jitter(prims: &[Primitive], amplitude: f64, seed: u64) -> Vec<Primitive> {
+    let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let mut out = prims.to_vec();
+    for p in &mut out {
+        for v in &mut p.positions {
+            for x in v.iter_mut() {
+                *x += (amplitude * next()) as f32;
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn a_copy_is_found_among_many_near_twins() {
+    // Noisy copies (every vertex up to 2 mm off: near-twins, no match) come first and become
+    // prototypes; the true copy, shuffled so that only the frame search can find it, must still
+    // find the exact prototype behind them: candidates go nearest first, and the search is
+    // bounded to the first few.
+    let base = chair();
+    let noisy = 12;
+    let mut parts: Vec<(Vec<Primitive>, DMat4)> = (0..noisy)
+        .map(|i| (jitter(&base, 0.002, i as u64 + 1), DMat4::IDENTITY))
+        .collect();
+    parts.push((base.clone(), DMat4::IDENTITY));
+    parts.push((
+        shuffle(
+            &bake(&base, &motion([0.0, 0.0, 1.0], 40.0, [9.0, 0.0, 0.0])),
+            5,
+        ),
+        DMat4::IDENTITY,
+    ));
+    let tol = Tol {
+        pos: 0.001,
+        cos_normal: 2f64.to_radians().cos(),
+        allow_scale: false,
+    };
+    // The noisy copies are candidates of the true one (else this tests nothing).
+    let s = scene(parts.clone());
+    let inv = |i: usize| {
+        let c = &s.components[i];
+        matcher::Invariants::of(&Shape::new(&s.meshes[c.mesh.index()], &c.world)).unwrap()
+    };
+    let last = inv(noisy + 1);
+    let compatible = (0..noisy)
+        .filter(|&i| last.mismatch(&inv(i), &tol) <= 1.0)
+        .count();
+    assert!(
+        compatible > SEARCH_TRIES,
+        "{compatible} compatible near-twins"
+    );
+    let (_, after, r) = run(parts, &DedupOptions::default());
+    let mut want: Vec<u32> = (0..=noisy as u32).collect();
+    want.push(noisy as u32);
+    assert_eq!(meshes(&after), want);
+    assert_eq!(r.matched_by_search, 1);
+    assert_eq!(r.congruent_rewritten, 1);
+}
+
 #[test]
 fn symmetric_shapes_cube_and_cylinder() {
     for (name, base) in [("cube", cube()), ("cylinder", cylinder())] {
