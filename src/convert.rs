@@ -867,10 +867,22 @@ pub const HLOD_MIN_TRIANGLES: usize = 500;
 /// slower).
 pub const HLOD_COARSEN_TRIES: usize = 2;
 
-/// How far Draco quantization moves decoded vertices (metres), added to measured errors.
-fn quantization_m(c: Compression) -> f64 {
+/// Share of a simplified tile's measured error that Draco's position quantization may add on top
+/// of it: a tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices
+/// then cost fewer bits (Mini_Project's root: 16 -> 12 bits per coordinate); the declared error
+/// includes the quantization, so it stays honest and grows by at most this share.
+pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
+
+/// Largest per-axis position error of quantization for a tile whose content lies within
+/// `measured_m` of full detail (0 for full detail): 1 mm, or with Draco a share of the measured
+/// error when that is more. (KHR_mesh_quantization keeps 16 bits whatever the grid, so gains
+/// nothing from a coarser one.)
+fn position_error_m(c: Compression, measured_m: f64) -> f64 {
     match c {
-        Compression::Draco | Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M * 3f64.sqrt(),
+        Compression::Draco => {
+            DEFAULT_MAX_POSITION_ERROR_M.max(COARSE_QUANTIZATION_SHARE * measured_m / 3f64.sqrt())
+        }
+        Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M,
         Compression::None => 0.0,
     }
 }
@@ -916,6 +928,8 @@ pub(crate) struct TileStats {
     pub measured_error_m: Option<f64>,
     pub max_folding_edge_m: Option<f64>,
     pub paper_error_m: Option<f64>,
+    /// Largest per-axis position error quantization may add (`None`: the encoding's default).
+    pub max_position_error_m: Option<f64>,
 }
 
 /// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
@@ -1010,9 +1024,19 @@ impl<'a> TileWriter<'a> {
             self.schema
                 .property_table(scene, features, "../schema.json", scope)
         };
-        let enc =
-            encode_content_with_images(scene, content, &self.encoding, Some(&make_table), &image)
-                .map_err(|e| Error::output(&path, e))?;
+        let coarse_encoding;
+        let encoding = match st.max_position_error_m {
+            Some(e) if e != self.encoding.max_position_error_m => {
+                coarse_encoding = TileEncoding {
+                    max_position_error_m: e,
+                    ..self.encoding.clone()
+                };
+                &coarse_encoding
+            }
+            _ => &self.encoding,
+        };
+        let enc = encode_content_with_images(scene, content, encoding, Some(&make_table), &image)
+            .map_err(|e| Error::output(&path, e))?;
         write_renamed(&path, &enc.glb)?;
         self.pb.inc(1);
         st.uri = Some(uri);
@@ -1345,7 +1369,8 @@ impl HlodBuilder<'_> {
             }
             drop((contents, children, leaves));
             // Quantization moves decoded vertices by up to this much on top.
-            let measured = err.error_m + quantization_m(self.opts.compression);
+            let position_error = position_error_m(self.opts.compression, err.error_m);
+            let measured = err.error_m + position_error * 3f64.sqrt();
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             let folding = kids
                 .iter()
@@ -1363,6 +1388,7 @@ impl HlodBuilder<'_> {
                 measured_error_m: Some(measured),
                 max_folding_edge_m: Some(folding),
                 paper_error_m: Some(paper),
+                max_position_error_m: Some(position_error),
                 ..Default::default()
             };
             let written = (self.write)(i, &r.content, st)?;
@@ -1438,7 +1464,8 @@ fn build_chains(
             // Finest first: chain tile i - k holds level k.
             let mut below = 0.0;
             for (k, l) in levels.iter().enumerate() {
-                let measured = l.error.error_m + quantization_m(opts.compression);
+                let position_error = position_error_m(opts.compression, l.error.error_m);
+                let measured = l.error.error_m + position_error * 3f64.sqrt();
                 let (ge, paper) =
                     declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
                 below = ge;
@@ -1450,6 +1477,7 @@ fn build_chains(
                     measured_error_m: Some(measured),
                     max_folding_edge_m: Some(l.max_collapsed_edge_m),
                     paper_error_m: Some(paper),
+                    max_position_error_m: Some(position_error),
                     ..Default::default()
                 };
                 let at = i - (k + 1);

@@ -9,7 +9,7 @@ use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
 use crate::tile_content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use glam::{DMat4, DVec3};
 
-const MAGIC: &[u8; 8] = b"BIMTJOB2";
+const MAGIC: &[u8; 8] = b"BIMTJOB3";
 const END: &[u8; 4] = b"END.";
 
 /// A job's result as stored.
@@ -119,6 +119,7 @@ impl W {
         self.opt(&s.measured_error_m, |w, &v| w.f64(v));
         self.opt(&s.max_folding_edge_m, |w, &v| w.f64(v));
         self.opt(&s.paper_error_m, |w, &v| w.f64(v));
+        self.opt(&s.max_position_error_m, |w, &v| w.f64(v));
     }
 }
 
@@ -289,6 +290,7 @@ impl R<'_> {
             measured_error_m: self.opt_f64()?,
             max_folding_edge_m: self.opt_f64()?,
             paper_error_m: self.opt_f64()?,
+            max_position_error_m: self.opt_f64()?,
         })
     }
 }
@@ -376,6 +378,7 @@ mod tests {
                         geometric_error_m: 0.1 + 0.2,
                         full_to_coarse_m: Some(1.0 / 3.0),
                         paper_error_m: Some(0.7),
+                        max_position_error_m: Some(0.02),
                         ..Default::default()
                     },
                 )],
