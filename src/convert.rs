@@ -249,6 +249,10 @@ pub struct TileReport {
     /// `--error-metric paper-sse`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub paper_error_m: Option<f64>,
+    /// Simplified tiles: the largest per-axis position error quantization may add (metres; full
+    /// detail has 1 mm with `draco` and `quantized`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_position_error_m: Option<f64>,
     /// Discrete chains: the tile's LOD (0 = full detail).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lod_level: Option<usize>,
@@ -682,6 +686,7 @@ pub(crate) fn make_report(
             measured_error_m: st.measured_error_m,
             max_folding_edge_m: st.max_folding_edge_m,
             paper_error_m: st.paper_error_m,
+            max_position_error_m: st.max_position_error_m,
             lod_level: prep.chain_level.get(tiles.len()).copied().flatten(),
         });
         let d = t.depth as usize;
