@@ -867,9 +867,9 @@ pub const HLOD_CHILDREN_DIVISOR: usize = 4;
 /// Coarsening an HLOD tile below the budget stops at this many triangles.
 pub const HLOD_MIN_TRIANGLES: usize = 500;
 
-/// At most this many coarser tries per HLOD tile (each one simplifies and measures again: on a
-/// 1.9M-triangle campus, halving until the error ran out made the conversion several times
-/// slower).
+/// At most this many coarser tries per HLOD tile: each simplifies the tile again and measures it
+/// against all the full detail below it (Mini_Project.glb converts in 2.6 s with the tries, 1.5 s
+/// without).
 pub const HLOD_COARSEN_TRIES: usize = 2;
 
 /// Share of a simplified tile's measured error that Draco's position quantization may add on top

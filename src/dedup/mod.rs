@@ -451,8 +451,9 @@ fn moment_cell(inv: &Invariants, tol: &Tol) -> [i64; 3] {
 /// (cheap), then by the frame search (ICP, costly; it also stops once `ICP_RUNS_PER_CANDIDATE`
 /// are spent). A true copy is within the tolerance, so its invariants are about as close as they
 /// can be; on the shared models, one search try loses matches, two find all that an unbounded
-/// search finds. Without a bound, a bucket of n near-twins that never match (noisy copies of one
-/// part) costs n²/2 comparisons: 1,456 such parts of a 1.9M-triangle campus took 53 s.
+/// search finds (four are allowed, for margin). Without a bound, a bucket of n near-twins that
+/// never match (noisy copies of one part) costs n²/2 comparisons: 1,456 such parts of a
+/// 1.9M-triangle campus took 53 s.
 const SAME_ORDER_TRIES: usize = 8;
 const SEARCH_TRIES: usize = 4;
 
