@@ -878,18 +878,20 @@ pub const HLOD_COARSEN_TRIES: usize = 2;
 /// declared error includes the quantization, so it stays honest and grows by at most this share.
 pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
 
-/// Largest per-axis position error of quantization for a tile whose content lies within
-/// `measured_m` of full detail (0 for full detail): 1 mm, or with Draco a share of the measured
-/// error when that is more. (KHR_mesh_quantization keeps 16 bits whatever the grid, so gains
-/// nothing from a coarser one.)
-fn position_error_m(c: Compression, measured_m: f64) -> f64 {
-    match c {
+/// Quantization of a simplified tile whose content lies within `measured_m` of full detail:
+/// `(per_axis_m, error_m)`, the largest per-axis position error it may add (1 mm, or with Draco a
+/// share of the measured error when that is more; KHR_mesh_quantization keeps 16 bits whatever
+/// the grid, so gains nothing from a coarser one) and the tile's error with it added (decoded
+/// vertices move by up to √3 times the per-axis error).
+fn with_quantization(c: Compression, measured_m: f64) -> (f64, f64) {
+    let per_axis_m = match c {
         Compression::Draco => {
             DEFAULT_MAX_POSITION_ERROR_M.max(COARSE_QUANTIZATION_SHARE * measured_m / 3f64.sqrt())
         }
         Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M,
         Compression::None => 0.0,
-    }
+    };
+    (per_axis_m, measured_m + per_axis_m * 3f64.sqrt())
 }
 
 /// The geometric error without LOD (additive refinement), as the report describes it.
@@ -1373,9 +1375,7 @@ impl HlodBuilder<'_> {
                 }
             }
             drop((contents, children, leaves));
-            // Quantization moves decoded vertices by up to this much on top.
-            let position_error = position_error_m(self.opts.compression, err.error_m);
-            let measured = err.error_m + position_error * 3f64.sqrt();
+            let (position_error, measured) = with_quantization(self.opts.compression, err.error_m);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             let folding = kids
                 .iter()
@@ -1469,8 +1469,8 @@ fn build_chains(
             // Finest first: chain tile i - k holds level k.
             let mut below = 0.0;
             for (k, l) in levels.iter().enumerate() {
-                let position_error = position_error_m(opts.compression, l.error.error_m);
-                let measured = l.error.error_m + position_error * 3f64.sqrt();
+                let (position_error, measured) =
+                    with_quantization(opts.compression, l.error.error_m);
                 let (ge, paper) =
                     declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
                 below = ge;

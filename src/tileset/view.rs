@@ -94,8 +94,13 @@ pub fn paper_visibility_distance_m(edge_m: f64, v: &ViewOptions, max_delta_px: f
 /// multiple of the longest collapsed edge, not a measured distance: a surface moved by several
 /// collapses can lie farther than that from full detail (not honest in general).
 pub fn paper_geometric_error_m(edge_m: f64, v: &ViewOptions, max_delta_px: f64) -> f64 {
-    let d = paper_visibility_distance_m(edge_m, v, max_delta_px);
-    2.0 * v.max_sse_px * d * (v.fov_y_deg.to_radians() / 2.0).tan() / v.height_px as f64
+    limit_error_m(paper_visibility_distance_m(edge_m, v, max_delta_px), v)
+}
+
+/// The `geometricError` whose screen-space error at `distance_m` is exactly `v.max_sse_px` (the
+/// inverse of [`switch_distance_m`]).
+pub fn limit_error_m(distance_m: f64, v: &ViewOptions) -> f64 {
+    2.0 * v.max_sse_px * distance_m * (v.fov_y_deg.to_radians() / 2.0).tan() / v.height_px as f64
 }
 
 /// The nearest distance (metres) at which a 3D Tiles client still draws a tile of `geometric_error_m`
@@ -111,8 +116,7 @@ pub fn switch_distance_m(geometric_error_m: f64, v: &ViewOptions) -> f64 {
 /// once the viewer has backed off far enough to see all of it; HLOD content need not be finer.
 pub fn framed_error_m(radius_m: f64, v: &ViewOptions) -> f64 {
     let half_fov = (v.fov_y_deg.to_radians() / 2.0).max(1e-6);
-    let distance_m = radius_m / half_fov.sin() - radius_m;
-    v.max_sse_px * 2.0 * distance_m * half_fov.tan() / v.height_px as f64
+    limit_error_m(radius_m / half_fov.sin() - radius_m, v)
 }
 
 /// Screen-space error (pixels) of a `geometric_error_m` at `distance_m`, as CesiumJS computes it.
@@ -307,7 +311,6 @@ mod tests {
         (a - b).abs() <= 1e-9 * b.abs().max(1.0)
     }
 
-    /// Formulas (1) and (2) against values computed by hand.
     #[test]
     fn a_framed_tile_at_its_error_is_at_the_limit() {
         let v = ViewOptions::default();
@@ -321,6 +324,7 @@ mod tests {
         ));
     }
 
+    /// Formulas (1) and (2) against values computed by hand.
     #[test]
     fn paper_formulas_by_hand() {
         let v = ViewOptions::default(); // 1920 x 1080, 60 deg, 16 px
