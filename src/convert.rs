@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::ingest::InputSet;
 use crate::partition::{plan_octree, ContentItem, OctreeOptions, TilePlan};
 use crate::scene::{Aabb, ComponentId, Scene};
-use crate::simplify::hlod::{simplify_children, tile_error};
+use crate::simplify::hlod::{simplify_children, ErrorReference};
 use crate::simplify::lod_chain::{chain_levels, with_lod_chains};
 use crate::tile_content::{AppearanceClasses, TileContent};
 use crate::tileset::georef::GeoOrigin;
@@ -1328,6 +1328,8 @@ impl HlodBuilder<'_> {
                 self.opts.hlod_error_fraction
                     * framed_error_m(tile.bounds.diagonal() / 2.0, &ViewOptions::default())
             });
+            let reference =
+                ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
             let build_at = |target: usize| -> Result<_> {
                 let r = simplify_children(
                     &contents,
@@ -1337,14 +1339,7 @@ impl HlodBuilder<'_> {
                     &self.opts.simplify,
                 )
                 .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
-                let err = tile_error(
-                    self.scene,
-                    &r.content,
-                    &children,
-                    &leaves,
-                    0,
-                    &self.opts.simplify,
-                );
+                let err = reference.measure(&r.content, &self.opts.simplify);
                 Ok((r, err))
             };
             let input_triangles: usize = contents.iter().map(|c| c.triangle_count()).sum();
@@ -1374,6 +1369,8 @@ impl HlodBuilder<'_> {
                     (r, err, target) = (r2, err2, next);
                 }
             }
+            // The measurement's reference (children's BVHs) and inputs are not needed to write.
+            drop(reference);
             drop((contents, children, leaves));
             let (position_error, measured) = with_quantization(self.opts.compression, err.error_m);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);

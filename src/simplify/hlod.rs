@@ -10,7 +10,7 @@
 //! same border vertices, so the seam stays closed at every level (no cracks). Inside the subtree
 //! the parts are welded back together by the simplifier and their former borders simplified.
 //!
-//! The declared error ([`tile_error`]) bounds the distance between the tile's content P and the
+//! The declared error ([`ErrorReference::measure`]) bounds the distance between the tile's content P and the
 //! full detail F it stands for, in both directions:
 //! - F → P is measured directly: dense samples of every full-detail leaf below (gathered again from
 //!   the scene one leaf at a time, so memory stays bounded by a tile) against P;
@@ -72,69 +72,96 @@ pub struct TileError {
     pub coarse_to_full_m: f64,
 }
 
-/// Declared error of `content` (the tile's simplified geometry, P) with respect to the full detail
-/// `leaves` below it, given its `children`'s content and their `coarse_to_full_m` bounds (see the
-/// module docs). Each leaf is sampled at every vertex, edge midpoint and centroid plus as many
-/// area-weighted points as it has triangles, and at least `min_leaf_samples` (a small leaf alone,
-/// as under a discrete LOD chain, needs more than its triangle count).
-/// All contents must share `content.center`'s frame or carry their own centre (they are
-/// re-anchored).
-pub fn tile_error(
-    scene: &Scene,
-    content: &TileContent,
-    children: &[(&TileContent, f64)],
-    leaves: &[&[ContentItem]],
+/// What a tile's content is measured against (see the module docs): the full detail `leaves`
+/// below it and its `children`'s content with their `coarse_to_full_m` bounds. Built once per
+/// tile, so that each candidate content (HLOD coarsening tries, LOD chain levels) only costs its
+/// own measurement.
+pub struct ErrorReference<'a> {
+    scene: &'a Scene,
+    center: DVec3,
+    /// The children's content, re-anchored at `center`, and their bounds.
+    kids: Vec<(MeshBvh, f64)>,
+    leaves: &'a [&'a [ContentItem]],
     min_leaf_samples: usize,
-    opts: &SimplifyOptions,
-) -> TileError {
-    let center = content.center;
-    let (pp, pi) = soup(content);
-    let p_bvh = MeshBvh::new(TriMesh::new(&pp, &pi));
-    // F -> P: dense samples of each leaf, a running maximum shared by all (a point only needs an
-    // exact distance when it could raise it).
-    let run = AtomicU64::new(0);
-    leaves.par_iter().for_each(|items| {
-        let leaf = TileContent::gather(scene, items, center);
-        let (lp, li) = soup(&leaf);
-        let pts =
-            sample_surface_dense(TriMesh::new(&lp, &li), (li.len() / 3).max(min_leaf_samples));
-        pts.par_iter().with_min_len(1024).for_each_init(
-            || u32::MAX,
-            |hint, &x| {
-                let thr = f64::from_bits(run.load(Relaxed));
-                let d = p_bvh.distance_or_below(x, thr, hint);
-                if d >= thr && d.is_finite() {
-                    run.fetch_max(d.to_bits(), Relaxed);
-                }
-            },
-        );
-    });
-    let full_to_coarse_m = f64::from_bits(run.load(Relaxed));
-    // P -> F: through the children.
-    let kids: Vec<(MeshBvh, f64)> = children
-        .iter()
-        .map(|(c, e)| {
-            let moved = TileContent::merge(&[*c], center);
-            let (cp, ci) = soup(&moved);
-            (MeshBvh::new(TriMesh::new(&cp, &ci)), *e)
-        })
-        .collect();
-    let samples = (pi.len() / 3).clamp(20_000, 250_000);
-    let coarse_to_full_m = sample_surface_dense(TriMesh::new(&pp, &pi), samples)
-        .par_iter()
-        .map(|&x| {
-            kids.iter()
-                .filter_map(|(b, e)| b.closest(x).map(|c| c.0 + e))
-                .fold(f64::INFINITY, f64::min)
-        })
-        .filter(|d| d.is_finite())
-        .reduce(|| 0.0, f64::max);
-    TileError {
-        error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
-            .max(opts.error_safety * coarse_to_full_m)
-            .max(opts.error_floor_m),
-        full_to_coarse_m,
-        coarse_to_full_m,
+}
+
+impl<'a> ErrorReference<'a> {
+    /// Each leaf is sampled at every vertex, edge midpoint and centroid plus as many area-weighted
+    /// points as it has triangles, and at least `min_leaf_samples` (a small leaf alone, as under a
+    /// discrete LOD chain, needs more than its triangle count). Measured contents must be centred
+    /// at `center`.
+    pub fn new(
+        scene: &'a Scene,
+        center: DVec3,
+        children: &[(&TileContent, f64)],
+        leaves: &'a [&'a [ContentItem]],
+        min_leaf_samples: usize,
+    ) -> Self {
+        let kids = children
+            .iter()
+            .map(|(c, e)| {
+                let moved = TileContent::merge(&[*c], center);
+                let (cp, ci) = soup(&moved);
+                (MeshBvh::new(TriMesh::new(&cp, &ci)), *e)
+            })
+            .collect();
+        ErrorReference {
+            scene,
+            center,
+            kids,
+            leaves,
+            min_leaf_samples,
+        }
+    }
+
+    /// Declared error of `content` (the tile's simplified geometry, P) with respect to the full
+    /// detail it stands for.
+    pub fn measure(&self, content: &TileContent, opts: &SimplifyOptions) -> TileError {
+        debug_assert_eq!(content.center, self.center, "content centred elsewhere");
+        let center = self.center;
+        let (pp, pi) = soup(content);
+        let p_bvh = MeshBvh::new(TriMesh::new(&pp, &pi));
+        // F -> P: dense samples of each leaf, a running maximum shared by all (a point only needs
+        // an exact distance when it could raise it).
+        let run = AtomicU64::new(0);
+        self.leaves.par_iter().for_each(|items| {
+            let leaf = TileContent::gather(self.scene, items, center);
+            let (lp, li) = soup(&leaf);
+            let pts = sample_surface_dense(
+                TriMesh::new(&lp, &li),
+                (li.len() / 3).max(self.min_leaf_samples),
+            );
+            pts.par_iter().with_min_len(1024).for_each_init(
+                || u32::MAX,
+                |hint, &x| {
+                    let thr = f64::from_bits(run.load(Relaxed));
+                    let d = p_bvh.distance_or_below(x, thr, hint);
+                    if d >= thr && d.is_finite() {
+                        run.fetch_max(d.to_bits(), Relaxed);
+                    }
+                },
+            );
+        });
+        let full_to_coarse_m = f64::from_bits(run.load(Relaxed));
+        // P -> F: through the children.
+        let samples = (pi.len() / 3).clamp(20_000, 250_000);
+        let coarse_to_full_m = sample_surface_dense(TriMesh::new(&pp, &pi), samples)
+            .par_iter()
+            .map(|&x| {
+                self.kids
+                    .iter()
+                    .filter_map(|(b, e)| b.closest(x).map(|c| c.0 + e))
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .filter(|d| d.is_finite())
+            .reduce(|| 0.0, f64::max);
+        TileError {
+            error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
+                .max(opts.error_safety * coarse_to_full_m)
+                .max(opts.error_floor_m),
+            full_to_coarse_m,
+            coarse_to_full_m,
+        }
     }
 }
 
@@ -194,7 +221,7 @@ pub fn simplify_children(
         locked: locked.as_deref(),
         indices: &idx,
     };
-    // The error is measured against full detail afterwards (`tile_error`), not against the input.
+    // The error is measured against full detail afterwards ([`ErrorReference`]), not against the input.
     let o = SimplifyOptions {
         target_triangles: Some(target_triangles),
         compute_error_bound: false,
@@ -269,7 +296,7 @@ pub fn simplify_children(
 /// borders; LoD3_Railway's root kept 2,170 triangles for 2,000): whole parts (one feature of one
 /// material: a vertex group) are dropped, smallest box diagonal first, until the tile fits. Parts
 /// with a locked vertex stay (their neighbours rely on their borders). The error measured
-/// afterwards ([`tile_error`]) accounts for what was dropped.
+/// afterwards ([`ErrorReference`]) accounts for what was dropped.
 fn drop_smallest_parts(r: &mut super::SimplifiedMesh, locked: Option<&[bool]>, target: usize) {
     let mut parts: BTreeMap<u32, (usize, [f32; 3], [f32; 3], bool)> = BTreeMap::new();
     for t in r.indices.chunks_exact(3) {

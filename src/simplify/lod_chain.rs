@@ -6,10 +6,10 @@
 //! Each chain level is simplified from the leaf's full detail by our QEM to its ratio of the full
 //! triangle count ([`simplify_children`] with the leaf alone as child, so the borders of components
 //! cut across tiles stay locked and neighbouring chains meet without cracks at any levels), and
-//! its error is measured against that full detail by the same code as HLOD tiles ([`tile_error`]).
+//! its error is measured against that full detail by the same code as HLOD tiles ([`ErrorReference`]).
 //! Internal octree tiles carry no content.
 
-use super::hlod::{simplify_children, tile_error, TileError};
+use super::hlod::{simplify_children, ErrorReference, TileError};
 use super::{SimplifyError, SimplifyOptions};
 use crate::partition::{PlannedTile, TilePlan};
 use crate::scene::{ComponentId, Scene};
@@ -112,6 +112,14 @@ pub fn chain_levels(
     opts: &SimplifyOptions,
 ) -> Result<Vec<ChainLevel>, SimplifyError> {
     let n = full.triangle_count();
+    let leaves = [&tile.content[..]];
+    let reference = ErrorReference::new(
+        scene,
+        full.center,
+        &[(full, 0.0)],
+        &leaves,
+        CHAIN_LEAF_SAMPLES,
+    );
     ratios
         .iter()
         .map(|&r| {
@@ -121,14 +129,7 @@ pub fn chain_levels(
             };
             let target = (r as f64 * n as f64).round() as usize;
             let s = simplify_children(&[full], full.center, continuing, target, &o)?;
-            let error = tile_error(
-                scene,
-                &s.content,
-                &[(full, 0.0)],
-                &[&tile.content],
-                CHAIN_LEAF_SAMPLES,
-                opts,
-            );
+            let error = reference.measure(&s.content, opts);
             Ok(ChainLevel {
                 content: s.content,
                 error,
