@@ -17,7 +17,9 @@
 //! Also here: bad input (truncated, garbage, unknown schema, broken references, mangled entities)
 //! gives an error, never a panic.
 
-use bimtiles::ingest::ifc::{read_ifc_bytes, read_ifc_georef, read_ifc_with_report, IfcReadReport};
+use bimtiles::ingest::ifc::{
+    read_ifc_bytes, read_ifc_georef, read_ifc_with_report, IfcGeoref, IfcReadReport,
+};
 use bimtiles::scene::{AlphaMode, PropertyValue, Scene};
 use serde_json::{json, Value};
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -477,6 +479,27 @@ fn semantics_of_fzk_haus() {
     println!("georef: {g:?}");
 }
 
+/// `text` (an IFC file) with a projected CRS named `crs` and an IfcMapConversion to it appended:
+/// origin at E 458,000 N 5,438,000, 100 m, x axis (`x_abscissa`, 0.5) in the grid.
+fn with_map_conversion(text: &str, crs: &str, x_abscissa: &str) -> String {
+    text.replacen(
+        "ENDSEC;\nEND-ISO",
+        &format!("#900001=IFCPROJECTEDCRS('{crs}',$,$,$,$,$,$);\n#900002=IFCMAPCONVERSION(#11,#900001,458000.,5438000.,100.,{x_abscissa},0.5,1.);\nENDSEC;\nEND-ISO"),
+        1,
+    )
+}
+
+/// The georeference of an IFC file's `text`, read both ways (alone, and with the scene), through a
+/// temporary file named after `tag`.
+fn read_georef_of(text: &str, tag: &str) -> (Option<IfcGeoref>, IfcReadReport) {
+    let tmp = std::env::temp_dir().join(format!("bimtiles-{tag}-{}.ifc", std::process::id()));
+    std::fs::write(&tmp, text).unwrap();
+    let g = read_ifc_georef(&tmp);
+    let (_, report) = read_ifc_with_report(&tmp).unwrap();
+    std::fs::remove_file(&tmp).ok();
+    (g, report)
+}
+
 /// IfcOpenHouse with a site reference and an IfcMapConversion written into it.
 #[test]
 fn georef_from_site_and_map_conversion() {
@@ -491,18 +514,13 @@ fn georef_from_site_and_map_conversion() {
         eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
         return;
     }
-    let t = text
-        .replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);")
-        .replacen(
-            "ENDSEC;\nEND-ISO",
-            "#900001=IFCPROJECTEDCRS('EPSG:25832',$,$,$,$,$,$);\n#900002=IFCMAPCONVERSION(#11,#900001,458000.,5438000.,100.,0.8660254,0.5,1.);\nENDSEC;\nEND-ISO",
-            1,
-        );
-    let tmp = std::env::temp_dir().join(format!("bimtiles-georef-{}.ifc", std::process::id()));
-    std::fs::write(&tmp, &t).unwrap();
-    let g = read_ifc_georef(&tmp).expect("georef");
-    let (_, report) = read_ifc_with_report(&tmp).unwrap();
-    std::fs::remove_file(&tmp).ok();
+    let t = with_map_conversion(
+        &text.replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);"),
+        "EPSG:25832",
+        "0.8660254",
+    );
+    let (g, report) = read_georef_of(&t, "georef");
+    let g = g.expect("georef");
     println!("{g:?}");
     assert!((g.latitude_deg - (49.0 + 1.0 / 60.0 + 2.5 / 3600.0)).abs() < 1e-9);
     assert!((g.longitude_deg - (8.0 + 26.0 / 60.0 + 11.0 / 3600.0)).abs() < 1e-9);
@@ -531,20 +549,10 @@ fn georef_from_a_map_conversion_alone() {
         eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
         return;
     }
-    let with_crs = |crs: &str| {
-        text.replacen(
-            "ENDSEC;\nEND-ISO",
-            &format!("#900001=IFCPROJECTEDCRS('{crs}',$,$,$,$,$,$);\n#900002=IFCMAPCONVERSION(#11,#900001,458000.,5438000.,100.,0.8660254037844387,0.5,1.);\nENDSEC;\nEND-ISO"),
-            1,
-        )
-    };
-    let tmp = std::env::temp_dir().join(format!("bimtiles-mapconv-{}.ifc", std::process::id()));
-    std::fs::write(&tmp, with_crs("EPSG:25832")).unwrap();
-    let g = read_ifc_georef(&tmp).expect("a UTM map conversion places the model");
-    let (_, report) = read_ifc_with_report(&tmp).unwrap();
-    std::fs::write(&tmp, with_crs("EPSG:31467")).unwrap();
-    let gauss_krueger = read_ifc_georef(&tmp);
-    std::fs::remove_file(&tmp).ok();
+    let with_crs = |crs: &str| with_map_conversion(&text, crs, "0.8660254037844387");
+    let (g, report) = read_georef_of(&with_crs("EPSG:25832"), "mapconv-utm");
+    let g = g.expect("a UTM map conversion places the model");
+    let (gauss_krueger, _) = read_georef_of(&with_crs("EPSG:31467"), "mapconv-gk");
     println!("{g:?}");
     // E 458,000 N 5,438,000 in zone 32 (9°E) lies just north of Karlsruhe: a Transverse Mercator
     // point 42 km west of the central meridian, so about 0.57° west of it.

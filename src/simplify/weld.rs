@@ -114,10 +114,9 @@ pub(crate) fn weld(
         };
         let mut heads: HashMap<(u32, i64, i64, i64), u32> = HashMap::default();
         let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
-                                                     // Exact duplicates (BIM exports repeat a corner per face) take the
-                                                     // representative of their first copy, in one probe instead of 8:
-                                                     // the same result, since representatives made since then have
-                                                     // larger ids. Unlocked vertices only (a locked one needs an exact
+                                                     // Exact duplicates (BIM exports repeat a corner per face) take the representative of
+                                                     // their first copy, in one probe instead of 8: the same result, since representatives
+                                                     // made since then have larger ids. Unlocked vertices only (a locked one needs an exact
                                                      // representative).
         let mut exact: HashMap<(u32, [u32; 3]), u32> = HashMap::default();
         let tol2 = tolerance * tolerance;
