@@ -124,8 +124,9 @@ pub fn default_merge_plain_materials(compression: Compression) -> bool {
 /// Which properties the tables of simplified tiles carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CoarseTileProperties {
-    /// What names an element (id, name, path, class, storey, building, site, material, source,
-    /// aliases): picking a coarse tile names the element; its property sets come with full detail.
+    /// What names an element (id, name, class, storey, building, site, material, source,
+    /// aliases): picking a coarse tile names the element; its property sets and hierarchy path
+    /// come with full detail ([`TableScope::Identity`]).
     #[default]
     Identity,
     /// Every property in every tile.
@@ -1032,10 +1033,12 @@ impl<'a> TileWriter<'a> {
                 .property_table(scene, features, "../schema.json", scope)
         };
         let coarse_encoding;
+        // Simplified content: its own position grid, its normals from the faces as drawn.
         let encoding = match st.max_position_error_m {
-            Some(e) if e != self.encoding.max_position_error_m => {
+            Some(e) => {
                 coarse_encoding = TileEncoding {
                     max_position_error_m: e,
+                    normals_from_drawn_faces: true,
                     ..self.encoding.clone()
                 };
                 &coarse_encoding

@@ -218,8 +218,8 @@ pub struct FeatureSummary {
     pub tiles: Vec<String>,
 }
 
-/// Reads one property value of row `row` as text (STRING, SCALAR FLOAT64 and ENUM UINT16, the
-/// types bimtiles writes; others are reported as unsupported).
+/// Reads one property value of row `row` as text (STRING, SCALAR FLOAT64 and ENUM, the types
+/// bimtiles writes; others are reported as unsupported).
 fn property_text(
     def: &Value,
     prop: &Value,
@@ -237,9 +237,10 @@ fn property_text(
     let text = match def["type"].as_str()? {
         "STRING" => {
             let offs = view(&prop["stringOffsets"])?;
+            let size = type_size(prop["stringOffsetType"].as_str().unwrap_or("UINT32"))?;
             let at = |i: usize| {
-                offs.get(i * 4..i * 4 + 4)
-                    .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+                offs.get(i * size..(i + 1) * size)
+                    .map(|b| le_uint(b) as usize)
             };
             String::from_utf8_lossy(values.get(at(row)?..at(row + 1)?)?).to_string()
         }
@@ -248,9 +249,10 @@ fn property_text(
             f64::from_le_bytes(b.try_into().ok()?).to_string()
         }
         "ENUM" => {
-            let b = values.get(row * 2..row * 2 + 2)?;
-            let code = u16::from_le_bytes([b[0], b[1]]) as u64;
-            enums[def["enumType"].as_str()?]["values"]
+            let e = &enums[def["enumType"].as_str()?];
+            let size = type_size(e["valueType"].as_str().unwrap_or("UINT16"))?;
+            let code = le_uint(values.get(row * size..(row + 1) * size)?);
+            e["values"]
                 .as_array()?
                 .iter()
                 .find(|v| v["value"].as_u64() == Some(code))?["name"]
@@ -266,6 +268,22 @@ fn property_text(
         return None;
     }
     Some(text)
+}
+
+/// Size in bytes of an unsigned integer type of the metadata spec (None: not one).
+fn type_size(name: &str) -> Option<usize> {
+    match name {
+        "UINT8" => Some(1),
+        "UINT16" => Some(2),
+        "UINT32" => Some(4),
+        "UINT64" => Some(8),
+        _ => None,
+    }
+}
+
+/// A little-endian unsigned integer of 1 to 8 bytes.
+fn le_uint(b: &[u8]) -> u64 {
+    b.iter().rev().fold(0, |a, &x| a << 8 | u64::from(x))
 }
 
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.

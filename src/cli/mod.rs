@@ -153,9 +153,9 @@ struct ConvertArgs {
     /// budget and a quarter of what the children draw.
     #[arg(long, default_value_t = bimtiles::convert::DEFAULT_HLOD_ERROR_FRACTION)]
     hlod_error_fraction: f64,
-    /// Properties in the tables of simplified (coarse) tiles: identity (id, name, path, class,
-    /// storey, building, site, material, source, aliases; property sets only in full-detail
-    /// tiles, so a first view stays small) or all.
+    /// Properties in the tables of simplified (coarse) tiles: identity (id, name, class, storey,
+    /// building, site, material, source, aliases; property sets and hierarchy paths only in
+    /// full-detail tiles, so a first view stays small) or all.
     #[arg(long, value_enum, default_value = "identity")]
     coarse_properties: CoarsePropertiesArg,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;

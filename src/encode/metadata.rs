@@ -1,7 +1,10 @@
 //! Writes a property table into a tile's glTF (`EXT_structural_metadata`, glTF extension of 3D
 //! Tiles 1.1): one row per feature, one column per property, in the binary layout the extension
-//! defines (strings as UTF-8 bytes plus UINT32 offsets, FLOAT64 and UINT16 enum codes aligned to
-//! their size). The schema itself is built by `tileset::metadata`; this module only lays out bytes.
+//! defines (strings as UTF-8 bytes plus offsets, FLOAT64, and enum codes, each aligned to its
+//! size). String offsets take the smallest type that holds the column's byte length (UINT8, UINT16
+//! or UINT32: 2 of the 4 bytes a row on every coarse tile of Mini_Project), enum codes the width
+//! their schema enum declares. The schema itself is built by `tileset::metadata`; this module only
+//! lays out bytes.
 
 use serde_json::{json, Map, Value};
 
@@ -12,8 +15,8 @@ pub enum ColumnData {
     Text(Vec<Option<String>>),
     /// SCALAR FLOAT64 (missing values already replaced by the property's `noData`).
     Float64(Vec<f64>),
-    /// ENUM with UINT16 codes.
-    Enum(Vec<u16>),
+    /// ENUM codes, written as UINT8 when `one_byte` (the schema enum's `valueType`), else UINT16.
+    Enum { codes: Vec<u16>, one_byte: bool },
 }
 
 /// Where a glTF finds its metadata schema.
@@ -57,26 +60,31 @@ pub fn write_property_table(
         let entry = match col {
             ColumnData::Text(values) => {
                 let mut data = Vec::new();
-                let mut offsets = Vec::with_capacity((values.len() + 1) * 4);
+                let mut ends = Vec::with_capacity(values.len() + 1);
+                ends.push(0);
                 for v in values {
-                    offsets.extend_from_slice(&(data.len() as u32).to_le_bytes());
                     data.extend_from_slice(v.as_deref().unwrap_or("").as_bytes());
+                    ends.push(data.len());
                 }
-                offsets.extend_from_slice(&(data.len() as u32).to_le_bytes());
+                let (offsets, size, name) = offsets_of(&ends);
                 bytes += data.len() + offsets.len();
                 let values = view(&data, 1);
-                let offs = view(&offsets, 4);
-                json!({"values": values, "stringOffsets": offs, "stringOffsetType": "UINT32"})
+                let offs = view(&offsets, size);
+                json!({"values": values, "stringOffsets": offs, "stringOffsetType": name})
             }
             ColumnData::Float64(values) => {
                 let data: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
                 bytes += data.len();
                 json!({"values": view(&data, 8)})
             }
-            ColumnData::Enum(values) => {
-                let data: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+            ColumnData::Enum { codes, one_byte } => {
+                let data: Vec<u8> = if *one_byte {
+                    codes.iter().map(|&c| c as u8).collect()
+                } else {
+                    codes.iter().flat_map(|c| c.to_le_bytes()).collect()
+                };
                 bytes += data.len();
-                json!({"values": view(&data, 2)})
+                json!({"values": view(&data, if *one_byte { 1 } else { 2 })})
             }
         };
         written.push((col, entry.clone()));
@@ -93,6 +101,27 @@ pub fn write_property_table(
     (ext, bytes)
 }
 
+/// String offsets (`ends`: 0, then the end of each string) in the smallest type that holds the
+/// last: bytes, the type's size and its name.
+fn offsets_of(ends: &[usize]) -> (Vec<u8>, usize, &'static str) {
+    let last = ends.last().copied().unwrap_or(0);
+    if last <= u8::MAX as usize {
+        (ends.iter().map(|&e| e as u8).collect(), 1, "UINT8")
+    } else if last <= u16::MAX as usize {
+        let b = ends
+            .iter()
+            .flat_map(|&e| (e as u16).to_le_bytes())
+            .collect();
+        (b, 2, "UINT16")
+    } else {
+        let b = ends
+            .iter()
+            .flat_map(|&e| (e as u32).to_le_bytes())
+            .collect();
+        (b, 4, "UINT32")
+    }
+}
+
 /// Whether two columns are laid out as the same bytes (a missing string is written as "").
 fn same_bytes(a: &ColumnData, b: &ColumnData) -> bool {
     match (a, b) {
@@ -105,7 +134,16 @@ fn same_bytes(a: &ColumnData, b: &ColumnData) -> bool {
         (ColumnData::Float64(x), ColumnData::Float64(y)) => {
             x.len() == y.len() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
         }
-        (ColumnData::Enum(x), ColumnData::Enum(y)) => x == y,
+        (
+            ColumnData::Enum {
+                codes: x,
+                one_byte: a,
+            },
+            ColumnData::Enum {
+                codes: y,
+                one_byte: b,
+            },
+        ) => x == y && a == b,
         _ => false,
     }
 }
@@ -113,6 +151,13 @@ fn same_bytes(a: &ColumnData, b: &ColumnData) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn enum_codes(codes: Vec<u16>) -> ColumnData {
+        ColumnData::Enum {
+            codes,
+            one_byte: false,
+        }
+    }
 
     #[test]
     fn identical_columns_share_their_buffer_views() {
@@ -128,8 +173,8 @@ mod tests {
                     "path".into(),
                     ColumnData::Text(vec![Some("a1".into()), None]),
                 ),
-                ("class".into(), ColumnData::Enum(vec![1, 2])),
-                ("storey".into(), ColumnData::Enum(vec![1, 2])),
+                ("class".into(), enum_codes(vec![1, 2])),
+                ("storey".into(), enum_codes(vec![1, 2])),
                 ("height".into(), ColumnData::Float64(vec![1.0, 2.0])),
             ],
         };
@@ -146,5 +191,55 @@ mod tests {
         assert_eq!(views.len(), 6);
         let v = p["path"]["values"].as_u64().unwrap() as usize;
         assert_eq!(views[v], b"a1");
+    }
+
+    #[test]
+    fn offsets_and_enum_codes_take_the_smallest_declared_width() {
+        let lay_out = |columns: Vec<(String, ColumnData)>| {
+            let table = PropertyTable {
+                schema: SchemaRef::Uri("schema.json".into()),
+                class: "element".into(),
+                count: 2,
+                columns,
+            };
+            let mut views: Vec<Vec<u8>> = Vec::new();
+            let (ext, _) = write_property_table(&table, &mut |b, _| {
+                views.push(b.to_vec());
+                views.len() - 1
+            });
+            (ext["propertyTables"][0]["properties"].clone(), views)
+        };
+        let text = |n: usize| ColumnData::Text(vec![Some("x".repeat(n)), Some("yz".into())]);
+        for (n, ty, offsets) in [
+            (253, "UINT8", vec![0, 253, 255]),
+            (254, "UINT16", vec![0, 0, 254, 0, 0, 1]),
+            (
+                65_534,
+                "UINT32",
+                vec![0, 0, 0, 0, 254, 255, 0, 0, 0, 0, 1, 0],
+            ),
+        ] {
+            let (p, views) = lay_out(vec![("id".into(), text(n))]);
+            assert_eq!(p["id"]["stringOffsetType"], ty, "{n}");
+            let o = p["id"]["stringOffsets"].as_u64().unwrap() as usize;
+            assert_eq!(views[o], offsets, "{n}");
+        }
+        let (p, views) = lay_out(vec![
+            (
+                "a".into(),
+                ColumnData::Enum {
+                    codes: vec![3, 200],
+                    one_byte: true,
+                },
+            ),
+            ("b".into(), enum_codes(vec![3, 200])),
+        ]);
+        let at = |k: &str| views[p[k]["values"].as_u64().unwrap() as usize].clone();
+        assert_eq!(at("a"), vec![3, 200]);
+        assert_eq!(
+            at("b"),
+            vec![3, 0, 200, 0],
+            "a different width is not shared"
+        );
     }
 }

@@ -26,7 +26,9 @@
 //!    (plane) error and a local *coverage* error (old vertices to the new
 //!    surface and back), and a whole connected part may be dropped for its
 //!    radius; see `qem.rs` for why plane distances alone let parts vanish;
-//! 4. measure the symmetric Hausdorff distance between input and output and
+//! 4. take the output's normals from its faces ([`normals`]: interpolated ones
+//!    drift from the coarsened surface);
+//! 5. measure the symmetric Hausdorff distance between input and output and
 //!    declare it as [`SimplifiedMesh::error_m`] (below).
 //!
 //! ## The declared error (`error_m`, for 3D Tiles `geometricError`)
@@ -71,6 +73,7 @@ mod curvature;
 pub mod hausdorff;
 pub mod hlod;
 pub mod lod_chain;
+pub mod normals;
 mod qem;
 pub mod quadric;
 mod weld;
@@ -180,7 +183,8 @@ impl Default for SimplifyOptions {
 
 /// Output mesh. Every output vertex comes from one input vertex
 /// ([`SimplifiedMesh::source_vertex`]) whose group it keeps; its attributes
-/// are that vertex's, interpolated along collapsed edges.
+/// are that vertex's, interpolated along collapsed edges, except normals, which
+/// are taken from the output's faces ([`normals`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SimplifiedMesh {
     /// Positions.
@@ -470,6 +474,14 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
                 }
             }
             res.indices.push(remap[wi]);
+        }
+    }
+    // Interpolated normals drift from the coarsened faces, and the two sides of a sheet can end
+    // up sharing vertices (see `normals.rs`).
+    if res.normals.is_some() {
+        normals::split_opposite_faces(&mut res);
+        if let Some(n) = res.normals.as_mut() {
+            normals::normals_from_faces(&res.positions, &res.indices, n);
         }
     }
 

@@ -74,9 +74,11 @@ pub enum MetaValue {
 pub enum TableScope {
     /// Every property (full-detail tiles).
     All,
-    /// What names an element (its property sets left out): simplified tiles, which a
-    /// first view loads for the whole model at once (Mini_Project's IFC root: 585 of 850 KB were
-    /// property sets). Clicking an element there names it; its full-detail tile has the rest.
+    /// What names an element: simplified tiles, which a first view loads for the whole model at
+    /// once. Left out: property sets (Mini_Project's IFC root: 585 of 850 KB), the hierarchy path
+    /// (28 % of that root once the sets were out; storey, building and site already place the
+    /// element), and the name where the id is the glTF node path, which ends with it (a glTF
+    /// campus root: 24 %). Clicking an element there names it; its full-detail tile has the rest.
     Identity,
 }
 
@@ -92,6 +94,12 @@ pub struct MetadataSchema {
     /// Kept component → ids of its aliases (exact duplicates not drawn), space-separated.
     aliases: HashMap<ComponentId, String>,
     base: Value,
+}
+
+/// Whether component `c`'s id is its glTF node path (no GlobalId), which ends with its name.
+fn id_is_node_path(scene: &Scene, c: ComponentId) -> bool {
+    let comp = scene.component(c);
+    comp.node.is_some_and(|n| comp.key == scene.node_path(n))
 }
 
 /// Enum value name → code (its index in `names`).
@@ -340,8 +348,8 @@ impl MetadataSchema {
 
     /// The property table of one tile's features: only the properties some feature has a value
     /// for; the schema is the tileset's, at `schema_uri` (relative to the tile). With
-    /// [`TableScope::Identity`] only what names an element (id, name, path, class, storey,
-    /// building, site, material, source, and the duplicates it stands for).
+    /// [`TableScope::Identity`] only what names an element (id, name unless the id ends with it,
+    /// class, storey, building, site, material, source, and the duplicates it stands for).
     pub fn property_table(
         &self,
         scene: &Scene,
@@ -351,15 +359,21 @@ impl MetadataSchema {
     ) -> PropertyTable {
         let mut columns = Vec::new();
         for (p, def) in self.properties.iter().enumerate() {
-            if scope == TableScope::Identity && matches!(def.column, Column::Pset(_)) {
+            let identity = scope == TableScope::Identity;
+            if identity && matches!(def.column, Column::Pset(_) | Column::Path) {
                 continue;
             }
-            let values: Vec<Option<MetaValue>> =
-                features.iter().map(|&c| self.value(scene, c, p)).collect();
+            let values: Vec<Option<MetaValue>> = features
+                .iter()
+                .map(|&c| match def.column {
+                    Column::Name if identity && id_is_node_path(scene, c) => None,
+                    _ => self.value(scene, c, p),
+                })
+                .collect();
             if values.iter().all(Option::is_none) {
                 continue;
             }
-            let col = match def.value_type {
+            let col = match &def.value_type {
                 ValueType::Text => ColumnData::Text(
                     values
                         .into_iter()
@@ -378,15 +392,16 @@ impl MetadataSchema {
                         })
                         .collect(),
                 ),
-                ValueType::Enum(_) => ColumnData::Enum(
-                    values
+                ValueType::Enum(e) => ColumnData::Enum {
+                    codes: values
                         .into_iter()
                         .map(|v| match v {
                             Some(MetaValue::Code(c)) => c,
                             _ => 0,
                         })
                         .collect(),
-                ),
+                    one_byte: self.enum_is_one_byte(e),
+                },
             };
             columns.push((def.id.clone(), col));
         }
@@ -396,6 +411,12 @@ impl MetadataSchema {
             count: features.len(),
             columns,
         }
+    }
+
+    /// Whether enum `id`'s codes fit in one byte (`valueType` UINT8; else the default UINT16): a
+    /// byte per element and enum property saved in every tile.
+    fn enum_is_one_byte(&self, id: &str) -> bool {
+        self.enums.get(id).is_some_and(|v| v.len() <= 256)
     }
 
     /// The schema as JSON; with `only`, just those properties (by index) and the enums they use
@@ -445,6 +466,9 @@ impl MetadataSchema {
                 continue;
             }
             let mut e = self.base["enums"][id].clone();
+            if self.enum_is_one_byte(id) {
+                e["valueType"] = json!("UINT8");
+            }
             e["values"] = json!(names
                 .iter()
                 .enumerate()
@@ -628,5 +652,68 @@ mod tests {
         );
         assert_eq!(identifier("3D Höhe"), "_3D_H_he");
         assert_eq!(identifier(""), "_");
+    }
+
+    #[test]
+    fn identity_tables_leave_out_paths_and_names_that_the_id_ends_with() {
+        let mut s = scene_with(vec![ElementInfo::default(), ElementInfo::default()]);
+        s.nodes = vec![
+            Node {
+                name: Some("building-0".into()),
+                parent: None,
+                extras: None,
+            },
+            Node {
+                name: Some("wall#0".into()),
+                parent: Some(NodeId(0)),
+                extras: None,
+            },
+            Node {
+                name: Some("1CBNfY0004DZ4oDpWmD3am".into()),
+                parent: Some(NodeId(0)),
+                extras: None,
+            },
+        ];
+        // Component 0: no GlobalId, its id is its node path; component 1: a GlobalId.
+        s.components[0].node = Some(NodeId(1));
+        s.components[0].key = "building-0/wall#0".into();
+        s.components[0].name = Some("wall#0".into());
+        s.components[1].node = Some(NodeId(2));
+        s.components[1].key = "1CBNfY0004DZ4oDpWmD3am".into();
+        s.components[1].name = Some("Door".into());
+        let m = MetadataSchema::from_scene(&s);
+        let ids = [ComponentId(0), ComponentId(1)];
+        let column = |scope, id: &str| {
+            m.property_table(&s, &ids, "s.json", scope)
+                .columns
+                .into_iter()
+                .find(|c| c.0 == id)
+                .map(|c| c.1)
+        };
+        let text = |v: &[Option<&str>]| {
+            Some(ColumnData::Text(
+                v.iter().map(|x| x.map(String::from)).collect(),
+            ))
+        };
+        assert_eq!(
+            column(TableScope::All, "path"),
+            text(&[
+                Some("building-0/wall#0"),
+                Some("building-0/1CBNfY0004DZ4oDpWmD3am")
+            ])
+        );
+        assert_eq!(column(TableScope::Identity, "path"), None);
+        assert_eq!(
+            column(TableScope::All, "name"),
+            text(&[Some("wall#0"), Some("Door")])
+        );
+        assert_eq!(
+            column(TableScope::Identity, "name"),
+            text(&[None, Some("Door")])
+        );
+        assert_eq!(
+            column(TableScope::Identity, "id"),
+            text(&[Some("building-0/wall#0"), Some("1CBNfY0004DZ4oDpWmD3am")])
+        );
     }
 }
