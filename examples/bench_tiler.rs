@@ -133,7 +133,13 @@ fn main() {
         inputs.extend(glbs);
         // Paper-scale inputs: real components, synthetic layout (see MANIFEST.md).
         let script = data.join("make_campus.py");
-        for (name, copies) in [("campus-1.9M", 8), ("campus-8.2M", 34)] {
+        // Jittered copies are near-twins dedup cannot share (every part stored); exact copies
+        // become instances at full detail, while HLOD tiles stay plain geometry.
+        for (name, copies, jitter_m) in [
+            ("campus-1.9M", 8, "0.002"),
+            ("campus-1.9M-exact", 8, "0"),
+            ("campus-8.2M", 34, "0.002"),
+        ] {
             let out = work.join(format!("{name}.glb"));
             if !out.exists() {
                 let ok = Command::new("python3")
@@ -141,7 +147,7 @@ fn main() {
                     .arg(&out)
                     .args(["--copies", &copies.to_string(), "--inputs"])
                     .arg(data.join("ISSUE_021_Mini_Project.glb"))
-                    .args(["--bake", "--jitter-m", "0.002"])
+                    .args(["--bake", "--jitter-m", jitter_m])
                     .status()
                     .is_ok_and(|s| s.success());
                 if !ok {

@@ -16,20 +16,29 @@
 //!
 //! Before that, [`split_opposite_faces`] gives each side of a sheet its own vertices: collapses
 //! can merge the two sides' wedges where they share positions (a glass pane drawn as two
-//! triangles back to back), and one normal cannot shade both (the averaged one was zero,
+//! triangles back to back), and one normal cannot shade both (the interpolated one was zero,
 //! which glTF forbids).
 
 use glam::DVec3;
 
 use super::SimplifiedMesh;
 
-/// Splits every vertex whose triangles face opposite ways: the triangles whose normal points
-/// against the vertex's area-weighted mean (or, where the two sides cancel exactly, against its
-/// first triangle) get a copy of the vertex with all its attributes.
+/// A vertex is split when its faces' area-weighted mean normal is shorter than this share of
+/// their total area: its faces face opposite ways nearly as much as not (two sides of a sheet),
+/// so the mean's direction is arbitrary. Measured on Mini_Project's HLOD root (53.0 KB
+/// unsplit): 55.0 KB at 0.1, 59.9 KB at 0.2, 84.5 KB splitting every opposite face (QEM leaves
+/// many flattened parts whose two sides share vertices).
+const SPLIT_BELOW_MEAN_SHARE: f64 = 0.1;
+
+/// Splits every vertex whose triangles face opposite ways about equally (see
+/// [`SPLIT_BELOW_MEAN_SHARE`]): the triangles whose normal points against the vertex's
+/// area-weighted mean (or, where the two sides cancel exactly, against its first triangle) get a
+/// copy of the vertex with all its attributes.
 pub fn split_opposite_faces(m: &mut SimplifiedMesh) {
     let at = |p: &[[f32; 3]], i: u32| DVec3::from_array(p[i as usize].map(f64::from));
     let n = m.positions.len();
     let (mut sum, mut first) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
+    let mut area = vec![0.0; n];
     let faces: Vec<DVec3> = m
         .indices
         .chunks_exact(3)
@@ -41,6 +50,7 @@ pub fn split_opposite_faces(m: &mut SimplifiedMesh) {
     for (t, &f) in m.indices.chunks_exact(3).zip(&faces) {
         for &v in t {
             sum[v as usize] += f;
+            area[v as usize] += f.length();
             if first[v as usize] == DVec3::ZERO {
                 first[v as usize] = f;
             }
@@ -50,6 +60,10 @@ pub fn split_opposite_faces(m: &mut SimplifiedMesh) {
     for (t, &f) in m.indices.chunks_exact_mut(3).zip(&faces) {
         for v in t {
             let i = *v as usize;
+            // Faces that mostly agree keep one vertex: the mean shades the larger side right.
+            if sum[i].length() > SPLIT_BELOW_MEAN_SHARE * area[i] {
+                continue;
+            }
             let reference = if sum[i] != DVec3::ZERO {
                 sum[i]
             } else {
