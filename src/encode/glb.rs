@@ -71,7 +71,7 @@ pub struct TileEncoding {
     /// Shading normals from the faces as Draco's quantization leaves them (simplified content,
     /// whose normals come from its faces anyway: `simplify::normals`). Coarse quantization turns
     /// small faces; normals that follow them shade what is drawn, and Draco predicts them from
-    /// those faces: 7 of Mini_Project root's 62 KB, 29 of a 1.9M-triangle campus root's 274 KB.
+    /// those faces (Mini_Project's root: 61.9 -> 55.9 KB).
     pub normals_from_drawn_faces: bool,
     pub generator: String,
 }

@@ -143,18 +143,34 @@ impl<'a> ErrorReference<'a> {
             );
         });
         let full_to_coarse_m = f64::from_bits(run.load(Relaxed));
-        // P -> F: through the children.
+        // P -> F: through the children, `min over children (distance + its bound)` per sample, a
+        // running maximum again: a child nearer than the maximum (less its bound) settles that the
+        // sample cannot raise it. Same result as exact queries against every child, which took
+        // HLOD + writing from 18 to 25 s on a 1.9M-triangle campus (campus-8.2M: 116 vs 148 s).
         let samples = (pi.len() / 3).clamp(20_000, 250_000);
-        let coarse_to_full_m = sample_surface_dense(TriMesh::new(&pp, &pi), samples)
+        let run = AtomicU64::new(0.0f64.to_bits());
+        sample_surface_dense(TriMesh::new(&pp, &pi), samples)
             .par_iter()
-            .map(|&x| {
-                self.kids
-                    .iter()
-                    .filter_map(|(b, e)| b.closest(x).map(|c| c.0 + e))
-                    .fold(f64::INFINITY, f64::min)
-            })
-            .filter(|d| d.is_finite())
-            .reduce(|| 0.0, f64::max);
+            .with_min_len(1024)
+            .for_each_init(
+                || vec![u32::MAX; self.kids.len()],
+                |hints, &x| {
+                    let thr = f64::from_bits(run.load(Relaxed));
+                    let mut nearest = f64::INFINITY;
+                    for ((b, e), hint) in self.kids.iter().zip(hints.iter_mut()) {
+                        let below = thr - e;
+                        let d = b.distance_or_below(x, below, hint);
+                        if d < below {
+                            return;
+                        }
+                        nearest = nearest.min(d + e);
+                    }
+                    if nearest.is_finite() && nearest > thr {
+                        run.fetch_max(nearest.to_bits(), Relaxed);
+                    }
+                },
+            );
+        let coarse_to_full_m = f64::from_bits(run.load(Relaxed));
         TileError {
             error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
                 .max(opts.error_safety * coarse_to_full_m)
