@@ -1333,7 +1333,8 @@ impl HlodBuilder<'_> {
             });
             let reference =
                 ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
-            let build_at = |target: usize| -> Result<_> {
+            // A try over `limit_m` is given up as soon as its measurement shows it (`None`).
+            let build_at = |target: usize, limit_m: f64| -> Result<_> {
                 let r = simplify_children(
                     &contents,
                     tile.bounds.center(),
@@ -1342,8 +1343,8 @@ impl HlodBuilder<'_> {
                     &self.opts.simplify,
                 )
                 .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
-                let err = reference.measure(&r.content, &self.opts.simplify);
-                Ok((r, err))
+                let err = reference.measure_within(&r.content, &self.opts.simplify, limit_m);
+                Ok(err.map(|e| (r, e)))
             };
             let input_triangles: usize = contents.iter().map(|c| c.triangle_count()).sum();
             let mut target = self
@@ -1352,7 +1353,7 @@ impl HlodBuilder<'_> {
                 .max_tile_triangles
                 .min(input_triangles.div_ceil(HLOD_CHILDREN_DIVISOR))
                 .max(1);
-            let (mut r, mut err) = build_at(target)?;
+            let (mut r, mut err) = build_at(target, f64::INFINITY)?.expect("no limit");
             // Coarser while the measured error leaves room: the first view of a model is its root
             // alone, as small as its error allows. Each try costs a simplification and a
             // measurement against all full detail below, so the count is predicted (the error of
@@ -1365,10 +1366,9 @@ impl HlodBuilder<'_> {
                     if err.error_m >= allowed || next < HLOD_MIN_TRIANGLES {
                         break;
                     }
-                    let (r2, err2) = build_at(next)?;
-                    if err2.error_m > allowed {
+                    let Some((r2, err2)) = build_at(next, allowed)? else {
                         break;
-                    }
+                    };
                     (r, err, target) = (r2, err2, next);
                 }
             }

@@ -117,7 +117,23 @@ impl<'a> ErrorReference<'a> {
     /// Declared error of `content` (the tile's simplified geometry, P) with respect to the full
     /// detail it stands for.
     pub fn measure(&self, content: &TileContent, opts: &SimplifyOptions) -> TileError {
+        self.measure_within(content, opts, f64::INFINITY)
+            .expect("no error exceeds infinity")
+    }
+
+    /// [`measure`](Self::measure), given up (`None`) as soon as the declared error is sure to
+    /// exceed `limit_m`: a coarsening try past its limit is rejected whatever its exact error, and
+    /// a measurement samples all the full detail below the tile.
+    pub fn measure_within(
+        &self,
+        content: &TileContent,
+        opts: &SimplifyOptions,
+        limit_m: f64,
+    ) -> Option<TileError> {
         debug_assert_eq!(content.center, self.center, "content centred elsewhere");
+        // Measured distances above these already declare more than `limit_m`.
+        let f2c_limit = limit_m / FULL_TO_COARSE_SAFETY;
+        let c2f_limit = limit_m / opts.error_safety;
         let center = self.center;
         let (pp, pi) = soup(content);
         let p_bvh = MeshBvh::new(TriMesh::new(&pp, &pi));
@@ -125,6 +141,9 @@ impl<'a> ErrorReference<'a> {
         // an exact distance when it could raise it).
         let run = AtomicU64::new(0);
         self.leaves.par_iter().for_each(|items| {
+            if f64::from_bits(run.load(Relaxed)) > f2c_limit {
+                return;
+            }
             let leaf = TileContent::gather(self.scene, items, center);
             let (lp, li) = soup(&leaf);
             let pts = sample_surface_dense(
@@ -135,6 +154,9 @@ impl<'a> ErrorReference<'a> {
                 || u32::MAX,
                 |hint, &x| {
                     let thr = f64::from_bits(run.load(Relaxed));
+                    if thr > f2c_limit {
+                        return;
+                    }
                     let d = p_bvh.distance_or_below(x, thr, hint);
                     if d >= thr && d.is_finite() {
                         run.fetch_max(d.to_bits(), Relaxed);
@@ -143,6 +165,9 @@ impl<'a> ErrorReference<'a> {
             );
         });
         let full_to_coarse_m = f64::from_bits(run.load(Relaxed));
+        if full_to_coarse_m > f2c_limit {
+            return None;
+        }
         // P -> F: through the children, `min over children (distance + its bound)` per sample, a
         // running maximum again: a child nearer than the maximum (less its bound) settles that the
         // sample cannot raise it. Same result as exact queries against every child, which took
@@ -156,6 +181,9 @@ impl<'a> ErrorReference<'a> {
                 || vec![u32::MAX; self.kids.len()],
                 |hints, &x| {
                     let thr = f64::from_bits(run.load(Relaxed));
+                    if thr > c2f_limit {
+                        return;
+                    }
                     let mut nearest = f64::INFINITY;
                     for ((b, e), hint) in self.kids.iter().zip(hints.iter_mut()) {
                         let below = thr - e;
@@ -171,13 +199,14 @@ impl<'a> ErrorReference<'a> {
                 },
             );
         let coarse_to_full_m = f64::from_bits(run.load(Relaxed));
-        TileError {
+        let error = TileError {
             error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
                 .max(opts.error_safety * coarse_to_full_m)
                 .max(opts.error_floor_m),
             full_to_coarse_m,
             coarse_to_full_m,
-        }
+        };
+        (error.error_m <= limit_m).then_some(error)
     }
 }
 
