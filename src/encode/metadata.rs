@@ -78,13 +78,10 @@ pub fn write_property_table(
                 json!({"values": view(&data, 8)})
             }
             ColumnData::Enum { codes, one_byte } => {
-                let data: Vec<u8> = if *one_byte {
-                    codes.iter().map(|&c| c as u8).collect()
-                } else {
-                    codes.iter().flat_map(|c| c.to_le_bytes()).collect()
-                };
+                let size = if *one_byte { 1 } else { 2 };
+                let data = little_endian(codes.iter().map(|&c| u64::from(c)), size);
                 bytes += data.len();
-                json!({"values": view(&data, if *one_byte { 1 } else { 2 })})
+                json!({"values": view(&data, size)})
             }
         };
         written.push((col, entry.clone()));
@@ -105,21 +102,25 @@ pub fn write_property_table(
 /// last: bytes, the type's size and its name.
 fn offsets_of(ends: &[usize]) -> (Vec<u8>, usize, &'static str) {
     let last = ends.last().copied().unwrap_or(0);
-    if last <= u8::MAX as usize {
-        (ends.iter().map(|&e| e as u8).collect(), 1, "UINT8")
+    let (size, name) = if last <= u8::MAX as usize {
+        (1, "UINT8")
     } else if last <= u16::MAX as usize {
-        let b = ends
-            .iter()
-            .flat_map(|&e| (e as u16).to_le_bytes())
-            .collect();
-        (b, 2, "UINT16")
+        (2, "UINT16")
     } else {
-        let b = ends
-            .iter()
-            .flat_map(|&e| (e as u32).to_le_bytes())
-            .collect();
-        (b, 4, "UINT32")
-    }
+        (4, "UINT32")
+    };
+    (
+        little_endian(ends.iter().map(|&e| e as u64), size),
+        size,
+        name,
+    )
+}
+
+/// Unsigned integers as `size`-byte little-endian values (each fits).
+fn little_endian(values: impl Iterator<Item = u64>, size: usize) -> Vec<u8> {
+    values
+        .flat_map(|v| v.to_le_bytes().into_iter().take(size))
+        .collect()
 }
 
 /// Whether two columns are laid out as the same bytes (a missing string is written as "").

@@ -479,10 +479,7 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
     // Interpolated normals drift from the coarsened faces, and the two sides of a sheet can end
     // up sharing vertices (see `normals.rs`).
     if res.normals.is_some() {
-        normals::split_opposite_faces(&mut res);
-        if let Some(n) = res.normals.as_mut() {
-            normals::normals_from_faces(&res.positions, &res.indices, n);
-        }
+        normals::take_normals_from_faces(&mut res);
     }
 
     if opts.compute_error_bound && opts.certified_error_bound {

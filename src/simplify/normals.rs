@@ -30,45 +30,34 @@ use super::SimplifiedMesh;
 /// many flattened parts whose two sides share vertices).
 const SPLIT_BELOW_MEAN_SHARE: f64 = 0.1;
 
+/// Gives `m` normals from its faces: splits the vertices whose faces face opposite ways about
+/// equally ([`split_opposite_faces`]), then [`normals_from_faces`]; the face vectors are computed
+/// once for both (a copy keeps its vertex's position).
+pub fn take_normals_from_faces(m: &mut SimplifiedMesh) {
+    let faces = face_vectors(&m.positions, &m.indices);
+    split_opposite_faces(m, &faces);
+    if let Some(n) = m.normals.as_mut() {
+        set_normals(&faces, &m.indices, n);
+    }
+}
+
 /// Splits every vertex whose triangles face opposite ways about equally (see
 /// [`SPLIT_BELOW_MEAN_SHARE`]): the triangles whose normal points against the vertex's
 /// area-weighted mean (or, where the two sides cancel exactly, against its first triangle) get a
-/// copy of the vertex with all its attributes.
-pub fn split_opposite_faces(m: &mut SimplifiedMesh) {
-    let at = |p: &[[f32; 3]], i: u32| DVec3::from_array(p[i as usize].map(f64::from));
+/// copy of the vertex with all its attributes. `faces`: [`face_vectors`] of `m`.
+fn split_opposite_faces(m: &mut SimplifiedMesh, faces: &[DVec3]) {
     let n = m.positions.len();
-    let (mut sum, mut first) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
-    let mut area = vec![0.0; n];
-    let faces: Vec<DVec3> = m
-        .indices
-        .chunks_exact(3)
-        .map(|t| {
-            let p = &m.positions;
-            (at(p, t[1]) - at(p, t[0])).cross(at(p, t[2]) - at(p, t[0]))
-        })
-        .collect();
-    for (t, &f) in m.indices.chunks_exact(3).zip(&faces) {
-        for &v in t {
-            sum[v as usize] += f;
-            area[v as usize] += f.length();
-            if first[v as usize] == DVec3::ZERO {
-                first[v as usize] = f;
-            }
-        }
-    }
+    let sums = vertex_sums(faces, &m.indices, n);
     let mut twin = vec![u32::MAX; n];
-    for (t, &f) in m.indices.chunks_exact_mut(3).zip(&faces) {
+    for (t, &f) in m.indices.chunks_exact_mut(3).zip(faces) {
         for v in t {
             let i = *v as usize;
+            let s = &sums[i];
             // Faces that mostly agree keep one vertex: the mean shades the larger side right.
-            if sum[i].length() > SPLIT_BELOW_MEAN_SHARE * area[i] {
+            if s.sum.length() > SPLIT_BELOW_MEAN_SHARE * s.area {
                 continue;
             }
-            let reference = if sum[i] != DVec3::ZERO {
-                sum[i]
-            } else {
-                first[i]
-            };
+            let reference = if s.sum != DVec3::ZERO { s.sum } else { s.first };
             if f.dot(reference) >= 0.0 {
                 continue;
             }
@@ -95,26 +84,54 @@ pub fn split_opposite_faces(m: &mut SimplifiedMesh) {
 /// Replaces `normals` (one per vertex) by the area-weighted face normals of the triangles of
 /// `indices` that use each vertex.
 pub fn normals_from_faces(positions: &[[f32; 3]], indices: &[u32], normals: &mut [[f32; 3]]) {
+    set_normals(&face_vectors(positions, indices), indices, normals);
+}
+
+/// Per triangle, the cross product of two edges: its normal, with twice its area as length.
+fn face_vectors(positions: &[[f32; 3]], indices: &[u32]) -> Vec<DVec3> {
     let at = |i: u32| DVec3::from_array(positions[i as usize].map(f64::from));
-    let mut sum = vec![DVec3::ZERO; normals.len()];
-    // A face of each vertex, for faces that cancel out (both sides of a sheet share vertices).
-    let mut some_face = vec![DVec3::ZERO; normals.len()];
-    for t in indices.chunks_exact(3) {
-        // |cross| is twice the area: the sum is area-weighted.
-        let n = (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0]));
+    indices
+        .chunks_exact(3)
+        .map(|t| (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0])))
+        .collect()
+}
+
+/// What a vertex's triangles add up to.
+#[derive(Clone, Copy, Default)]
+struct VertexSum {
+    /// Sum of their face vectors (area-weighted normal).
+    sum: DVec3,
+    /// Sum of their face vectors' lengths.
+    area: f64,
+    /// The first one with area, for faces that cancel out (both sides of a sheet).
+    first: DVec3,
+}
+
+fn vertex_sums(faces: &[DVec3], indices: &[u32], n: usize) -> Vec<VertexSum> {
+    let mut sums = vec![VertexSum::default(); n];
+    for (t, &f) in indices.chunks_exact(3).zip(faces) {
         for &v in t {
-            sum[v as usize] += n;
-            if some_face[v as usize] == DVec3::ZERO {
-                some_face[v as usize] = n;
+            let s = &mut sums[v as usize];
+            s.sum += f;
+            s.area += f.length();
+            if s.first == DVec3::ZERO {
+                s.first = f;
             }
         }
     }
-    for ((out, s), f) in normals.iter_mut().zip(sum).zip(some_face) {
+    sums
+}
+
+/// [`normals_from_faces`] from the face vectors.
+fn set_normals(faces: &[DVec3], indices: &[u32], normals: &mut [[f32; 3]]) {
+    let sums = vertex_sums(faces, indices, normals.len());
+    for (out, s) in normals.iter_mut().zip(sums) {
         let old = DVec3::from_array(out.map(f64::from));
         // Interpolation can leave a zero normal (opposite normals merged): glTF wants unit ones.
         let n = s
+            .sum
             .try_normalize()
-            .or_else(|| f.try_normalize())
+            .or_else(|| s.first.try_normalize())
             .or_else(|| old.try_normalize())
             .unwrap_or(DVec3::Z);
         *out = n.as_vec3().to_array();
@@ -137,7 +154,7 @@ mod tests {
             indices: vec![0, 1, 2, 0, 2, 1],
             ..Default::default()
         };
-        split_opposite_faces(&mut m);
+        take_normals_from_faces(&mut m);
         // The second triangle's corners (0, 2, 1) get copies 3, 4, 5.
         assert_eq!(m.indices, [0, 1, 2, 3, 4, 5]);
         let p = &m.positions;
@@ -145,8 +162,7 @@ mod tests {
         assert_eq!(m.source_vertex, [0, 1, 2, 0, 2, 1]);
         assert_eq!(m.groups, [7; 6]);
         assert_eq!(m.uvs.as_ref().map(Vec::len), Some(6));
-        let n = m.normals.as_mut().unwrap();
-        normals_from_faces(&m.positions, &m.indices, n);
+        let n = m.normals.as_ref().unwrap();
         assert_eq!(n[..3], [[0.0, 0.0, 1.0]; 3]);
         assert_eq!(n[3..], [[0.0, 0.0, -1.0]; 3]);
         // A convex corner (faces 90 degrees apart) shares its vertices: nothing to split.
@@ -162,7 +178,7 @@ mod tests {
             indices: vec![0, 1, 2, 0, 2, 3],
             ..Default::default()
         };
-        split_opposite_faces(&mut corner);
+        take_normals_from_faces(&mut corner);
         assert_eq!(corner.positions.len(), 4);
     }
 
