@@ -23,7 +23,7 @@ use crate::scene::{Component, ComponentId, MaterialId, Mesh, MeshId, Scene};
 use geom::Similarity;
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use matcher::{
-    find_motion_same_order, find_motion_search, Invariants, MatchKind, Shape, Tol,
+    find_motion_same_order, find_motion_search, Invariants, MatchKind, SameOrder, Shape, Tol,
     ICP_RUNS_PER_CANDIDATE,
 };
 use rayon::prelude::*;
@@ -82,6 +82,10 @@ pub struct DedupReport {
     /// frame search.
     pub matched_same_order: usize,
     pub matched_by_search: usize,
+    /// Meshes left unshared because they are noisy copies of another: the same vertex order,
+    /// every vertex within a few tolerances, some beyond one (a larger `--dedup-tolerance-m`
+    /// would share them).
+    pub near_twins: usize,
     /// Exact duplicates marked as aliases.
     pub redundant_removed: usize,
     /// Meshes no longer referenced by any component, emptied in place.
@@ -183,7 +187,8 @@ pub fn deduplicate(scene: &mut Scene, opts: &DedupOptions) -> DedupReport {
     }
     let mut changed = false;
     if opts.congruent {
-        let moves = congruent_moves(scene, &mesh_sig, &tol);
+        let (moves, near_twins) = congruent_moves(scene, &mesh_sig, &tol);
+        report.near_twins = near_twins;
         for &(c, mesh, world, kind) in &moves {
             let comp = &mut scene.components[c.index()];
             comp.mesh = mesh;
@@ -461,7 +466,8 @@ const SEARCH_TRIES: usize = 4;
 /// nearest prototypes found so far whose invariants are compatible; the first verified match
 /// wins, else it becomes a prototype. Comparing with prototypes only (never with other members)
 /// keeps every member within the tolerance of the geometry it will be drawn with.
-fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> Vec<Found> {
+/// Also returns how many meshes stayed prototypes as near-twins of one (see `SameOrder::NearTwin`).
+fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<Found>, usize) {
     struct Proto<'a> {
         rep: ComponentId,
         shape: Shape<'a>,
@@ -470,6 +476,7 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> Vec<Fo
     let mut protos: Vec<Proto> = Vec::new();
     let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     let mut out = Vec::new();
+    let mut near_twins = 0;
     for &(mesh, rep) in meshes {
         let c = &scene.components[rep.index()];
         let shape = Shape::new(&scene.meshes[mesh.index()], &c.world);
@@ -487,14 +494,25 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> Vec<Fo
         cands.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         // The same-order fit (one fit and one pass each) first, the frame search only when none
         // matches that way.
+        let mut near_twin = false;
         let hit = cands
             .iter()
             .take(SAME_ORDER_TRIES)
-            .find_map(|&(_, pi)| {
-                find_motion_same_order(&shape, &protos[pi].shape, tol)
-                    .map(|m| (pi, (m, MatchKind::SameOrder)))
-            })
+            .find_map(
+                |&(_, pi)| match find_motion_same_order(&shape, &protos[pi].shape, tol) {
+                    SameOrder::Match(m) => Some((pi, (m, MatchKind::SameOrder))),
+                    SameOrder::NearTwin => {
+                        near_twin = true;
+                        None
+                    }
+                    SameOrder::No => None,
+                },
+            )
             .or_else(|| {
+                // A noisy copy of a prototype: the search would not find a motion either.
+                if near_twin {
+                    return None;
+                }
                 let mut icp_budget = ICP_RUNS_PER_CANDIDATE;
                 cands.iter().take(SEARCH_TRIES).find_map(|&(_, pi)| {
                     let p = &protos[pi];
@@ -511,21 +529,22 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> Vec<Fo
                 kind,
             }),
             None => {
+                near_twins += usize::from(near_twin);
                 grid.entry(key).or_default().push(protos.len());
                 protos.push(Proto { rep, shape, inv });
             }
         }
     }
-    out
+    (out, near_twins)
 }
 
 /// Components to move onto a prototype mesh: (component, new mesh, new world, how it was
-/// matched) in component-id order.
+/// matched) in component-id order; and the number of near-twins left as they were.
 fn congruent_moves(
     scene: &Scene,
     mesh_sig: &[Option<u32>],
     tol: &Tol,
-) -> Vec<(ComponentId, MeshId, DMat4, MatchKind)> {
+) -> (Vec<(ComponentId, MeshId, DMat4, MatchKind)>, usize) {
     // Drawn users of each mesh, in id order; the first is the mesh's representative.
     let mut users: Vec<Vec<ComponentId>> = vec![Vec::new(); scene.meshes.len()];
     for c in &scene.components {
@@ -547,13 +566,10 @@ fn congruent_moves(
     }
     // Buckets are independent: cluster them in parallel, collect in bucket order.
     let buckets: Vec<Vec<(MeshId, ComponentId)>> = buckets.into_values().collect();
-    let found: Vec<Found> = buckets
-        .par_iter()
-        .map(|b| cluster(scene, b, tol))
-        .collect::<Vec<_>>()
-        .into_iter()
-        .flatten()
-        .collect();
+    let clustered: Vec<(Vec<Found>, usize)> =
+        buckets.par_iter().map(|b| cluster(scene, b, tol)).collect();
+    let near_twins = clustered.iter().map(|c| c.1).sum();
+    let found: Vec<Found> = clustered.into_iter().flat_map(|c| c.0).collect();
     // Every drawn user of a matched mesh moves with its representative; users other than the
     // representative are verified on their own (their world may scale differently).
     let jobs: Vec<(ComponentId, &Found)> = found
@@ -589,7 +605,7 @@ fn congruent_moves(
     let mut moves: Vec<(ComponentId, MeshId, DMat4, MatchKind)> =
         results.into_iter().flatten().collect();
     moves.sort_unstable_by_key(|m| m.0);
-    moves
+    (moves, near_twins)
 }
 
 #[cfg(test)]

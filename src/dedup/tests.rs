@@ -431,6 +431,9 @@ fn a_copy_is_found_among_many_near_twins() {
     assert_eq!(meshes(&after), want);
     assert_eq!(r.matched_by_search, 1);
     assert_eq!(r.congruent_rewritten, 1);
+    // The later noisy copies and the exact one (same vertex order as the first noisy prototype,
+    // every vertex a few mm off) are reported as near-twins.
+    assert_eq!(r.near_twins, noisy);
 }
 
 #[test]
