@@ -13,7 +13,7 @@ BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
 APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium fonts-dejavu-core
 
-.PHONY: run test test-browser bench-browser serve deps deps-system deps-node deps-python build bench clean
+.PHONY: run test test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
 
 run: deps build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -91,6 +91,20 @@ serve: deps build
 bench: build
 	$(CARGO) run --release --example bench_tiler -- $(SHARED)/data
 	$(CARGO) run --release --example bench_textures -- $(SHARED)/data
+
+# Issue 12's scale measurements (not in `make test`; hours on 2 cores, most of it the 100M campuses):
+# campuses of about 1M, 8.2M, 32M and 100M triangles from make_campus.py --bake, exact and jittered
+# (cached in target/bench/scale/, about 7 GB), each converted with the default options (seconds, peak
+# memory, output bytes, tiles), the growth exponents, and a sharded build: its jobs one after another
+# against tools/ray_driver.py on a local 2-CPU Ray cluster (loopback only, inside `unshare -n`)
+# -> target/bench/scale/{scale.json,scale.md,scale.png}. GNU time (Debian `time`) gives each
+# process's own max RSS. BENCH_SCALE_ARGS adds options, e.g. --sizes 1M,8M --skip-ray (see
+# examples/bench_scale.rs).
+BENCH_SCALE_ARGS ?=
+bench-scale: deps build
+	@[ -x /usr/bin/time ] || { $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq time; } \
+	  || echo "note: no GNU time; peak memory from report.json only"
+	BIMTILES_SHARED=$(SHARED) $(CARGO) run --release --example bench_scale -- --python $(CURDIR)/$(PY) $(BENCH_SCALE_ARGS)
 
 clean:
 	rm -rf target out $(VENV) tools/node_modules

@@ -7,20 +7,15 @@
 //! fig16_frame_rate}.png and browser.md. Text needs a TrueType font: the first found of
 //! $BIMTILES_FONT and the usual DejaVu / Liberation paths (Debian `fonts-dejavu-core`).
 
+#[path = "common/chart_font.rs"]
+mod chart_font;
+use chart_font::{load_font, FONT};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-
-const FONT: &str = "bench-sans";
-const FONT_PATHS: &[&str] = &[
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-];
 
 type Res<T> = Result<T, Box<dyn std::error::Error>>;
 
@@ -49,24 +44,6 @@ const RAW: RGBColor = RGBColor(200, 90, 70);
 const OURS: RGBColor = RGBColor(50, 110, 180);
 const RAW_WARM: RGBColor = RGBColor(235, 170, 150);
 const OURS_WARM: RGBColor = RGBColor(140, 185, 230);
-
-fn load_font() -> Res<()> {
-    let mut candidates: Vec<PathBuf> = std::env::var_os("BIMTILES_FONT")
-        .map(PathBuf::from)
-        .into_iter()
-        .collect();
-    candidates.extend(FONT_PATHS.iter().map(PathBuf::from));
-    for p in &candidates {
-        if let Ok(bytes) = std::fs::read(p) {
-            // plotters keeps registered fonts for the process's lifetime.
-            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-            if plotters::style::register_font(FONT, FontStyle::Normal, bytes).is_ok() {
-                return Ok(());
-            }
-        }
-    }
-    Err(format!("no usable TrueType font; tried {candidates:?} (set BIMTILES_FONT or install fonts-dejavu-core)").into())
-}
 
 /// Grouped bars, one group per model, on a linear or log y axis.
 fn bar_panel(
