@@ -176,6 +176,14 @@ impl MeshBvh {
         }
     }
 
+    /// A lower bound of the distance from `p` to the mesh (its bounding box); `INFINITY` for an
+    /// empty mesh.
+    pub fn distance_lower_bound(&self, p: DVec3) -> f64 {
+        self.bvh
+            .as_ref()
+            .map_or(f64::INFINITY, |b| box_dist2(&b.nodes[0].aabb, p).sqrt())
+    }
+
     /// Number of (valid) triangles.
     pub fn triangle_count(&self) -> usize {
         self.tris.len()
@@ -235,17 +243,27 @@ impl MeshBvh {
     /// `hint`: a triangle tried first (the last answer for a nearby point),
     /// updated to the closest triangle found.
     pub fn distance_or_below(&self, p: DVec3, thr: f64, hint: &mut u32) -> f64 {
+        self.distance_between(p, thr, f64::INFINITY, hint)
+    }
+
+    /// [`distance_or_below`](Self::distance_or_below) that also gives up above `cap`: the
+    /// distance when it lies in `[thr, cap)`, else some value below `thr` (as there) or `cap`
+    /// itself (the distance is at least `cap`). For minima over several meshes, where a mesh
+    /// farther than the best so far needs no exact answer.
+    pub fn distance_between(&self, p: DVec3, thr: f64, cap: f64, hint: &mut u32) -> f64 {
         let Some(bvh) = self.bvh.as_ref() else {
             return f64::INFINITY;
         };
         let thr2 = if thr > 0.0 { thr * thr } else { 0.0 };
-        let mut best = f64::INFINITY;
+        // Nothing at or beyond the cap is looked at: boxes that far are pruned from the start.
+        let mut best = cap * cap;
         let mut best_i = *hint;
         if let Some(t) = self.tris.get(*hint as usize) {
-            best = (closest_point_on_triangle(p, t[0], t[1], t[2]) - p).length_squared();
-            if best < thr2 || best == 0.0 {
-                return best.sqrt();
+            let h = (closest_point_on_triangle(p, t[0], t[1], t[2]) - p).length_squared();
+            if h < thr2 || h == 0.0 {
+                return h.sqrt();
             }
+            best = best.min(h);
         }
         let box_d2 = |a: &Aabb| box_dist2(a, p);
         const CAP: usize = 128;

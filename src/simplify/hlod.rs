@@ -172,22 +172,38 @@ impl<'a> ErrorReference<'a> {
         // running maximum again: a child nearer than the maximum (less its bound) settles that the
         // sample cannot raise it. Same result as exact queries against every child, which took
         // HLOD + writing from 18 to 25 s on a 1.9M-triangle campus (campus-8.2M: 116 vs 148 s).
+        // Children go nearest first by a lower bound of their term (box distance + bound), and a
+        // child is only searched below the best term so far: most samples lie in one child, and
+        // an exact query on a far one descends much of its tree (it was 5 of every 6 full
+        // queries here, and 3/4 of the measurement's time on a 1.9M-triangle campus).
         let samples = (pi.len() / 3).clamp(20_000, 250_000);
         let run = AtomicU64::new(0.0f64.to_bits());
         sample_surface_dense(TriMesh::new(&pp, &pi), samples)
             .par_iter()
             .with_min_len(1024)
             .for_each_init(
-                || vec![u32::MAX; self.kids.len()],
-                |hints, &x| {
+                || (vec![u32::MAX; self.kids.len()], Vec::new()),
+                |(hints, order), &x| {
                     let thr = f64::from_bits(run.load(Relaxed));
                     if thr > c2f_limit {
                         return;
                     }
+                    order.clear();
+                    order.extend(
+                        self.kids
+                            .iter()
+                            .enumerate()
+                            .map(|(k, (b, e))| (b.distance_lower_bound(x) + e, k)),
+                    );
+                    order.sort_unstable_by(|a: &(f64, usize), b| a.0.total_cmp(&b.0));
                     let mut nearest = f64::INFINITY;
-                    for ((b, e), hint) in self.kids.iter().zip(hints.iter_mut()) {
+                    for &(lower, k) in order.iter() {
+                        if lower >= nearest {
+                            break;
+                        }
+                        let (b, e) = &self.kids[k];
                         let below = thr - e;
-                        let d = b.distance_or_below(x, below, hint);
+                        let d = b.distance_between(x, below, nearest - e, &mut hints[k]);
                         if d < below {
                             return;
                         }
