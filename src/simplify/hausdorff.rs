@@ -811,6 +811,19 @@ mod tests {
                 .fold(f64::INFINITY, f64::min);
             let (d, _, _) = m.closest(q).unwrap();
             assert!((d - brute).abs() < 1e-9, "{d} vs {brute}");
+            assert!(m.distance_lower_bound(q) <= brute);
+            // Within [thr, cap): exact; below thr: some value below thr; at or above cap: cap.
+            for (thr, cap) in [(0.0, f64::INFINITY), (0.05, 0.3), (0.2, 0.25), (0.0, 0.01)] {
+                let mut hint = u32::MAX;
+                let got = m.distance_between(q, thr, cap, &mut hint);
+                if brute < thr {
+                    assert!(got < thr, "{got} for {brute} below {thr}");
+                } else if brute < cap {
+                    assert!((got - brute).abs() < 1e-9, "{got} vs {brute}");
+                } else {
+                    assert!((got - cap).abs() < 1e-12, "{got} for {brute} over {cap}");
+                }
+            }
         }
     }
 }
