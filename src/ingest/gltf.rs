@@ -436,17 +436,18 @@ impl Reader<'_> {
                 parent[c.index()] = Some(NodeId(n.index() as u32));
             }
         }
+        self.scene.nodes.reserve_exact(doc.nodes().len());
         for n in doc.nodes() {
-            let extras = n
-                .extras()
-                .as_ref()
-                .and_then(|r| serde_json::from_str::<Value>(r.get()).ok());
             self.scene.nodes.push(Node {
                 name: n.name().map(str::to_string),
                 parent: parent[n.index()],
-                extras,
+                extras: n.extras().clone(),
             });
         }
+        // Components are the reachable nodes with a mesh: reserved once, not grown by doubling.
+        let with_mesh = doc.nodes().filter(|n| n.mesh().is_some()).count();
+        self.scene.components.reserve_exact(with_mesh);
+        self.scene.info.reserve_exact(with_mesh);
         // Roots: the default scene, else the first, else every parentless node.
         let roots: Vec<usize> = match doc.default_scene().or_else(|| doc.scenes().next()) {
             Some(s) => s.nodes().map(|n| n.index()).collect(),
@@ -476,7 +477,7 @@ impl Reader<'_> {
                     mesh_order.push(mesh.index());
                     MeshId(mesh_order.len() as u32 - 1)
                 });
-                let mut info = element_info(self.scene.nodes[idx].extras.as_ref());
+                let mut info = element_info(self.scene.nodes[idx].extras_value().as_ref());
                 if info.guid.is_none() {
                     // IfcOpenShell names each node by its element's GlobalId.
                     info.guid = node.name().filter(|n| is_ifc_guid(n)).map(str::to_string);

@@ -711,14 +711,17 @@ impl<'a> Builder<'a> {
             .filter(|s| !s.is_empty())
             .or_else(|| e.guid.clone())
             .unwrap_or_else(|| format!("{}#{id}", e.class));
-        let extras = serde_json::json!({"ifc_class": e.class, "guid": e.guid});
+        let extras = serde_json::value::to_raw_value(
+            &serde_json::json!({"ifc_class": e.class, "guid": e.guid}),
+        )
+        .ok();
         let parent = self.parent.get(&id).copied();
         let parent_node = parent.and_then(|p| self.node(p, depth + 1));
         let nid = NodeId(self.scene.nodes.len() as u32);
         self.scene.nodes.push(Node {
             name: Some(name),
             parent: parent_node,
-            extras: Some(extras),
+            extras,
         });
         self.node_of.insert(id, nid);
         Some(nid)
