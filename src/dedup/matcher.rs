@@ -338,13 +338,33 @@ impl Invariants {
         })
     }
 
+    /// The quantities [`mismatch`](Self::mismatch) compares.
+    pub fn key(&self) -> InvariantKey {
+        InvariantKey {
+            sigma: self.moments.sigma,
+            area: self.area,
+            perimeter: self.perimeter,
+        }
+    }
+}
+
+/// The part of [`Invariants`] that candidates are compared by, compact: a component is compared
+/// with every prototype near it in invariant space, hundreds in a crowd of near-twins.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct InvariantKey {
+    pub sigma: [f64; 3],
+    pub area: f64,
+    pub perimeter: f64,
+}
+
+impl InvariantKey {
     /// How far apart the two summaries are, in units of what true copies may differ by (the
     /// largest ratio over the compared quantities): at most 1 for every congruent pair (sound
     /// bounds: every vertex moving by at most δ moves each σ by at most δ, 2δ allowed, and the
     /// area by at most ½·δ·perimeter per triangle), about 0 for exact copies. Above 1, the two
     /// cannot be congruent; below, it orders candidates, nearest first.
-    pub fn mismatch(&self, o: &Invariants, tol: &Tol) -> f64 {
-        let (a, b) = (&self.moments.sigma, &o.moments.sigma);
+    pub fn mismatch(&self, o: &InvariantKey, tol: &Tol) -> f64 {
+        let (a, b) = (&self.sigma, &o.sigma);
         if tol.allow_scale {
             let (a0, b0) = (a[0], b[0]);
             if a0 <= 0.0 || b0 <= 0.0 {

@@ -23,8 +23,8 @@ use crate::scene::{Component, ComponentId, MaterialId, Mesh, MeshId, Scene};
 use geom::Similarity;
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use matcher::{
-    find_motion_same_order, find_motion_search, Invariants, MatchKind, SameOrder, Shape, Tol,
-    ICP_RUNS_PER_CANDIDATE,
+    find_motion_same_order, find_motion_search, InvariantKey, Invariants, MatchKind, SameOrder,
+    Shape, Tol, ICP_RUNS_PER_CANDIDATE,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -474,7 +474,8 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
         inv: Invariants,
     }
     let mut protos: Vec<Proto> = Vec::new();
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    // Per cell: prototype index and its comparison key, side by side for the scan.
+    let mut grid: HashMap<[i64; 3], Vec<(usize, InvariantKey)>> = HashMap::new();
     let mut out = Vec::new();
     let mut near_twins = 0;
     for &(mesh, rep) in meshes {
@@ -484,10 +485,11 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
             continue;
         };
         let key = moment_cell(&inv, tol);
+        let inv_key = inv.key();
         let mut cands: Vec<(f64, usize)> = neighbours(key)
             .filter_map(|k| grid.get(&k))
             .flatten()
-            .map(|&pi| (inv.mismatch(&protos[pi].inv, tol), pi))
+            .map(|(pi, k)| (inv_key.mismatch(k, tol), *pi))
             .filter(|&(d, _)| d <= 1.0)
             .collect();
         // Nearest first, then input order (deterministic). Only the first few are tried: those
@@ -538,7 +540,7 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
             }),
             None => {
                 near_twins += usize::from(near_twin);
-                grid.entry(key).or_default().push(protos.len());
+                grid.entry(key).or_default().push((protos.len(), inv_key));
                 protos.push(Proto { rep, shape, inv });
             }
         }

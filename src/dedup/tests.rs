@@ -419,7 +419,7 @@ fn a_copy_is_found_among_many_near_twins() {
     };
     let last = inv(noisy + 1);
     let compatible = (0..noisy)
-        .filter(|&i| last.mismatch(&inv(i), &tol) <= 1.0)
+        .filter(|&i| last.key().mismatch(&inv(i).key(), &tol) <= 1.0)
         .count();
     assert!(
         compatible > SEARCH_TRIES,
