@@ -167,14 +167,30 @@ pub(crate) fn verify_same_order(
     if c.mirrored != new_mirrored || !c.same_layout(p) {
         return false;
     }
-    let nm = normal_matrix(m);
     let tol2 = tol.pos * tol.pos;
-    c.prims.iter().zip(&p.prims).all(|(cp, pp)| {
-        (0..cp.pos.len()).all(|i| {
-            m.transform_point3(pp.pos[i]).distance_squared(cp.pos[i]) <= tol2
-                && attrs_match(pp, i, cp, i, &nm, tol)
-        })
-    })
+    same_order_distance2(c, p, m, tol2) <= tol2 && same_order_attrs(c, p, m, tol)
+}
+
+/// Largest squared distance between vertex i of `p` mapped by `m` and vertex i of `c` (same
+/// layout), or the first one found above `cap2`.
+fn same_order_distance2(c: &Shape, p: &Shape, m: &DMat4, cap2: f64) -> f64 {
+    let mut worst2 = 0.0f64;
+    for (a, b) in p.points().zip(c.points()) {
+        worst2 = worst2.max(m.transform_point3(a).distance_squared(b));
+        if worst2 > cap2 {
+            break;
+        }
+    }
+    worst2
+}
+
+/// Vertex i of `p` and vertex i of `c` carry the same attributes (normals through `m`).
+fn same_order_attrs(c: &Shape, p: &Shape, m: &DMat4, tol: &Tol) -> bool {
+    let nm = normal_matrix(m);
+    c.prims
+        .iter()
+        .zip(&p.prims)
+        .all(|(cp, pp)| (0..cp.pos.len()).all(|i| attrs_match(pp, i, cp, i, &nm, tol)))
 }
 
 /// `c` equals `p` mapped by `m` as a set of oriented triangles, each primitive on its own: every
@@ -411,29 +427,25 @@ const NEAR_TWIN_FACTOR: f64 = 8.0;
 /// The motion (scene frame) that carries prototype `p` onto candidate `c` with vertex i on
 /// vertex i (same index buffers), verified. Cheap: one fit, one pass.
 pub(crate) fn find_motion_same_order(c: &Shape, p: &Shape, tol: &Tol) -> SameOrder {
-    if !c.same_layout(p) {
+    // p's new world is (motion · p's world), with a proper motion: it mirrors iff p's does, and
+    // the same index buffers draw the same winding only if c mirrors alike.
+    if c.mirrored != p.mirrored || !c.same_layout(p) {
         return SameOrder::No;
     }
     let Some(t) = fit_similarity(p.points(), c.points(), tol.allow_scale) else {
         return SameOrder::No;
     };
     let m = t.to_mat4();
-    let worst2 = p
-        .points()
-        .zip(c.points())
-        .map(|(a, b)| m.transform_point3(a).distance_squared(b))
-        .fold(0.0, f64::max);
+    let near2 = (NEAR_TWIN_FACTOR * tol.pos).powi(2);
+    let worst2 = same_order_distance2(c, p, &m, near2);
     if worst2 > tol.pos * tol.pos {
-        // Winding must agree for the copy to count as a near-twin of this prototype.
-        let near = worst2 <= (NEAR_TWIN_FACTOR * tol.pos).powi(2) && c.mirrored == p.mirrored;
-        return if near {
+        return if worst2 <= near2 {
             SameOrder::NearTwin
         } else {
             SameOrder::No
         };
     }
-    // p's new world is (motion · p's world), with a proper motion: it mirrors iff p's does.
-    if verify_same_order(c, p, &m, p.mirrored, tol) {
+    if same_order_attrs(c, p, &m, tol) {
         SameOrder::Match(t)
     } else {
         SameOrder::No
