@@ -309,10 +309,14 @@ fn run(repo: &Path, opts: &Opts) -> Res<()> {
     std::fs::create_dir_all(&opts.out).map_err(|e| format!("{}: {e}", opts.out.display()))?;
     std::fs::create_dir_all(&opts.campus_dir)
         .map_err(|e| format!("{}: {e}", opts.campus_dir.display()))?;
-    let per_copy = glb_triangles(&mini).unwrap_or_else(|e| {
-        eprintln!("{e}: taking {MINI_TRIANGLES} triangles per copy");
-        MINI_TRIANGLES
-    });
+    // What one copy adds to a campus: the model's triangles as our reader counts them.
+    let per_copy = match bimtiles::ingest::read_input(&mini) {
+        Ok(scene) => scene.triangle_count() as u64,
+        Err(e) => {
+            eprintln!("{e}: taking {MINI_TRIANGLES} triangles per copy");
+            MINI_TRIANGLES
+        }
+    };
     let mini_bytes = std::fs::metadata(&mini)?.len();
     let ctx = Ctx {
         opts,
@@ -513,38 +517,6 @@ fn f(v: &Value) -> f64 {
 fn ok_rows(rows: &[Value], v: Variant) -> impl Iterator<Item = &Value> {
     rows.iter()
         .filter(move |r| r["ok"].as_bool() == Some(true) && r["variant"] == v.name())
-}
-
-/// Triangles of a GLB's mesh nodes (what one copy of it adds to a campus).
-fn glb_triangles(path: &Path) -> Result<u64, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let glb = gltf::binary::Glb::from_slice(&bytes)
-        .map_err(|e| format!("{}: not a GLB: {e}", path.display()))?;
-    let doc: Value = serde_json::from_slice(&glb.json)
-        .map_err(|e| format!("{}: bad glTF JSON: {e}", path.display()))?;
-    let mut total = 0;
-    for n in doc["nodes"].as_array().into_iter().flatten() {
-        let Some(m) = n["mesh"].as_u64() else {
-            continue;
-        };
-        for p in doc["meshes"][m as usize]["primitives"]
-            .as_array()
-            .into_iter()
-            .flatten()
-        {
-            let acc = p["indices"]
-                .as_u64()
-                .or_else(|| p["attributes"]["POSITION"].as_u64());
-            total += acc
-                .and_then(|a| doc["accessors"][a as usize]["count"].as_u64())
-                .unwrap_or(0)
-                / 3;
-        }
-    }
-    if total == 0 {
-        return Err(format!("{}: no triangles found", path.display()));
-    }
-    Ok(total)
 }
 
 /// A cached GLB is whole when its header's length is the file's (a killed make_campus.py writes
