@@ -88,8 +88,9 @@ serve: deps build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --quiet --max-tile-triangles 4000
 	$(BIN) serve out/sample
 
-bench: build
-	$(CARGO) run --release --example bench_tiler -- $(SHARED)/data
+# make_campus.py needs numpy: the venv's python3 comes first on PATH.
+bench: deps build
+	PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(CARGO) run --release --example bench_tiler -- $(SHARED)/data
 	$(CARGO) run --release --example bench_textures -- $(SHARED)/data
 
 # Issue 12's scale measurements (not in `make test`; hours on 2 cores, most of it the 100M campuses):

@@ -340,18 +340,7 @@ pub struct Report {
     pub textures: Option<crate::texture::TextureReport>,
 }
 
-/// Peak resident memory of this process so far (Linux `VmHWM`), 0 where unknown.
-pub fn peak_memory_bytes() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1))
-                .and_then(|kb| kb.parse::<u64>().ok())
-        })
-        .map_or(0, |kb| kb * 1024)
-}
+pub use crate::memory::peak_memory_bytes;
 
 /// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
 /// model lies far from it (projected coordinates), then its footprint centre at ground level.

@@ -14,6 +14,7 @@ pub mod encode;
 pub mod error;
 pub mod ingest;
 pub mod inspect;
+pub mod memory;
 pub mod partition;
 pub mod scene;
 pub mod serve;

@@ -27,20 +27,67 @@ const SUPPORTED_REQUIRED: &[&str] = &[
     "KHR_materials_emissive_strength",
 ];
 
-/// Reads one glTF/GLB file into a new scene.
+/// Reads one glTF/GLB file into a new scene. The file is memory-mapped, so the JSON chunk's pages
+/// and each decoded run of the BIN chunk are handed back as the reader moves on: the file never
+/// counts whole towards peak memory.
 pub fn read_gltf(path: &Path) -> Result<Scene> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
-    read_gltf_owned(path, bytes)
+    let cannot_read = |e: std::io::Error| Error::input(path, format!("cannot read: {e}"));
+    let file = std::fs::File::open(path).map_err(cannot_read)?;
+    let len = file.metadata().map_err(cannot_read)?.len();
+    // SAFETY: the map is read-only and private; the input changing under us while we read it
+    // is outside what any reader can defend against (the same holds for a plain read).
+    let mapped = match len {
+        0 => None,
+        _ => unsafe { memmap2::Mmap::map(&file) }.ok(),
+    };
+    let bytes = match mapped {
+        Some(m) => FileBytes::Mapped(m),
+        None => FileBytes::Owned(std::fs::read(path).map_err(cannot_read)?),
+    };
+    read_gltf_from(path, &bytes)
 }
 
 /// Reads glTF/GLB bytes; `path` names the file in errors and anchors relative URIs.
 pub fn read_gltf_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
-    read_gltf_owned(path, bytes.to_vec())
+    read_gltf_from(path, &FileBytes::Owned(bytes.to_vec()))
 }
 
-/// Like [`read_gltf_bytes`], owning the file's bytes: a GLB's BIN chunk is read in place, never
-/// copied, so peak memory holds the binary data once.
-fn read_gltf_owned(path: &Path, bytes: Vec<u8>) -> Result<Scene> {
+/// The input's bytes, and whether its pages can be handed back once read.
+enum FileBytes {
+    Mapped(memmap2::Mmap),
+    Owned(Vec<u8>),
+}
+
+impl FileBytes {
+    fn bytes(&self) -> &[u8] {
+        match self {
+            FileBytes::Mapped(m) => m,
+            FileBytes::Owned(v) => v,
+        }
+    }
+
+    /// Drops the resident pages inside `range` (a mapped file only). Nothing borrowed changes:
+    /// the map is a read-only view of the file, and a page touched again is read back from it.
+    fn release(&self, range: std::ops::Range<usize>) {
+        #[cfg(unix)]
+        if let FileBytes::Mapped(m) = self {
+            let page = 4096;
+            // Whole pages only: a page shared with bytes still to be read stays resident.
+            let start = range.start.div_ceil(page) * page;
+            let end = (range.end.min(m.len()) / page) * page;
+            if start < end {
+                // SAFETY: see above; DONTNEED on a read-only file map only drops cached pages.
+                let _ = unsafe {
+                    m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start, end - start)
+                };
+            }
+        }
+    }
+}
+
+/// Reads a glTF/GLB from its bytes: a GLB's BIN chunk is read in place, never copied.
+fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
+    let bytes = file.bytes();
     let err = |m: String| Error::input(path, m);
     let is_glb = bytes.starts_with(b"glTF");
     if !is_glb {
@@ -86,6 +133,9 @@ fn read_gltf_owned(path: &Path, bytes: Vec<u8>) -> Result<Scene> {
     let raw_json: RawTransforms =
         serde_json::from_slice(json_text).map_err(|e| err(format!("invalid glTF JSON: {e}")))?;
     let file_bytes = bytes.len() as u64;
+    let json_start = json_text.as_ptr() as usize - bytes.as_ptr() as usize;
+    file.release(json_start..json_start + json_text.len());
+    let bin_start = bin_range.as_ref().map(|r| r.start);
     let bin: Option<&[u8]> = bin_range.map(|r| &bytes[r]);
 
     check_references(&gltf.document, &err)?;
@@ -109,6 +159,14 @@ fn read_gltf_owned(path: &Path, bytes: Vec<u8>) -> Result<Scene> {
     let mut reader = Reader {
         path,
         buffers: &buffers,
+        file,
+        in_file: external
+            .iter()
+            .map(|b| match b {
+                BufferData::Bin => bin_start,
+                BufferData::Owned(_) => None,
+            })
+            .collect(),
         scene: Scene::default(),
     };
     reader.scene.sources.push(SourceFile {
@@ -117,7 +175,12 @@ fn read_gltf_owned(path: &Path, bytes: Vec<u8>) -> Result<Scene> {
     });
     reader.read_images(&gltf.document, &base_dir)?;
     reader.read_materials(&gltf.document);
-    reader.read_nodes(&gltf.document, &raw_json)?;
+    let meshes = reader.read_nodes(&gltf.document, &raw_json)?;
+    drop(gltf);
+    drop(raw_json);
+    crate::memory::release_freed_heap();
+    reader.read_meshes(&meshes)?;
+    drop(meshes);
     let mut scene = reader.scene;
     scene.finish();
     Ok(scene)
@@ -257,6 +320,10 @@ fn load_buffers(
 struct Reader<'a> {
     path: &'a Path,
     buffers: &'a [&'a [u8]],
+    /// The input file, and where each buffer starts in it (the GLB BIN chunk), so decoded
+    /// geometry's pages can be handed back.
+    file: &'a FileBytes,
+    in_file: Vec<Option<usize>>,
     scene: Scene,
 }
 
@@ -343,22 +410,20 @@ impl Reader<'_> {
         Error::input(self.path, m)
     }
 
-    fn view_bytes(&self, view: &gltf::buffer::View) -> Result<&[u8]> {
-        let buf = self.buffers.get(view.buffer().index()).ok_or_else(|| {
-            self.err(format!(
-                "bufferView {} names a missing buffer",
-                view.index()
-            ))
-        })?;
-        let end = view.offset().checked_add(view.length());
+    fn view_bytes(&self, view: &ViewDesc) -> Result<&[u8]> {
+        let buf = self
+            .buffers
+            .get(view.buffer)
+            .ok_or_else(|| self.err(format!("bufferView {} names a missing buffer", view.index)))?;
+        let end = view.offset.checked_add(view.length);
         match end {
-            Some(end) if end <= buf.len() => Ok(&buf[view.offset()..end]),
+            Some(end) if end <= buf.len() => Ok(&buf[view.offset..end]),
             _ => Err(self.err(format!(
                 "bufferView {} (offset {}, length {}) points past the end of buffer {} ({} bytes)",
-                view.index(),
-                view.offset(),
-                view.length(),
-                view.buffer().index(),
+                view.index,
+                view.offset,
+                view.length,
+                view.buffer,
                 buf.len()
             ))),
         }
@@ -367,9 +432,10 @@ impl Reader<'_> {
     fn read_images(&mut self, doc: &gltf::Document, base_dir: &Path) -> Result<()> {
         for img in doc.images() {
             let (bytes, declared) = match img.source() {
-                gltf::image::Source::View { view, mime_type } => {
-                    (self.view_bytes(&view)?.to_vec(), Some(mime_type))
-                }
+                gltf::image::Source::View { view, mime_type } => (
+                    self.view_bytes(&ViewDesc::of(&view))?.to_vec(),
+                    Some(mime_type),
+                ),
                 gltf::image::Source::Uri { uri, mime_type } => (
                     load_uri(base_dir, uri)
                         .map_err(|m| self.err(format!("image {}: {m}", img.index())))?,
@@ -425,7 +491,9 @@ impl Reader<'_> {
         }
     }
 
-    fn read_nodes(&mut self, doc: &gltf::Document, raw: &RawTransforms) -> Result<()> {
+    /// Reads the node hierarchy into components; returns the meshes they use, in order of first
+    /// use, for [`Reader::read_meshes`].
+    fn read_nodes(&mut self, doc: &gltf::Document, raw: &RawTransforms) -> Result<Vec<MeshDesc>> {
         // Hierarchy: every glTF node becomes a scene node with the same index.
         let mut parent = vec![None; doc.nodes().len()];
         for n in doc.nodes() {
@@ -506,33 +574,69 @@ impl Reader<'_> {
                 stack.push((c.index(), world));
             }
         }
+        // Only what decoding needs is kept, so the caller can free the JSON tree (for large
+        // exports, as big as the geometry) before the geometry is decoded.
         let meshes: Vec<gltf::Mesh> = doc.meshes().collect();
-        let decoded: Vec<Result<(Mesh, usize)>> = {
-            use rayon::prelude::*;
+        Ok(mesh_order
+            .iter()
+            .map(|&mi| MeshDesc::of(&meshes[mi]))
+            .collect())
+    }
+
+    /// Decodes the meshes [`Reader::read_nodes`] listed into `scene.meshes`: in parallel, a run
+    /// at a time, handing back the file pages each run has read (exports write a mesh's data
+    /// after the previous mesh's, so the file's resident part stays about one run).
+    fn read_meshes(&mut self, descs: &[MeshDesc]) -> Result<()> {
+        use rayon::prelude::*;
+        const RUN_MESHES: usize = 4096;
+        self.scene.meshes.reserve_exact(descs.len());
+        for run in descs.chunks(RUN_MESHES) {
             let this = &*self;
-            mesh_order
-                .par_iter()
-                .map(|&mi| this.read_mesh(&meshes[mi]))
-                .collect()
-        };
-        for d in decoded {
-            let (mesh, skipped) = d?;
-            self.scene.meshes.push(mesh);
-            self.scene.skipped_primitives += skipped;
+            let decoded: Vec<Result<(Mesh, usize)>> =
+                run.par_iter().map(|m| this.read_mesh(m)).collect();
+            self.release_read(run);
+            for d in decoded {
+                let (mesh, skipped) = d?;
+                self.scene.meshes.push(mesh);
+                self.scene.skipped_primitives += skipped;
+            }
         }
         Ok(())
     }
 
+    /// Hands back the file pages spanned by these meshes' bufferViews.
+    fn release_read(&self, meshes: &[MeshDesc]) {
+        let mut span: Option<std::ops::Range<usize>> = None;
+        let views = meshes
+            .iter()
+            .flat_map(|m| &m.primitives)
+            .flat_map(|p| p.accessors())
+            .flat_map(|a| a.views());
+        for v in views {
+            let Some(Some(base)) = self.in_file.get(v.buffer) else {
+                continue;
+            };
+            let (start, end) = (base + v.offset, base.saturating_add(v.offset + v.length));
+            span = Some(match span {
+                None => start..end,
+                Some(s) => s.start.min(start)..s.end.max(end),
+            });
+        }
+        if let Some(span) = span {
+            self.file.release(span);
+        }
+    }
+
     /// Decodes one mesh; also returns how many primitives were not surfaces.
-    fn read_mesh(&self, mesh: &gltf::Mesh) -> Result<(Mesh, usize)> {
+    fn read_mesh(&self, mesh: &MeshDesc) -> Result<(Mesh, usize)> {
         let mut out = Mesh {
-            name: mesh.name().map(str::to_string),
+            name: mesh.name.clone(),
             ..Default::default()
         };
         let mut skipped = 0;
-        for (pi, prim) in mesh.primitives().enumerate() {
-            let what = format!("mesh {} primitive {pi}", mesh.index());
-            match self.read_primitive(&prim, &what)? {
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            let what = format!("mesh {} primitive {pi}", mesh.index);
+            match self.read_primitive(prim, &what)? {
                 Some(p) => out.primitives.push(p),
                 None => skipped += 1,
             }
@@ -541,12 +645,12 @@ impl Reader<'_> {
     }
 
     /// `Ok(None)` for primitives that are not surfaces (points, lines).
-    fn read_primitive(&self, prim: &gltf::Primitive, what: &str) -> Result<Option<Primitive>> {
+    fn read_primitive(&self, prim: &PrimitiveDesc, what: &str) -> Result<Option<Primitive>> {
         use gltf::mesh::Mode;
-        if prim.extension_value("KHR_draco_mesh_compression").is_some() {
+        if prim.draco {
             return Err(self.err(format!("{what}: Draco-compressed input is not read yet")));
         }
-        let mode = prim.mode();
+        let mode = prim.mode;
         if !matches!(
             mode,
             Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
@@ -554,9 +658,10 @@ impl Reader<'_> {
             return Ok(None);
         }
         let pos_acc = prim
-            .get(&gltf::Semantic::Positions)
+            .positions
+            .as_ref()
             .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
-        let positions: Vec<[f32; 3]> = self.read_vec::<3>(&pos_acc, &format!("{what} POSITION"))?;
+        let positions: Vec<[f32; 3]> = self.read_vec::<3>(pos_acc, &format!("{what} POSITION"))?;
         let n = positions.len();
         if let Some(i) = positions
             .iter()
@@ -566,23 +671,23 @@ impl Reader<'_> {
                 "{what}: POSITION {i} is not finite (NaN or infinity)"
             )));
         }
-        let attr = |sem: gltf::Semantic, name: &str| -> Result<Option<gltf::Accessor>> {
-            match prim.get(&sem) {
-                Some(a) if a.count() != n => Err(self.err(format!(
+        let attr = |acc: &Option<AccessorDesc>, name: &str| -> Result<Option<AccessorDesc>> {
+            match acc {
+                Some(a) if a.count != n => Err(self.err(format!(
                     "{what}: {name} has {} elements, POSITION has {n}",
-                    a.count()
+                    a.count
                 ))),
-                other => Ok(other),
+                other => Ok(other.clone()),
             }
         };
-        let normals = match attr(gltf::Semantic::Normals, "NORMAL")? {
+        let normals = match attr(&prim.normals, "NORMAL")? {
             Some(a) => {
                 let v = self.read_vec::<3>(&a, &format!("{what} NORMAL"))?;
                 Some(v.into_iter().map(sanitize_normal).collect())
             }
             None => None,
         };
-        let uvs = match attr(gltf::Semantic::TexCoords(0), "TEXCOORD_0")? {
+        let uvs = match attr(&prim.uvs, "TEXCOORD_0")? {
             Some(a) => {
                 let v = self.read_vec::<2>(&a, &format!("{what} TEXCOORD_0"))?;
                 if v.iter().any(|t| !t[0].is_finite() || !t[1].is_finite()) {
@@ -592,8 +697,8 @@ impl Reader<'_> {
             }
             None => None,
         };
-        let colors = match attr(gltf::Semantic::Colors(0), "COLOR_0")? {
-            Some(a) if a.dimensions() == gltf::accessor::Dimensions::Vec3 => Some(
+        let colors = match attr(&prim.colors, "COLOR_0")? {
+            Some(a) if a.dimensions == gltf::accessor::Dimensions::Vec3 => Some(
                 self.read_vec::<3>(&a, &format!("{what} COLOR_0"))?
                     .into_iter()
                     .map(|c| [c[0], c[1], c[2], 1.0])
@@ -602,8 +707,8 @@ impl Reader<'_> {
             Some(a) => Some(self.read_vec::<4>(&a, &format!("{what} COLOR_0"))?),
             None => None,
         };
-        let raw_indices: Vec<u32> = match prim.indices() {
-            Some(a) => self.read_indices(&a, what)?,
+        let raw_indices: Vec<u32> = match &prim.indices {
+            Some(a) => self.read_indices(a, what)?,
             None => (0..n as u32).collect(),
         };
         if let Some(bad) = raw_indices.iter().find(|&&i| i as usize >= n) {
@@ -632,7 +737,7 @@ impl Reader<'_> {
                 .collect(),
         };
         Ok(Some(Primitive {
-            material: prim.material().index().map(|i| MaterialId(i as u32)),
+            material: prim.material.map(MaterialId),
             positions,
             normals,
             uvs,
@@ -641,13 +746,13 @@ impl Reader<'_> {
         }))
     }
 
-    fn read_indices(&self, acc: &gltf::Accessor, what: &str) -> Result<Vec<u32>> {
+    fn read_indices(&self, acc: &AccessorDesc, what: &str) -> Result<Vec<u32>> {
         use gltf::accessor::DataType as D;
-        if acc.dimensions() != gltf::accessor::Dimensions::Scalar {
+        if acc.dimensions != gltf::accessor::Dimensions::Scalar {
             return Err(self.err(format!("{what}: indices accessor is not SCALAR")));
         }
         let (raw, _) = self.accessor_elements(acc, &format!("{what} indices"))?;
-        Ok(match acc.data_type() {
+        Ok(match acc.data_type {
             D::U8 => raw.iter().map(|&e| e as u32).collect(),
             D::U16 => raw
                 .chunks_exact(2)
@@ -663,18 +768,18 @@ impl Reader<'_> {
 
     /// Reads a float (or quantized integer) vector accessor into f32 arrays, applying
     /// `normalized` as glTF defines it and sparse substitution.
-    fn read_vec<const N: usize>(&self, acc: &gltf::Accessor, what: &str) -> Result<Vec<[f32; N]>> {
-        let dims = acc.dimensions().multiplicity();
+    fn read_vec<const N: usize>(&self, acc: &AccessorDesc, what: &str) -> Result<Vec<[f32; N]>> {
+        let dims = acc.dimensions.multiplicity();
         if dims < N {
             return Err(self.err(format!(
                 "{what}: expected {N} components, accessor has {dims}"
             )));
         }
         let (packed, elem) = self.accessor_elements(acc, what)?;
-        let comp = acc.data_type().size();
-        let dt = acc.data_type();
-        let norm = acc.normalized();
-        let mut out = Vec::with_capacity(acc.count());
+        let comp = acc.data_type.size();
+        let dt = acc.data_type;
+        let norm = acc.normalized;
+        let mut out = Vec::with_capacity(acc.count);
         if dt == gltf::accessor::DataType::F32 {
             // The common case, without the per-component dispatch.
             for e in packed.chunks_exact(elem.max(1)) {
@@ -698,62 +803,63 @@ impl Reader<'_> {
 
     /// The accessor's elements packed tightly (`count * element_size` bytes, sparse values
     /// applied), after checking that every byte lies inside its bufferView and buffer.
-    fn accessor_elements(&self, acc: &gltf::Accessor, what: &str) -> Result<(Vec<u8>, usize)> {
-        let comp = acc.data_type().size();
-        let elem = comp * acc.dimensions().multiplicity();
-        let count = acc.count();
+    fn accessor_elements(&self, acc: &AccessorDesc, what: &str) -> Result<(Vec<u8>, usize)> {
+        let comp = acc.data_type.size();
+        let elem = comp * acc.dimensions.multiplicity();
+        let count = acc.count;
         let total = count
             .checked_mul(elem)
             .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?;
-        let mut out = match acc.view() {
+        let mut out = match &acc.view {
             None => vec![0u8; total],
             Some(view) => {
-                let data = self.view_bytes(&view)?;
-                let stride = view.stride().unwrap_or(elem).max(elem);
+                let data = self.view_bytes(view)?;
+                let stride = view.stride.unwrap_or(elem).max(elem);
                 let need = if count == 0 {
                     0
                 } else {
                     (count - 1)
                         .checked_mul(stride)
                         .and_then(|x| x.checked_add(elem))
-                        .and_then(|x| x.checked_add(acc.offset()))
+                        .and_then(|x| x.checked_add(acc.offset))
                         .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?
                 };
                 if need > data.len() {
                     return Err(self.err(format!(
                         "{what}: accessor {} ({count} elements) points past the end of its bufferView ({need} > {} bytes)",
-                        acc.index(),
+                        acc.index,
                         data.len()
                     )));
                 }
                 if stride == elem {
-                    data[acc.offset()..acc.offset() + total].to_vec()
+                    data[acc.offset..acc.offset + total].to_vec()
                 } else {
                     let mut v = Vec::with_capacity(total);
                     for i in 0..count {
-                        let s = acc.offset() + i * stride;
+                        let s = acc.offset + i * stride;
                         v.extend_from_slice(&data[s..s + elem]);
                     }
                     v
                 }
             }
         };
-        if let Some(sparse) = acc.sparse() {
-            let n = sparse.count();
-            let iv = sparse.indices();
-            let idata = self.view_bytes(&iv.view())?;
-            let isize = match iv.index_type() {
-                gltf::accessor::sparse::IndexType::U8 => 1,
-                gltf::accessor::sparse::IndexType::U16 => 2,
-                gltf::accessor::sparse::IndexType::U32 => 4,
+        if let Some(sparse) = &acc.sparse {
+            let n = sparse.count;
+            let idata = self.view_bytes(&sparse.index_view)?;
+            let isize = sparse.index_size;
+            let vdata = self.view_bytes(&sparse.value_view)?;
+            let fits = |offset: usize, size: usize, len: usize| {
+                n.checked_mul(size)
+                    .and_then(|x| x.checked_add(offset))
+                    .is_some_and(|end| end <= len)
             };
-            let vv = sparse.values();
-            let vdata = self.view_bytes(&vv.view())?;
-            if iv.offset() + n * isize > idata.len() || vv.offset() + n * elem > vdata.len() {
+            if !fits(sparse.index_offset, isize, idata.len())
+                || !fits(sparse.value_offset, elem, vdata.len())
+            {
                 return Err(self.err(format!("{what}: sparse data points past its bufferView")));
             }
             for k in 0..n {
-                let s = iv.offset() + k * isize;
+                let s = sparse.index_offset + k * isize;
                 let idx = match isize {
                     1 => idata[s] as usize,
                     2 => u16::from_le_bytes([idata[s], idata[s + 1]]) as usize,
@@ -763,11 +869,154 @@ impl Reader<'_> {
                 if idx >= count {
                     return Err(self.err(format!("{what}: sparse index {idx} out of range")));
                 }
-                let vs = vv.offset() + k * elem;
+                let vs = sparse.value_offset + k * elem;
                 out[idx * elem..(idx + 1) * elem].copy_from_slice(&vdata[vs..vs + elem]);
             }
         }
         Ok((out, elem))
+    }
+}
+
+/// A bufferView reduced to what decoding needs.
+#[derive(Clone, Copy)]
+struct ViewDesc {
+    index: usize,
+    buffer: usize,
+    offset: usize,
+    length: usize,
+    stride: Option<usize>,
+}
+
+impl ViewDesc {
+    fn of(view: &gltf::buffer::View) -> Self {
+        ViewDesc {
+            index: view.index(),
+            buffer: view.buffer().index(),
+            offset: view.offset(),
+            length: view.length(),
+            stride: view.stride(),
+        }
+    }
+}
+
+/// An accessor's sparse substitution: `count` indices and values, each in its bufferView.
+struct SparseDesc {
+    count: usize,
+    index_view: ViewDesc,
+    index_offset: usize,
+    index_size: usize,
+    value_view: ViewDesc,
+    value_offset: usize,
+}
+
+/// An accessor reduced to what decoding needs (sparse data boxed: it is rare).
+#[derive(Clone)]
+struct AccessorDesc {
+    index: usize,
+    view: Option<ViewDesc>,
+    offset: usize,
+    count: usize,
+    data_type: gltf::accessor::DataType,
+    dimensions: gltf::accessor::Dimensions,
+    normalized: bool,
+    sparse: Option<std::sync::Arc<SparseDesc>>,
+}
+
+impl AccessorDesc {
+    /// The bufferViews this accessor reads (its own and its sparse data's).
+    fn views(&self) -> impl Iterator<Item = &ViewDesc> {
+        let sparse = self
+            .sparse
+            .iter()
+            .flat_map(|s| [&s.index_view, &s.value_view]);
+        self.view.iter().chain(sparse)
+    }
+
+    fn of(acc: &gltf::Accessor) -> Self {
+        use gltf::accessor::sparse::IndexType;
+        AccessorDesc {
+            index: acc.index(),
+            view: acc.view().as_ref().map(ViewDesc::of),
+            offset: acc.offset(),
+            count: acc.count(),
+            data_type: acc.data_type(),
+            dimensions: acc.dimensions(),
+            normalized: acc.normalized(),
+            sparse: acc.sparse().map(|s| {
+                let (iv, vv) = (s.indices(), s.values());
+                std::sync::Arc::new(SparseDesc {
+                    count: s.count(),
+                    index_view: ViewDesc::of(&iv.view()),
+                    index_offset: iv.offset(),
+                    index_size: match iv.index_type() {
+                        IndexType::U8 => 1,
+                        IndexType::U16 => 2,
+                        IndexType::U32 => 4,
+                    },
+                    value_view: ViewDesc::of(&vv.view()),
+                    value_offset: vv.offset(),
+                })
+            }),
+        }
+    }
+}
+
+/// A primitive reduced to what decoding needs; its checks run when it is decoded.
+struct PrimitiveDesc {
+    mode: gltf::mesh::Mode,
+    draco: bool,
+    material: Option<u32>,
+    positions: Option<AccessorDesc>,
+    normals: Option<AccessorDesc>,
+    uvs: Option<AccessorDesc>,
+    colors: Option<AccessorDesc>,
+    indices: Option<AccessorDesc>,
+}
+
+impl PrimitiveDesc {
+    fn accessors(&self) -> impl Iterator<Item = &AccessorDesc> {
+        [
+            &self.positions,
+            &self.normals,
+            &self.uvs,
+            &self.colors,
+            &self.indices,
+        ]
+        .into_iter()
+        .flatten()
+    }
+}
+
+/// A mesh reduced to what decoding needs.
+struct MeshDesc {
+    index: usize,
+    name: Option<String>,
+    primitives: Vec<PrimitiveDesc>,
+}
+
+impl MeshDesc {
+    fn of(mesh: &gltf::Mesh) -> Self {
+        let primitives = mesh
+            .primitives()
+            .map(|prim| {
+                let get = |sem| prim.get(&sem).as_ref().map(AccessorDesc::of);
+                PrimitiveDesc {
+                    mode: prim.mode(),
+                    draco: prim.extension_value("KHR_draco_mesh_compression").is_some(),
+                    material: prim.material().index().map(|i| i as u32),
+                    positions: get(gltf::Semantic::Positions),
+                    normals: get(gltf::Semantic::Normals),
+                    uvs: get(gltf::Semantic::TexCoords(0)),
+                    colors: get(gltf::Semantic::Colors(0)),
+                    indices: prim.indices().as_ref().map(AccessorDesc::of),
+                }
+            })
+            .collect();
+        MeshDesc {
+            index: mesh.index(),
+            name: mesh.name().map(str::to_string),
+            primitives,
+        }
     }
 }
 
