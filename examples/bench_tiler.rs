@@ -4,7 +4,8 @@
 //! Runs `target/release/bimtiles convert` on every GLB and IFC file in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
 //! process (so peak memory is that conversion's), and prints one row per model from its
-//! `report.json`, then a dedup/instancing table (issue 5) from the same reports, then the first
+//! `report.json`, then the tiler stage alone (`--lod none --compression none`: issue 2's
+//! throughput and peak memory against the input), then a dedup/instancing table (issue 5) from the same reports, then the first
 //! view (issue 4): tiles, levels, bytes and triangles a 3D Tiles client selects to draw the whole
 //! model framed at 1920x1080 with a screen-space error limit of 16 px
 //! ([`bimtiles::tileset::view::first_view`]) against the full model (every leaf), and the same
@@ -203,6 +204,11 @@ fn main() {
             let plain_report = convert(&bin, input, &plain, budget, "none", &[]);
             let plain_geometry = geometry_bytes(&plain);
             let _ = std::fs::remove_dir_all(&plain);
+            // The tiler stage alone (issue 2): octree partition and plain GLB write, no LOD, no
+            // compression.
+            let tiler_dir = work.join(format!("out-{name}-{budget}-tiler"));
+            let tiler = convert(&bin, input, &tiler_dir, budget, "none", &["--lod", "none"]);
+            let _ = std::fs::remove_dir_all(&tiler_dir);
             let encode_plain_s = plain_report
                 .as_ref()
                 .and_then(|p| p["timings_s"]["encode_write"].as_f64())
@@ -225,6 +231,10 @@ fn main() {
                 "stored_triangles": r["output"]["stored_triangles"],
                 "output_triangles": r["output"]["triangles"],
                 "first_view": first_view(&out),
+                "tiler_stage": tiler.as_ref().map(|t| json!({
+                    "seconds": t["timings_s"]["total"], "timings_s": t["timings_s"],
+                    "peak_memory_bytes": t["peak_memory_bytes"],
+                })),
             });
             // Draco's own cost: encode+write with Draco minus without.
             let draco_s =
@@ -248,6 +258,31 @@ fn main() {
             let _ = std::fs::remove_dir_all(&out);
             rows.push(row);
         }
+    }
+    // The tiler stage (issue 2's targets: at least 3M input triangles/s end to end, peak memory
+    // under 3x the input).
+    println!("\ntiler stage alone (--lod none --compression none):");
+    println!(
+        "{:<26} {:>6} {:>9} {:>7} {:>7} {:>8} {:>8} {:>7}",
+        "model", "budget", "triangles", "secs", "Mtri/s", "in MB", "peak MB", "peak/in"
+    );
+    for r in &rows {
+        let t = &r["tiler_stage"];
+        let f = |v: &Value| v.as_f64().unwrap_or(0.0);
+        if !t.is_object() {
+            continue;
+        }
+        println!(
+            "{:<26} {:>6} {:>9} {:>7.3} {:>7.2} {:>8.2} {:>8.1} {:>7.2}",
+            r["model"].as_str().unwrap_or(""),
+            f(&r["budget"]),
+            f(&r["triangles"]),
+            f(&t["seconds"]),
+            f(&r["triangles"]) / f(&t["seconds"]).max(1e-9) / 1e6,
+            f(&r["input_bytes"]) / 1e6,
+            f(&t["peak_memory_bytes"]) / 1e6,
+            f(&t["peak_memory_bytes"]) / f(&r["input_bytes"]).max(1.0)
+        );
     }
     // Dedup (paper III.A): what it found, what it saves, what it costs, per conversion above.
     println!(

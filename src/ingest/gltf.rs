@@ -9,13 +9,13 @@
 //! references (it rejects extensions 3D Tiles content needs), then read every accessor ourselves
 //! with explicit bounds checks, so malformed input gives an error and never a panic.
 
+use super::gltf_index::{AccessorDesc, GltfIndex, IndexNode, MeshDesc, PrimitiveDesc, ViewDesc};
 use crate::error::{Error, Result};
 use crate::scene::*;
 use base64::Engine;
 use glam::{DMat4, DQuat, DVec3};
 use gltf::json::validation::Validate;
 use serde_json::Value;
-use std::collections::HashMap;
 use std::path::{Component as PathPart, Path, PathBuf};
 use std::sync::Arc;
 
@@ -117,29 +117,34 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     } else {
         (&bytes[..], None)
     };
-    let root: gltf::json::Root = gltf::json::deserialize::from_slice(json_text).map_err(|e| {
+    let index: GltfIndex = serde_json::from_slice(json_text).map_err(|e| {
         err(if is_glb {
             format!("invalid GLB JSON chunk: {e}")
         } else {
             format!("invalid glTF JSON: {e}")
         })
     })?;
-    let gltf = gltf::Gltf {
-        document: gltf::Document::from_json_without_validation(root),
-        blob: None,
-    };
-    // The JSON again, for f64 node transforms only (a typed skim: far lighter than a `Value` tree
-    // on exports with 100k nodes).
-    let raw_json: RawTransforms =
-        serde_json::from_slice(json_text).map_err(|e| err(format!("invalid glTF JSON: {e}")))?;
     let file_bytes = bytes.len() as u64;
     let json_start = json_text.as_ptr() as usize - bytes.as_ptr() as usize;
     file.release(json_start..json_start + json_text.len());
     let bin_start = bin_range.as_ref().map(|r| r.start);
     let bin: Option<&[u8]> = bin_range.map(|r| &bytes[r]);
 
-    check_references(&gltf.document, &err)?;
-    for ext in gltf.document.extensions_required() {
+    let index_check = index.check_references();
+    let GltfIndex {
+        root,
+        image_views,
+        nodes,
+        scenes,
+        scene: default_scene,
+        meshes,
+        accessors,
+        views,
+    } = index;
+    let doc = gltf::Document::from_json_without_validation(root);
+    check_references(&doc, &err)?;
+    index_check.map_err(|m| err(format!("invalid glTF: {m}")))?;
+    for ext in doc.extensions_required() {
         if !SUPPORTED_REQUIRED.contains(&ext) {
             return Err(err(format!(
                 "requires extension {ext}, which bimtiles does not read yet"
@@ -148,7 +153,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     }
 
     let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let external = load_buffers(&gltf.document, bin, &base_dir, path)?;
+    let external = load_buffers(&doc, bin, &base_dir, path)?;
     let buffers: Vec<&[u8]> = external
         .iter()
         .map(|b| match b {
@@ -159,6 +164,8 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     let mut reader = Reader {
         path,
         buffers: &buffers,
+        views: &views,
+        accessors: &accessors,
         file,
         in_file: external
             .iter()
@@ -173,14 +180,17 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         path: path.to_path_buf(),
         bytes: file_bytes,
     });
-    reader.read_images(&gltf.document, &base_dir)?;
-    reader.read_materials(&gltf.document);
-    let meshes = reader.read_nodes(&gltf.document, &raw_json)?;
-    drop(gltf);
-    drop(raw_json);
+    reader.read_images(&doc, &image_views, &base_dir)?;
+    reader.read_materials(&doc);
+    drop(doc);
+    let roots = match default_scene.or((!scenes.is_empty()).then_some(0)) {
+        Some(s) => Some(&scenes[s as usize][..]),
+        None => None,
+    };
+    let mesh_order = reader.read_nodes(&nodes, roots, meshes.len())?;
+    drop(nodes);
     crate::memory::release_freed_heap();
-    reader.read_meshes(&meshes)?;
-    drop(meshes);
+    reader.read_meshes(&meshes, &mesh_order)?;
     let mut scene = reader.scene;
     scene.finish();
     Ok(scene)
@@ -320,6 +330,8 @@ fn load_buffers(
 struct Reader<'a> {
     path: &'a Path,
     buffers: &'a [&'a [u8]],
+    views: &'a [ViewDesc],
+    accessors: &'a [AccessorDesc],
     /// The input file, and where each buffer starts in it (the GLB BIN chunk), so decoded
     /// geometry's pages can be handed back.
     file: &'a FileBytes,
@@ -374,26 +386,8 @@ pub fn is_ifc_guid(s: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'$')
 }
 
-/// The node transforms of a glTF JSON, read as f64.
-#[derive(serde::Deserialize, Default)]
-struct RawTransforms {
-    #[serde(default)]
-    nodes: Vec<RawNode>,
-}
-
-#[derive(serde::Deserialize, Default)]
-struct RawNode {
-    matrix: Option<[f64; 16]>,
-    translation: Option<[f64; 3]>,
-    rotation: Option<[f64; 4]>,
-    scale: Option<[f64; 3]>,
-}
-
 /// Raw node transform as f64 (matrix, or T·R·S).
-fn node_local_matrix(raw: Option<&RawNode>) -> DMat4 {
-    let Some(raw) = raw else {
-        return DMat4::IDENTITY;
-    };
+fn node_local_matrix(raw: &IndexNode) -> DMat4 {
     if let Some(m) = raw.matrix {
         return DMat4::from_cols_array(&m);
     }
@@ -410,17 +404,21 @@ impl Reader<'_> {
         Error::input(self.path, m)
     }
 
-    fn view_bytes(&self, view: &ViewDesc) -> Result<&[u8]> {
+    fn view_bytes(&self, index: u32) -> Result<&[u8]> {
+        let view = self
+            .views
+            .get(index as usize)
+            .ok_or_else(|| self.err(format!("bufferView {index} does not exist")))?;
         let buf = self
             .buffers
             .get(view.buffer)
-            .ok_or_else(|| self.err(format!("bufferView {} names a missing buffer", view.index)))?;
+            .ok_or_else(|| self.err(format!("bufferView {index} names a missing buffer")))?;
         let end = view.offset.checked_add(view.length);
         match end {
             Some(end) if end <= buf.len() => Ok(&buf[view.offset..end]),
             _ => Err(self.err(format!(
                 "bufferView {} (offset {}, length {}) points past the end of buffer {} ({} bytes)",
-                view.index,
+                index,
                 view.offset,
                 view.length,
                 view.buffer,
@@ -429,18 +427,31 @@ impl Reader<'_> {
         }
     }
 
-    fn read_images(&mut self, doc: &gltf::Document, base_dir: &Path) -> Result<()> {
+    fn accessor(&self, index: u32) -> Result<&AccessorDesc> {
+        self.accessors
+            .get(index as usize)
+            .ok_or_else(|| self.err(format!("accessor {index} does not exist")))
+    }
+
+    fn read_images(
+        &mut self,
+        doc: &gltf::Document,
+        image_views: &[Option<u32>],
+        base_dir: &Path,
+    ) -> Result<()> {
         for img in doc.images() {
-            let (bytes, declared) = match img.source() {
-                gltf::image::Source::View { view, mime_type } => (
-                    self.view_bytes(&ViewDesc::of(&view))?.to_vec(),
-                    Some(mime_type),
-                ),
-                gltf::image::Source::Uri { uri, mime_type } => (
-                    load_uri(base_dir, uri)
-                        .map_err(|m| self.err(format!("image {}: {m}", img.index())))?,
-                    mime_type,
-                ),
+            let json = &doc.as_json().images[img.index()];
+            let declared = json.mime_type.as_ref().map(|m| m.0.as_str());
+            let bytes = match (image_views.get(img.index()).copied().flatten(), &json.uri) {
+                (Some(view), _) => self.view_bytes(view)?.to_vec(),
+                (None, Some(uri)) => load_uri(base_dir, uri)
+                    .map_err(|m| self.err(format!("image {}: {m}", img.index())))?,
+                (None, None) => {
+                    return Err(self.err(format!(
+                        "image {} has neither a uri nor a bufferView",
+                        img.index()
+                    )))
+                }
             };
             let mime = sniff_image_mime(&bytes)
                 .map(str::to_string)
@@ -491,40 +502,45 @@ impl Reader<'_> {
         }
     }
 
-    /// Reads the node hierarchy into components; returns the meshes they use, in order of first
-    /// use, for [`Reader::read_meshes`].
-    fn read_nodes(&mut self, doc: &gltf::Document, raw: &RawTransforms) -> Result<Vec<MeshDesc>> {
+    /// Reads the node hierarchy into components, from `roots` (the scene's; every parentless
+    /// node when there is no scene); returns the glTF meshes they use, in order of first use,
+    /// for [`Reader::read_meshes`].
+    fn read_nodes(
+        &mut self,
+        nodes: &[IndexNode],
+        roots: Option<&[u32]>,
+        mesh_count: usize,
+    ) -> Result<Vec<usize>> {
         // Hierarchy: every glTF node becomes a scene node with the same index.
-        let mut parent = vec![None; doc.nodes().len()];
-        for n in doc.nodes() {
-            for c in n.children() {
-                if parent[c.index()].is_some() || c.index() == n.index() {
-                    return Err(self.err(format!("node {} has more than one parent", c.index())));
+        let mut parent = vec![None; nodes.len()];
+        for (i, n) in nodes.iter().enumerate() {
+            for &c in &n.children {
+                let c = c as usize;
+                if parent[c].is_some() || c == i {
+                    return Err(self.err(format!("node {c} has more than one parent")));
                 }
-                parent[c.index()] = Some(NodeId(n.index() as u32));
+                parent[c] = Some(NodeId(i as u32));
             }
         }
-        self.scene.nodes.reserve_exact(doc.nodes().len());
-        for n in doc.nodes() {
+        self.scene.nodes.reserve_exact(nodes.len());
+        for (i, n) in nodes.iter().enumerate() {
             self.scene.nodes.push(Node {
-                name: n.name().map(str::to_string),
-                parent: parent[n.index()],
-                extras: n.extras().clone(),
+                name: n.name.clone(),
+                parent: parent[i],
+                extras: n.extras.clone(),
             });
         }
         // Components are the reachable nodes with a mesh: reserved once, not grown by doubling.
-        let with_mesh = doc.nodes().filter(|n| n.mesh().is_some()).count();
+        let with_mesh = nodes.iter().filter(|n| n.mesh.is_some()).count();
         self.scene.components.reserve_exact(with_mesh);
         self.scene.info.reserve_exact(with_mesh);
-        // Roots: the default scene, else the first, else every parentless node.
-        let roots: Vec<usize> = match doc.default_scene().or_else(|| doc.scenes().next()) {
-            Some(s) => s.nodes().map(|n| n.index()).collect(),
+        let roots: Vec<usize> = match roots {
+            Some(r) => r.iter().map(|&i| i as usize).collect(),
             None => (0..parent.len()).filter(|&i| parent[i].is_none()).collect(),
         };
-        let nodes: Vec<gltf::Node> = doc.nodes().collect();
         // glTF mesh index → our MeshId, in order of first use; meshes are decoded afterwards, in
         // parallel.
-        let mut mesh_ids: HashMap<usize, MeshId> = HashMap::new();
+        let mut mesh_ids: Vec<Option<MeshId>> = vec![None; mesh_count];
         let mut mesh_order: Vec<usize> = Vec::new();
         let mut visited = vec![false; parent.len()];
         let mut stack: Vec<(usize, DMat4)> =
@@ -536,19 +552,23 @@ impl Reader<'_> {
                 )));
             }
             let node = &nodes[idx];
-            let world = parent_world * node_local_matrix(raw.nodes.get(idx));
+            let world = parent_world * node_local_matrix(node);
             if !world.is_finite() {
                 return Err(self.err(format!("node {idx} has a non-finite transform")));
             }
-            if let Some(mesh) = node.mesh() {
-                let mesh_id = *mesh_ids.entry(mesh.index()).or_insert_with(|| {
-                    mesh_order.push(mesh.index());
+            if let Some(mesh) = node.mesh {
+                let mesh_id = *mesh_ids[mesh as usize].get_or_insert_with(|| {
+                    mesh_order.push(mesh as usize);
                     MeshId(mesh_order.len() as u32 - 1)
                 });
                 let mut info = element_info(self.scene.nodes[idx].extras_value().as_ref());
                 if info.guid.is_none() {
                     // IfcOpenShell names each node by its element's GlobalId.
-                    info.guid = node.name().filter(|n| is_ifc_guid(n)).map(str::to_string);
+                    info.guid = node
+                        .name
+                        .as_deref()
+                        .filter(|n| is_ifc_guid(n))
+                        .map(str::to_string);
                 }
                 // The GlobalId is the stable identity when the exporter gives one.
                 let key = info
@@ -559,7 +579,7 @@ impl Reader<'_> {
                     Component {
                         id: ComponentId(0),
                         key,
-                        name: node.name().map(str::to_string),
+                        name: node.name.clone(),
                         node: Some(NodeId(idx as u32)),
                         mesh: mesh_id,
                         world,
@@ -570,31 +590,28 @@ impl Reader<'_> {
                     info,
                 );
             }
-            for c in node.children().collect::<Vec<_>>().into_iter().rev() {
-                stack.push((c.index(), world));
+            for &c in node.children.iter().rev() {
+                stack.push((c as usize, world));
             }
         }
-        // Only what decoding needs is kept, so the caller can free the JSON tree (for large
-        // exports, as big as the geometry) before the geometry is decoded.
-        let meshes: Vec<gltf::Mesh> = doc.meshes().collect();
-        Ok(mesh_order
-            .iter()
-            .map(|&mi| MeshDesc::of(&meshes[mi]))
-            .collect())
+        Ok(mesh_order)
     }
 
-    /// Decodes the meshes [`Reader::read_nodes`] listed into `scene.meshes`: in parallel, a run
-    /// at a time, handing back the file pages each run has read (exports write a mesh's data
-    /// after the previous mesh's, so the file's resident part stays about one run).
-    fn read_meshes(&mut self, descs: &[MeshDesc]) -> Result<()> {
+    /// Decodes the meshes [`Reader::read_nodes`] listed (`order`: glTF mesh indices) into
+    /// `scene.meshes`: in parallel, a run at a time, handing back the file pages each run has
+    /// read (exports write a mesh's data after the previous mesh's, so the file's resident part
+    /// stays about one run).
+    fn read_meshes(&mut self, meshes: &[MeshDesc], order: &[usize]) -> Result<()> {
         use rayon::prelude::*;
         const RUN_MESHES: usize = 4096;
-        self.scene.meshes.reserve_exact(descs.len());
-        for run in descs.chunks(RUN_MESHES) {
+        self.scene.meshes.reserve_exact(order.len());
+        for run in order.chunks(RUN_MESHES) {
             let this = &*self;
-            let decoded: Vec<Result<(Mesh, usize)>> =
-                run.par_iter().map(|m| this.read_mesh(m)).collect();
-            self.release_read(run);
+            let decoded: Vec<Result<(Mesh, usize)>> = run
+                .par_iter()
+                .map(|&m| this.read_mesh(m, &meshes[m]))
+                .collect();
+            self.release_read(run.iter().map(|&m| &meshes[m]));
             for d in decoded {
                 let (mesh, skipped) = d?;
                 self.scene.meshes.push(mesh);
@@ -605,18 +622,20 @@ impl Reader<'_> {
     }
 
     /// Hands back the file pages spanned by these meshes' bufferViews.
-    fn release_read(&self, meshes: &[MeshDesc]) {
+    fn release_read<'m>(&self, meshes: impl Iterator<Item = &'m MeshDesc>) {
         let mut span: Option<std::ops::Range<usize>> = None;
         let views = meshes
-            .iter()
             .flat_map(|m| &m.primitives)
             .flat_map(|p| p.accessors())
-            .flat_map(|a| a.views());
+            .filter_map(|a| self.accessors.get(a as usize))
+            .flat_map(|a| a.views())
+            .filter_map(|v| self.views.get(v as usize));
         for v in views {
             let Some(Some(base)) = self.in_file.get(v.buffer) else {
                 continue;
             };
-            let (start, end) = (base + v.offset, base.saturating_add(v.offset + v.length));
+            let start = base.saturating_add(v.offset);
+            let end = start.saturating_add(v.length);
             span = Some(match span {
                 None => start..end,
                 Some(s) => s.start.min(start)..s.end.max(end),
@@ -627,15 +646,15 @@ impl Reader<'_> {
         }
     }
 
-    /// Decodes one mesh; also returns how many primitives were not surfaces.
-    fn read_mesh(&self, mesh: &MeshDesc) -> Result<(Mesh, usize)> {
+    /// Decodes one mesh (glTF index `index`); also returns how many primitives were not surfaces.
+    fn read_mesh(&self, index: usize, mesh: &MeshDesc) -> Result<(Mesh, usize)> {
         let mut out = Mesh {
             name: mesh.name.clone(),
             ..Default::default()
         };
         let mut skipped = 0;
         for (pi, prim) in mesh.primitives.iter().enumerate() {
-            let what = format!("mesh {} primitive {pi}", mesh.index);
+            let what = format!("mesh {index} primitive {pi}");
             match self.read_primitive(prim, &what)? {
                 Some(p) => out.primitives.push(p),
                 None => skipped += 1,
@@ -659,8 +678,8 @@ impl Reader<'_> {
         }
         let pos_acc = prim
             .positions
-            .as_ref()
             .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
+        let pos_acc = self.accessor(pos_acc)?;
         let positions: Vec<[f32; 3]> = self.read_vec::<3>(pos_acc, &format!("{what} POSITION"))?;
         let n = positions.len();
         if let Some(i) = positions
@@ -671,25 +690,29 @@ impl Reader<'_> {
                 "{what}: POSITION {i} is not finite (NaN or infinity)"
             )));
         }
-        let attr = |acc: &Option<AccessorDesc>, name: &str| -> Result<Option<AccessorDesc>> {
-            match acc {
-                Some(a) if a.count != n => Err(self.err(format!(
+        let attr = |acc: Option<u32>, name: &str| -> Result<Option<&AccessorDesc>> {
+            let Some(a) = acc else {
+                return Ok(None);
+            };
+            let a = self.accessor(a)?;
+            match a.count != n {
+                true => Err(self.err(format!(
                     "{what}: {name} has {} elements, POSITION has {n}",
                     a.count
                 ))),
-                other => Ok(other.clone()),
+                false => Ok(Some(a)),
             }
         };
-        let normals = match attr(&prim.normals, "NORMAL")? {
+        let normals = match attr(prim.normals, "NORMAL")? {
             Some(a) => {
-                let v = self.read_vec::<3>(&a, &format!("{what} NORMAL"))?;
+                let v = self.read_vec::<3>(a, &format!("{what} NORMAL"))?;
                 Some(v.into_iter().map(sanitize_normal).collect())
             }
             None => None,
         };
-        let uvs = match attr(&prim.uvs, "TEXCOORD_0")? {
+        let uvs = match attr(prim.uvs, "TEXCOORD_0")? {
             Some(a) => {
-                let v = self.read_vec::<2>(&a, &format!("{what} TEXCOORD_0"))?;
+                let v = self.read_vec::<2>(a, &format!("{what} TEXCOORD_0"))?;
                 if v.iter().any(|t| !t[0].is_finite() || !t[1].is_finite()) {
                     return Err(self.err(format!("{what}: TEXCOORD_0 has non-finite values")));
                 }
@@ -697,18 +720,18 @@ impl Reader<'_> {
             }
             None => None,
         };
-        let colors = match attr(&prim.colors, "COLOR_0")? {
+        let colors = match attr(prim.colors, "COLOR_0")? {
             Some(a) if a.dimensions == gltf::accessor::Dimensions::Vec3 => Some(
-                self.read_vec::<3>(&a, &format!("{what} COLOR_0"))?
+                self.read_vec::<3>(a, &format!("{what} COLOR_0"))?
                     .into_iter()
                     .map(|c| [c[0], c[1], c[2], 1.0])
                     .collect(),
             ),
-            Some(a) => Some(self.read_vec::<4>(&a, &format!("{what} COLOR_0"))?),
+            Some(a) => Some(self.read_vec::<4>(a, &format!("{what} COLOR_0"))?),
             None => None,
         };
-        let raw_indices: Vec<u32> = match &prim.indices {
-            Some(a) => self.read_indices(a, what)?,
+        let raw_indices: Vec<u32> = match prim.indices {
+            Some(a) => self.read_indices(self.accessor(a)?, what)?,
             None => (0..n as u32).collect(),
         };
         if let Some(bad) = raw_indices.iter().find(|&&i| i as usize >= n) {
@@ -810,11 +833,11 @@ impl Reader<'_> {
         let total = count
             .checked_mul(elem)
             .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?;
-        let mut out = match &acc.view {
+        let mut out = match acc.view {
             None => vec![0u8; total],
             Some(view) => {
                 let data = self.view_bytes(view)?;
-                let stride = view.stride.unwrap_or(elem).max(elem);
+                let stride = self.views[view as usize].stride.unwrap_or(elem).max(elem);
                 let need = if count == 0 {
                     0
                 } else {
@@ -826,8 +849,7 @@ impl Reader<'_> {
                 };
                 if need > data.len() {
                     return Err(self.err(format!(
-                        "{what}: accessor {} ({count} elements) points past the end of its bufferView ({need} > {} bytes)",
-                        acc.index,
+                        "{what}: accessor ({count} elements) points past the end of its bufferView ({need} > {} bytes)",
                         data.len()
                     )));
                 }
@@ -845,9 +867,9 @@ impl Reader<'_> {
         };
         if let Some(sparse) = &acc.sparse {
             let n = sparse.count;
-            let idata = self.view_bytes(&sparse.index_view)?;
+            let idata = self.view_bytes(sparse.index_view)?;
             let isize = sparse.index_size;
-            let vdata = self.view_bytes(&sparse.value_view)?;
+            let vdata = self.view_bytes(sparse.value_view)?;
             let fits = |offset: usize, size: usize, len: usize| {
                 n.checked_mul(size)
                     .and_then(|x| x.checked_add(offset))
@@ -874,149 +896,6 @@ impl Reader<'_> {
             }
         }
         Ok((out, elem))
-    }
-}
-
-/// A bufferView reduced to what decoding needs.
-#[derive(Clone, Copy)]
-struct ViewDesc {
-    index: usize,
-    buffer: usize,
-    offset: usize,
-    length: usize,
-    stride: Option<usize>,
-}
-
-impl ViewDesc {
-    fn of(view: &gltf::buffer::View) -> Self {
-        ViewDesc {
-            index: view.index(),
-            buffer: view.buffer().index(),
-            offset: view.offset(),
-            length: view.length(),
-            stride: view.stride(),
-        }
-    }
-}
-
-/// An accessor's sparse substitution: `count` indices and values, each in its bufferView.
-struct SparseDesc {
-    count: usize,
-    index_view: ViewDesc,
-    index_offset: usize,
-    index_size: usize,
-    value_view: ViewDesc,
-    value_offset: usize,
-}
-
-/// An accessor reduced to what decoding needs (sparse data boxed: it is rare).
-#[derive(Clone)]
-struct AccessorDesc {
-    index: usize,
-    view: Option<ViewDesc>,
-    offset: usize,
-    count: usize,
-    data_type: gltf::accessor::DataType,
-    dimensions: gltf::accessor::Dimensions,
-    normalized: bool,
-    sparse: Option<std::sync::Arc<SparseDesc>>,
-}
-
-impl AccessorDesc {
-    /// The bufferViews this accessor reads (its own and its sparse data's).
-    fn views(&self) -> impl Iterator<Item = &ViewDesc> {
-        let sparse = self
-            .sparse
-            .iter()
-            .flat_map(|s| [&s.index_view, &s.value_view]);
-        self.view.iter().chain(sparse)
-    }
-
-    fn of(acc: &gltf::Accessor) -> Self {
-        use gltf::accessor::sparse::IndexType;
-        AccessorDesc {
-            index: acc.index(),
-            view: acc.view().as_ref().map(ViewDesc::of),
-            offset: acc.offset(),
-            count: acc.count(),
-            data_type: acc.data_type(),
-            dimensions: acc.dimensions(),
-            normalized: acc.normalized(),
-            sparse: acc.sparse().map(|s| {
-                let (iv, vv) = (s.indices(), s.values());
-                std::sync::Arc::new(SparseDesc {
-                    count: s.count(),
-                    index_view: ViewDesc::of(&iv.view()),
-                    index_offset: iv.offset(),
-                    index_size: match iv.index_type() {
-                        IndexType::U8 => 1,
-                        IndexType::U16 => 2,
-                        IndexType::U32 => 4,
-                    },
-                    value_view: ViewDesc::of(&vv.view()),
-                    value_offset: vv.offset(),
-                })
-            }),
-        }
-    }
-}
-
-/// A primitive reduced to what decoding needs; its checks run when it is decoded.
-struct PrimitiveDesc {
-    mode: gltf::mesh::Mode,
-    draco: bool,
-    material: Option<u32>,
-    positions: Option<AccessorDesc>,
-    normals: Option<AccessorDesc>,
-    uvs: Option<AccessorDesc>,
-    colors: Option<AccessorDesc>,
-    indices: Option<AccessorDesc>,
-}
-
-impl PrimitiveDesc {
-    fn accessors(&self) -> impl Iterator<Item = &AccessorDesc> {
-        [
-            &self.positions,
-            &self.normals,
-            &self.uvs,
-            &self.colors,
-            &self.indices,
-        ]
-        .into_iter()
-        .flatten()
-    }
-}
-
-/// A mesh reduced to what decoding needs.
-struct MeshDesc {
-    index: usize,
-    name: Option<String>,
-    primitives: Vec<PrimitiveDesc>,
-}
-
-impl MeshDesc {
-    fn of(mesh: &gltf::Mesh) -> Self {
-        let primitives = mesh
-            .primitives()
-            .map(|prim| {
-                let get = |sem| prim.get(&sem).as_ref().map(AccessorDesc::of);
-                PrimitiveDesc {
-                    mode: prim.mode(),
-                    draco: prim.extension_value("KHR_draco_mesh_compression").is_some(),
-                    material: prim.material().index().map(|i| i as u32),
-                    positions: get(gltf::Semantic::Positions),
-                    normals: get(gltf::Semantic::Normals),
-                    uvs: get(gltf::Semantic::TexCoords(0)),
-                    colors: get(gltf::Semantic::Colors(0)),
-                    indices: prim.indices().as_ref().map(AccessorDesc::of),
-                }
-            })
-            .collect();
-        MeshDesc {
-            index: mesh.index(),
-            name: mesh.name().map(str::to_string),
-            primitives,
-        }
     }
 }
 
@@ -1087,15 +966,15 @@ mod tests {
 
     #[test]
     fn node_matrix_from_raw_json_keeps_f64() {
-        let v: RawNode =
+        let v: IndexNode =
             serde_json::from_str(r#"{"translation": [512345.678, 0.0, -5412345.123]}"#).unwrap();
-        let m = node_local_matrix(Some(&v));
+        let m = node_local_matrix(&v);
         assert_eq!(m.w_axis.x, 512345.678);
         assert_eq!(m.w_axis.z, -5412345.123);
-        let v: RawNode =
+        let v: IndexNode =
             serde_json::from_str(r#"{"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 5,6,7,1]}"#).unwrap();
         assert_eq!(
-            node_local_matrix(Some(&v)).w_axis.truncate(),
+            node_local_matrix(&v).w_axis.truncate(),
             DVec3::new(5.0, 6.0, 7.0)
         );
     }

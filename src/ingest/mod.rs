@@ -3,6 +3,7 @@
 //! naming the file.
 
 pub mod gltf;
+mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
 pub mod manifest;
