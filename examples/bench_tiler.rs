@@ -4,8 +4,8 @@
 //! Runs `target/release/bimtiles convert` on every GLB and IFC file in the data folder given (default
 //! `../shared/data`) and on campuses composed by `make_campus.py` at paper scale, each in its own
 //! process (so peak memory is that conversion's), and prints one row per model from its
-//! `report.json`, then the tiler stage alone (`--lod none --compression none`: issue 2's
-//! throughput and peak memory against the input), then a dedup/instancing table (issue 5) from the same reports, then the first
+//! `report.json`, then the tiler stage alone (read, partition, write: `--lod none --compression
+//! none --no-dedup`; issue 2's throughput and peak memory against the input), then a dedup/instancing table (issue 5) from the same reports, then the first
 //! view (issue 4): tiles, levels, bytes and triangles a 3D Tiles client selects to draw the whole
 //! model framed at 1920x1080 with a screen-space error limit of 16 px
 //! ([`bimtiles::tileset::view::first_view`]) against the full model (every leaf), and the same
@@ -204,10 +204,11 @@ fn main() {
             let plain_report = convert(&bin, input, &plain, budget, "none", &[]);
             let plain_geometry = geometry_bytes(&plain);
             let _ = std::fs::remove_dir_all(&plain);
-            // The tiler stage alone (issue 2): octree partition and plain GLB write, no LOD, no
-            // compression.
+            // The tiler stage alone (issue 2): read, octree partition and plain GLB write; no
+            // dedup (its own stage, in the dedup table below), no LOD, no compression.
             let tiler_dir = work.join(format!("out-{name}-{budget}-tiler"));
-            let tiler = convert(&bin, input, &tiler_dir, budget, "none", &["--lod", "none"]);
+            let tiler_args = ["--lod", "none", "--no-dedup"];
+            let tiler = convert(&bin, input, &tiler_dir, budget, "none", &tiler_args);
             let _ = std::fs::remove_dir_all(&tiler_dir);
             let encode_plain_s = plain_report
                 .as_ref()
@@ -261,7 +262,7 @@ fn main() {
     }
     // The tiler stage (issue 2's targets: at least 3M input triangles/s end to end, peak memory
     // under 3x the input).
-    println!("\ntiler stage alone (--lod none --compression none):");
+    println!("\ntiler stage alone (--lod none --compression none --no-dedup):");
     println!(
         "{:<26} {:>6} {:>9} {:>7} {:>7} {:>8} {:>8} {:>7}",
         "model", "budget", "triangles", "secs", "Mtri/s", "in MB", "peak MB", "peak/in"

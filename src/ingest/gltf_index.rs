@@ -163,9 +163,11 @@ fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, String
                 I(DataType::U8) => 1,
                 I(DataType::U16) => 2,
                 I(DataType::U32) => 4,
-                I(other) => return Err(format!(
+                I(other) => {
+                    return Err(format!(
                     "accessors[{i}].sparse.indices.componentType: {other:?} is not an index type"
-                )),
+                ))
+                }
             },
             value_view: s.values.buffer_view.value() as u32,
             value_offset: usize_of(s.values.byte_offset),
