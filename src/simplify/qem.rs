@@ -603,9 +603,10 @@ impl State<'_> {
         Some(Eval { cands, n })
     }
 
-    /// Flip / angle / topology checks for collapsing (u, v) to `p`.
-    fn valid(&mut self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
-        // Link condition: common neighbours must be the edge's opposite vertices.
+    /// Topology check of collapsing (u, v), whatever the placement: the
+    /// link condition (common neighbours must be the edge's opposite
+    /// vertices). Checked once per edge, not per candidate placement.
+    fn link_ok(&mut self, u: u32, v: u32, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
         let g = self.next_gen();
         for &c in su {
             let (a, b) = self.corner_others(c);
@@ -628,9 +629,12 @@ impl State<'_> {
                 opp += 1;
             }
         }
-        if common > opp {
-            return false;
-        }
+        common <= opp
+    }
+
+    /// Wedge / flip / angle checks for collapsing (u, v) to `p` (after
+    /// [`State::link_ok`]).
+    fn valid(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
         if self.p.strict_wedges {
             // With UVs/colours, a vertex may only move if each of its wedges
             // is merged with a wedge across the edge (else the texture seam
@@ -1099,23 +1103,21 @@ pub(crate) fn run(
     let mut sv = Vec::new();
     let mut old = Vec::new();
     st.rebuild_csr();
+    // Triangles of `a`'s star at each neighbour (a count per neighbour, not
+    // a scan of the star per neighbour), reset after each star.
+    let mut at = vec![0u32; nv];
     for a in 0..nv as u32 {
         st.gather(a, &mut su);
+        for &c in &su {
+            let (n1, n2) = st.corner_others(c);
+            at[n1 as usize] += 1;
+            at[n2 as usize] += 1;
+        }
         for i in 0..su.len() {
             let c = su[i];
             let (n1, n2) = st.corner_others(c);
             for (b, other) in [(n1, n2), (n2, n1)] {
-                if b < a {
-                    continue;
-                }
-                let count = su
-                    .iter()
-                    .filter(|&&c2| {
-                        let (x, y) = st.corner_others(c2);
-                        x == b || y == b
-                    })
-                    .count();
-                if count != 1 {
+                if b < a || at[b as usize] != 1 {
                     continue;
                 }
                 if params.lock_borders {
@@ -1137,6 +1139,11 @@ pub(crate) fn run(
                     st.quad[b as usize].add(&q);
                 }
             }
+        }
+        for &c in &su {
+            let (n1, n2) = st.corner_others(c);
+            at[n1 as usize] = 0;
+            at[n2 as usize] = 0;
         }
     }
     st.locked = locked;
@@ -1430,10 +1437,14 @@ pub(crate) fn run(
                         !touched[a as usize] && !touched[b as usize]
                     })
                 });
+            let mut link = None;
             for (ci, cand) in ev.cands[..ev.n].iter().enumerate() {
                 if cand.dist2 > params.target_error2 {
                     over_target = true;
                     break;
+                }
+                if !*link.get_or_insert_with(|| st.link_ok(u, v, &su, &sv, &e)) {
+                    continue;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
                     let mut c = *cand;
