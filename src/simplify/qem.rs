@@ -1198,6 +1198,11 @@ pub(crate) fn run(
     let mut dirty = vec![true; nv];
     let mut kept: Vec<Ranked> = Vec::new();
     let mut ranked: Vec<Ranked> = Vec::new();
+    // Ranking chunks of ~4096 vertices: output and scratch vectors.
+    let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
+    #[allow(clippy::type_complexity)]
+    let mut rank_bufs: Vec<(Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>)> =
+        (0..n_rank_bufs).map(|_| Default::default()).collect();
     while st.live > params.target_tris {
         st.rebuild_csr();
         // Constraint flags of the dirty vertices (the others' stars did not
@@ -1222,36 +1227,35 @@ pub(crate) fn run(
         st.cflag = cflag;
         let stref = &st;
         ranked.clear();
-        // Per-chunk vectors (no allocation per vertex); the order of
-        // `ranked` does not matter (everything below uses the total order).
-        let chunks: Vec<Vec<Ranked>> = (0..nv as u32)
-            .into_par_iter()
-            .with_min_len(4096)
-            .fold(
-                || (Vec::new(), Vec::new(), Vec::new()),
-                |(mut out, mut star, mut nb): (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>), a| {
-                    if !stref.alive[a as usize] {
-                        return (out, star, nb);
-                    }
+        // Per-chunk vectors, kept across passes (growing fresh ones every
+        // pass cost page faults and copies); the order of `ranked` does not
+        // matter (everything below uses the total order).
+        rank_bufs
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(ci, (out, star, nb))| {
+                out.clear();
+                let lo = (ci * nv / n_rank_bufs) as u32;
+                let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
+                for a in lo..hi {
                     // An edge with an unchanged neighbourhood (two clean
-                    // endpoints) keeps its entry from the last pass
-                    // (`kept`), or stays out of the order if it was found
-                    // invalid. The others are ranked from their smaller
-                    // dirty endpoint.
-                    if !dirty[a as usize] {
-                        return (out, star, nb);
+                    // endpoints) keeps its entry from the last pass (`kept`), or
+                    // stays out of the order if it was found invalid. The others
+                    // are ranked from their smaller dirty endpoint.
+                    if !stref.alive[a as usize] || !dirty[a as usize] {
+                        continue;
                     }
-                    stref.gather(a, &mut star);
+                    stref.gather(a, star);
                     // Those edges with their triangles, in one scan.
-                    stref.star_edges(a, &star, |b| !dirty[b as usize], &mut nb);
+                    stref.star_edges(a, star, |b| !dirty[b as usize], nb);
                     for &(b, ref e) in nb.iter() {
                         let (a, b) = (a.min(b), a.max(b));
                         if let Some(ev) = stref.evaluate(a, b, e) {
                             let key = ev.cands[0].key;
                             let f = stref.factor(a, b);
                             let p = ev.cands[0].p;
-                            // Coverage can only raise the key: computed
-                            // lazily (below) unless its bound is no larger.
+                            // Coverage can only raise the key: computed lazily
+                            // (below) unless its bound is no larger.
                             let skip = !RANK_COVERAGE
                                 || stref
                                     .coverage2_bound(a, b, p, star.len(), e)
@@ -1265,14 +1269,13 @@ pub(crate) fn run(
                             });
                         }
                     }
-                    (out, star, nb)
-                },
-            )
-            .map(|(out, _, _)| out)
-            .collect();
+                }
+            });
+        let n_new: usize = rank_bufs.iter().map(|b| b.0.len()).sum();
+        ranked.reserve(kept.len() + n_new + comp_live.len());
         ranked.extend_from_slice(&kept);
-        for c in &chunks {
-            ranked.extend_from_slice(c);
+        for b in &rank_bufs {
+            ranked.extend_from_slice(&b.0);
         }
         dirty.iter_mut().for_each(|d| *d = false);
         if PRUNE {
