@@ -971,6 +971,10 @@ fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
     best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
 }
 
+/// Ranking output and scratch of one chunk of vertices: entries, a star,
+/// its edges.
+type RankBuf = (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>);
+
 /// Total order of the walk: key, then endpoints.
 #[inline]
 fn rank_cmp(a: &Ranked, b: &Ranked) -> Ordering {
@@ -1200,77 +1204,89 @@ pub(crate) fn run(
     let mut ranked: Vec<Ranked> = Vec::new();
     // Ranking chunks of ~4096 vertices: output and scratch vectors.
     let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
-    #[allow(clippy::type_complexity)]
-    let mut rank_bufs: Vec<(Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>)> =
-        (0..n_rank_bufs).map(|_| Default::default()).collect();
+    let mut rank_bufs: Vec<RankBuf> = (0..n_rank_bufs).map(|_| Default::default()).collect();
+    let mut cflag_scratch = Vec::new();
     while st.live > params.target_tris {
         st.rebuild_csr();
         // Constraint flags of the dirty vertices (the others' stars did not
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
         let stref = &st;
-        cflag
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(4096)
-            .for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(star, scratch), (a, cf)| {
+        let cflag_chunk =
+            |lo: usize, cf: &mut [bool], star: &mut Vec<u32>, scratch: &mut Vec<u32>| {
+                for (i, cf) in cf.iter_mut().enumerate() {
+                    let a = lo + i;
                     if !stref.alive[a] {
                         *cf = false;
                     } else if dirty[a] {
                         stref.gather(a as u32, star);
                         *cf = stref.constrained(star, scratch);
                     }
-                },
+                }
+            };
+        // Small meshes (they come by the thousand) stay on this thread: a
+        // hand-off to the thread pool costs more than their work.
+        if n_rank_bufs == 1 {
+            let (_, star, _) = &mut rank_bufs[0];
+            cflag_chunk(0, &mut cflag, star, &mut cflag_scratch);
+        } else {
+            cflag.par_chunks_mut(4096).enumerate().for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(star, scratch), (ci, cf)| cflag_chunk(ci * 4096, cf, star, scratch),
             );
+        }
         st.cflag = cflag;
         let stref = &st;
         ranked.clear();
         // Per-chunk vectors, kept across passes (growing fresh ones every
         // pass cost page faults and copies); the order of `ranked` does not
         // matter (everything below uses the total order).
-        rank_bufs
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(ci, (out, star, nb))| {
-                out.clear();
-                let lo = (ci * nv / n_rank_bufs) as u32;
-                let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
-                for a in lo..hi {
-                    // An edge with an unchanged neighbourhood (two clean
-                    // endpoints) keeps its entry from the last pass (`kept`), or
-                    // stays out of the order if it was found invalid. The others
-                    // are ranked from their smaller dirty endpoint.
-                    if !stref.alive[a as usize] || !dirty[a as usize] {
-                        continue;
-                    }
-                    stref.gather(a, star);
-                    // Those edges with their triangles, in one scan.
-                    stref.star_edges(a, star, |b| !dirty[b as usize], nb);
-                    for &(b, ref e) in nb.iter() {
-                        let (a, b) = (a.min(b), a.max(b));
-                        if let Some(ev) = stref.evaluate(a, b, e) {
-                            let key = ev.cands[0].key;
-                            let f = stref.factor(a, b);
-                            let p = ev.cands[0].p;
-                            // Coverage can only raise the key: computed lazily
-                            // (below) unless its bound is no larger.
-                            let skip = !RANK_COVERAGE
-                                || stref
-                                    .coverage2_bound(a, b, p, star.len(), e)
-                                    .is_some_and(|ub| ub * f <= key);
-                            out.push(Ranked {
-                                key,
-                                u: a,
-                                v: b,
-                                p,
-                                f: if skip { 0.0 } else { f },
-                            });
-                        }
+        let rank_chunk = |ci: usize, (out, star, nb): &mut RankBuf| {
+            out.clear();
+            let lo = (ci * nv / n_rank_bufs) as u32;
+            let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
+            for a in lo..hi {
+                // An edge with an unchanged neighbourhood (two clean
+                // endpoints) keeps its entry from the last pass (`kept`), or
+                // stays out of the order if it was found invalid. The others
+                // are ranked from their smaller dirty endpoint.
+                if !stref.alive[a as usize] || !dirty[a as usize] {
+                    continue;
+                }
+                stref.gather(a, star);
+                // Those edges with their triangles, in one scan.
+                stref.star_edges(a, star, |b| !dirty[b as usize], nb);
+                for &(b, ref e) in nb.iter() {
+                    let (a, b) = (a.min(b), a.max(b));
+                    if let Some(ev) = stref.evaluate(a, b, e) {
+                        let key = ev.cands[0].key;
+                        let f = stref.factor(a, b);
+                        let p = ev.cands[0].p;
+                        // Coverage can only raise the key: computed lazily
+                        // (below) unless its bound is no larger.
+                        let skip = !RANK_COVERAGE
+                            || stref
+                                .coverage2_bound(a, b, p, star.len(), e)
+                                .is_some_and(|ub| ub * f <= key);
+                        out.push(Ranked {
+                            key,
+                            u: a,
+                            v: b,
+                            p,
+                            f: if skip { 0.0 } else { f },
+                        });
                     }
                 }
-            });
+            }
+        };
+        if n_rank_bufs == 1 {
+            rank_chunk(0, &mut rank_bufs[0]);
+        } else {
+            rank_bufs
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(ci, b)| rank_chunk(ci, b));
+        }
         let n_new: usize = rank_bufs.iter().map(|b| b.0.len()).sum();
         ranked.reserve(kept.len() + n_new + comp_live.len());
         ranked.extend_from_slice(&kept);
