@@ -1200,7 +1200,6 @@ pub(crate) fn run(
     // ranked again. Validity failures are remembered too (the entry is
     // dropped) since rejected collapses recur pass after pass.
     let mut dirty = vec![true; nv];
-    let mut kept: Vec<Ranked> = Vec::new();
     let mut ranked: Vec<Ranked> = Vec::new();
     // Ranking chunks of ~4096 vertices: output and scratch vectors.
     let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
@@ -1237,7 +1236,6 @@ pub(crate) fn run(
         }
         st.cflag = cflag;
         let stref = &st;
-        ranked.clear();
         // Per-chunk vectors, kept across passes (growing fresh ones every
         // pass cost page faults and copies); the order of `ranked` does not
         // matter (everything below uses the total order).
@@ -1247,7 +1245,7 @@ pub(crate) fn run(
             let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
             for a in lo..hi {
                 // An edge with an unchanged neighbourhood (two clean
-                // endpoints) keeps its entry from the last pass (`kept`), or
+                // endpoints) keeps its entry from the last pass (kept in `ranked`), or
                 // stays out of the order if it was found invalid. The others
                 // are ranked from their smaller dirty endpoint.
                 if !stref.alive[a as usize] || !dirty[a as usize] {
@@ -1288,8 +1286,7 @@ pub(crate) fn run(
                 .for_each(|(ci, b)| rank_chunk(ci, b));
         }
         let n_new: usize = rank_bufs.iter().map(|b| b.0.len()).sum();
-        ranked.reserve(kept.len() + n_new + comp_live.len());
-        ranked.extend_from_slice(&kept);
+        ranked.reserve(n_new + comp_live.len());
         for b in &rank_bufs {
             ranked.extend_from_slice(&b.0);
         }
@@ -1524,15 +1521,16 @@ pub(crate) fn run(
         if collapses == 0 {
             break;
         }
-        kept.clear();
-        kept.extend(ranked.iter().filter(|r| {
+        // The entries kept for the next pass stay at the front of `ranked`
+        // (compacted in place, not copied out and back).
+        ranked.retain(|r| {
             r.u != NONE
                 && r.f >= 0.0
                 && st.alive[r.u as usize]
                 && st.alive[r.v as usize]
                 && !dirty[r.u as usize]
                 && !dirty[r.v as usize]
-        }));
+        });
     }
 
     let tris: Vec<[u32; 3]> = st
