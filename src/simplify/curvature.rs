@@ -28,12 +28,16 @@ pub(crate) fn vertex_curvature(pos: &[DVec3], tris: &[[u32; 3]]) -> Vec<f32> {
             sum[v as usize] += *fnrm;
         }
     }
+    // Mean normals normalised once per vertex, not once per corner.
+    for m in &mut sum {
+        *m = m.normalize_or_zero();
+    }
     let mut k = vec![0.0f32; n];
     let mut seen = vec![false; n];
     for (t, fnrm) in tris.iter().zip(&face_n) {
         let f = fnrm.normalize_or_zero();
         for &v in t {
-            let m = sum[v as usize].normalize_or_zero();
+            let m = sum[v as usize];
             let kv = if m == DVec3::ZERO {
                 1.0
             } else {

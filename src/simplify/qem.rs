@@ -603,9 +603,10 @@ impl State<'_> {
         Some(Eval { cands, n })
     }
 
-    /// Flip / angle / topology checks for collapsing (u, v) to `p`.
-    fn valid(&mut self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
-        // Link condition: common neighbours must be the edge's opposite vertices.
+    /// Topology check of collapsing (u, v), whatever the placement: the
+    /// link condition (common neighbours must be the edge's opposite
+    /// vertices). Checked once per edge, not per candidate placement.
+    fn link_ok(&mut self, u: u32, v: u32, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
         let g = self.next_gen();
         for &c in su {
             let (a, b) = self.corner_others(c);
@@ -628,9 +629,12 @@ impl State<'_> {
                 opp += 1;
             }
         }
-        if common > opp {
-            return false;
-        }
+        common <= opp
+    }
+
+    /// Wedge / flip / angle checks for collapsing (u, v) to `p` (after
+    /// [`State::link_ok`]).
+    fn valid(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
         if self.p.strict_wedges {
             // With UVs/colours, a vertex may only move if each of its wedges
             // is merged with a wedge across the edge (else the texture seam
@@ -967,6 +971,10 @@ fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
     best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
 }
 
+/// Ranking output and scratch of one chunk of vertices: entries, a star,
+/// its edges.
+type RankBuf = (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>);
+
 /// Total order of the walk: key, then endpoints.
 #[inline]
 fn rank_cmp(a: &Ranked, b: &Ranked) -> Ordering {
@@ -1099,23 +1107,21 @@ pub(crate) fn run(
     let mut sv = Vec::new();
     let mut old = Vec::new();
     st.rebuild_csr();
+    // Triangles of `a`'s star at each neighbour (a count per neighbour, not
+    // a scan of the star per neighbour), reset after each star.
+    let mut at = vec![0u32; nv];
     for a in 0..nv as u32 {
         st.gather(a, &mut su);
+        for &c in &su {
+            let (n1, n2) = st.corner_others(c);
+            at[n1 as usize] += 1;
+            at[n2 as usize] += 1;
+        }
         for i in 0..su.len() {
             let c = su[i];
             let (n1, n2) = st.corner_others(c);
             for (b, other) in [(n1, n2), (n2, n1)] {
-                if b < a {
-                    continue;
-                }
-                let count = su
-                    .iter()
-                    .filter(|&&c2| {
-                        let (x, y) = st.corner_others(c2);
-                        x == b || y == b
-                    })
-                    .count();
-                if count != 1 {
+                if b < a || at[b as usize] != 1 {
                     continue;
                 }
                 if params.lock_borders {
@@ -1137,6 +1143,11 @@ pub(crate) fn run(
                     st.quad[b as usize].add(&q);
                 }
             }
+        }
+        for &c in &su {
+            let (n1, n2) = st.corner_others(c);
+            at[n1 as usize] = 0;
+            at[n2 as usize] = 0;
         }
     }
     st.locked = locked;
@@ -1189,83 +1200,95 @@ pub(crate) fn run(
     // ranked again. Validity failures are remembered too (the entry is
     // dropped) since rejected collapses recur pass after pass.
     let mut dirty = vec![true; nv];
-    let mut kept: Vec<Ranked> = Vec::new();
     let mut ranked: Vec<Ranked> = Vec::new();
+    // Ranking chunks of ~4096 vertices: output and scratch vectors.
+    let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
+    let mut rank_bufs: Vec<RankBuf> = (0..n_rank_bufs).map(|_| Default::default()).collect();
+    let mut cflag_scratch = Vec::new();
     while st.live > params.target_tris {
         st.rebuild_csr();
         // Constraint flags of the dirty vertices (the others' stars did not
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
         let stref = &st;
-        cflag
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(4096)
-            .for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(star, scratch), (a, cf)| {
+        let cflag_chunk =
+            |lo: usize, cf: &mut [bool], star: &mut Vec<u32>, scratch: &mut Vec<u32>| {
+                for (i, cf) in cf.iter_mut().enumerate() {
+                    let a = lo + i;
                     if !stref.alive[a] {
                         *cf = false;
                     } else if dirty[a] {
                         stref.gather(a as u32, star);
                         *cf = stref.constrained(star, scratch);
                     }
-                },
+                }
+            };
+        // Small meshes (they come by the thousand) stay on this thread: a
+        // hand-off to the thread pool costs more than their work.
+        if n_rank_bufs == 1 {
+            let (_, star, _) = &mut rank_bufs[0];
+            cflag_chunk(0, &mut cflag, star, &mut cflag_scratch);
+        } else {
+            cflag.par_chunks_mut(4096).enumerate().for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(star, scratch), (ci, cf)| cflag_chunk(ci * 4096, cf, star, scratch),
             );
+        }
         st.cflag = cflag;
         let stref = &st;
-        ranked.clear();
-        // Per-chunk vectors (no allocation per vertex); the order of
-        // `ranked` does not matter (everything below uses the total order).
-        let chunks: Vec<Vec<Ranked>> = (0..nv as u32)
-            .into_par_iter()
-            .with_min_len(4096)
-            .fold(
-                || (Vec::new(), Vec::new(), Vec::new()),
-                |(mut out, mut star, mut nb): (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>), a| {
-                    if !stref.alive[a as usize] {
-                        return (out, star, nb);
+        // Per-chunk vectors, kept across passes (growing fresh ones every
+        // pass cost page faults and copies); the order of `ranked` does not
+        // matter (everything below uses the total order).
+        let rank_chunk = |ci: usize, (out, star, nb): &mut RankBuf| {
+            out.clear();
+            let lo = (ci * nv / n_rank_bufs) as u32;
+            let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
+            for a in lo..hi {
+                // An edge with an unchanged neighbourhood (two clean
+                // endpoints) keeps its entry from the last pass (kept in `ranked`), or
+                // stays out of the order if it was found invalid. The others
+                // are ranked from their smaller dirty endpoint.
+                if !stref.alive[a as usize] || !dirty[a as usize] {
+                    continue;
+                }
+                stref.gather(a, star);
+                // Those edges with their triangles, in one scan.
+                stref.star_edges(a, star, |b| !dirty[b as usize], nb);
+                for &(b, ref e) in nb.iter() {
+                    let (a, b) = (a.min(b), a.max(b));
+                    if let Some(ev) = stref.evaluate(a, b, e) {
+                        let key = ev.cands[0].key;
+                        let f = stref.factor(a, b);
+                        let p = ev.cands[0].p;
+                        // Coverage can only raise the key: computed lazily
+                        // (below) unless its bound is no larger.
+                        let skip = !RANK_COVERAGE
+                            || stref
+                                .coverage2_bound(a, b, p, star.len(), e)
+                                .is_some_and(|ub| ub * f <= key);
+                        out.push(Ranked {
+                            key,
+                            u: a,
+                            v: b,
+                            p,
+                            f: if skip { 0.0 } else { f },
+                        });
                     }
-                    // An edge with an unchanged neighbourhood (two clean
-                    // endpoints) keeps its entry from the last pass
-                    // (`kept`), or stays out of the order if it was found
-                    // invalid. The others are ranked from their smaller
-                    // dirty endpoint.
-                    if !dirty[a as usize] {
-                        return (out, star, nb);
-                    }
-                    stref.gather(a, &mut star);
-                    // Those edges with their triangles, in one scan.
-                    stref.star_edges(a, &star, |b| !dirty[b as usize], &mut nb);
-                    for &(b, ref e) in nb.iter() {
-                        let (a, b) = (a.min(b), a.max(b));
-                        if let Some(ev) = stref.evaluate(a, b, e) {
-                            let key = ev.cands[0].key;
-                            let f = stref.factor(a, b);
-                            let p = ev.cands[0].p;
-                            // Coverage can only raise the key: computed
-                            // lazily (below) unless its bound is no larger.
-                            let skip = !RANK_COVERAGE
-                                || stref
-                                    .coverage2_bound(a, b, p, star.len(), e)
-                                    .is_some_and(|ub| ub * f <= key);
-                            out.push(Ranked {
-                                key,
-                                u: a,
-                                v: b,
-                                p,
-                                f: if skip { 0.0 } else { f },
-                            });
-                        }
-                    }
-                    (out, star, nb)
-                },
-            )
-            .map(|(out, _, _)| out)
-            .collect();
-        ranked.extend_from_slice(&kept);
-        for c in &chunks {
-            ranked.extend_from_slice(c);
+                }
+            }
+        };
+        if n_rank_bufs == 1 {
+            rank_chunk(0, &mut rank_bufs[0]);
+        } else {
+            rank_bufs
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(ci, b)| rank_chunk(ci, b));
+        }
+        let n_new: usize = rank_bufs.iter().map(|b| b.0.len()).sum();
+        ranked.reserve(n_new + comp_live.len());
+        for b in &rank_bufs {
+            ranked.extend_from_slice(&b.0);
         }
         dirty.iter_mut().for_each(|d| *d = false);
         if PRUNE {
@@ -1430,10 +1453,14 @@ pub(crate) fn run(
                         !touched[a as usize] && !touched[b as usize]
                     })
                 });
+            let mut link = None;
             for (ci, cand) in ev.cands[..ev.n].iter().enumerate() {
                 if cand.dist2 > params.target_error2 {
                     over_target = true;
                     break;
+                }
+                if !*link.get_or_insert_with(|| st.link_ok(u, v, &su, &sv, &e)) {
+                    continue;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
                     let mut c = *cand;
@@ -1494,15 +1521,16 @@ pub(crate) fn run(
         if collapses == 0 {
             break;
         }
-        kept.clear();
-        kept.extend(ranked.iter().filter(|r| {
+        // The entries kept for the next pass stay at the front of `ranked`
+        // (compacted in place, not copied out and back).
+        ranked.retain(|r| {
             r.u != NONE
                 && r.f >= 0.0
                 && st.alive[r.u as usize]
                 && st.alive[r.v as usize]
                 && !dirty[r.u as usize]
                 && !dirty[r.v as usize]
-        }));
+        });
     }
 
     let tris: Vec<[u32; 3]> = st
