@@ -48,10 +48,11 @@ $(VENV)/.installed: tests/python/requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
 	touch $@
 
+# The venv's python3 (numpy, for make_campus.py in tests/shard.rs) comes first on PATH.
 test: deps
 	rm -rf target/test-out
 	mkdir -p target/test-out/ifc-dump
-	BIMTILES_REQUIRE_TOOLS=1 BIMTILES_SHARED=$(SHARED) BIMTILES_DRACO_FIXTURE_DIR=$(CURDIR)/target/test-out/draco-fixtures \
+	PATH=$(CURDIR)/$(VENV)/bin:$$PATH BIMTILES_REQUIRE_TOOLS=1 BIMTILES_SHARED=$(SHARED) BIMTILES_DRACO_FIXTURE_DIR=$(CURDIR)/target/test-out/draco-fixtures \
 	BIMTILES_IFC_DUMP_DIR=$(CURDIR)/target/test-out/ifc-dump \
 	  $(CARGO) test --release
 	BIMTILES_SHARED=$(SHARED) BIMTILES_DRACO_FIXTURE_DIR=$(CURDIR)/target/test-out/draco-fixtures \
