@@ -830,16 +830,23 @@ impl Reader<'_> {
     }
 
     /// The accessor's elements packed tightly (`count * element_size` bytes, sparse values
-    /// applied), after checking that every byte lies inside its bufferView and buffer.
-    fn accessor_elements(&self, acc: &AccessorDesc, what: &str) -> Result<(Vec<u8>, usize)> {
+    /// applied), after checking that every byte lies inside its bufferView and buffer. Tightly
+    /// packed data without sparse values is borrowed from the buffer, not copied: a mesh of a
+    /// million triangles would otherwise hold its indices twice while it is decoded.
+    fn accessor_elements(
+        &self,
+        acc: &AccessorDesc,
+        what: &str,
+    ) -> Result<(std::borrow::Cow<'_, [u8]>, usize)> {
+        use std::borrow::Cow;
         let comp = acc.data_type.size();
         let elem = comp * acc.dimensions.multiplicity();
         let count = acc.count;
         let total = count
             .checked_mul(elem)
             .ok_or_else(|| self.err(format!("{what}: accessor size overflows")))?;
-        let mut out = match acc.view {
-            None => vec![0u8; total],
+        let mut out: Cow<[u8]> = match acc.view {
+            None => Cow::Owned(vec![0u8; total]),
             Some(view) => {
                 let data = self.view_bytes(view)?;
                 let stride = self.views[view as usize].stride.unwrap_or(elem).max(elem);
@@ -859,14 +866,14 @@ impl Reader<'_> {
                     )));
                 }
                 if stride == elem {
-                    data[acc.offset..acc.offset + total].to_vec()
+                    Cow::Borrowed(&data[acc.offset..acc.offset + total])
                 } else {
                     let mut v = Vec::with_capacity(total);
                     for i in 0..count {
                         let s = acc.offset + i * stride;
                         v.extend_from_slice(&data[s..s + elem]);
                     }
-                    v
+                    Cow::Owned(v)
                 }
             }
         };
@@ -897,7 +904,7 @@ impl Reader<'_> {
                     return Err(self.err(format!("{what}: sparse index {idx} out of range")));
                 }
                 let vs = sparse.value_offset + k * elem;
-                out[idx * elem..(idx + 1) * elem].copy_from_slice(&vdata[vs..vs + elem]);
+                out.to_mut()[idx * elem..(idx + 1) * elem].copy_from_slice(&vdata[vs..vs + elem]);
             }
         }
         Ok((out, elem))
