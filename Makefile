@@ -94,7 +94,7 @@ bench: deps build
 	PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(CARGO) run --release --example bench_tiler -- $(SHARED)/data
 	$(CARGO) run --release --example bench_textures -- $(SHARED)/data
 
-# Issue 12's scale measurements (not in `make test`; hours on 2 cores, most of it the 100M campuses):
+# Issue 12's scale measurements (not in `make test`; about 25 minutes on 2 cores, most of it the 100M campuses):
 # campuses of about 1M, 8.2M, 32M and 100M triangles from make_campus.py --bake, exact and jittered
 # (cached in target/bench/scale/, about 7 GB), each converted with the default options (seconds, peak
 # memory, output bytes, tiles), the growth exponents, and a sharded build: its jobs one after another
