@@ -102,7 +102,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     }
     // (JSON text, BIN chunk's byte range inside `bytes`).
     let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
-        let glb = gltf::binary::Glb::from_slice(&bytes)
+        let glb = gltf::binary::Glb::from_slice(bytes)
             .map_err(|e| err(format!("invalid or truncated GLB: {e}")))?;
         let json: &[u8] = match glb.json {
             std::borrow::Cow::Borrowed(j) => j,
@@ -117,7 +117,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         };
         (json, bin)
     } else {
-        (&bytes[..], None)
+        (bytes, None)
     };
     let index: GltfIndex = serde_json::from_slice(json_text).map_err(|e| {
         err(if is_glb {
@@ -185,10 +185,9 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     reader.read_images(&doc, &image_views, &base_dir)?;
     reader.read_materials(&doc);
     drop(doc);
-    let roots = match default_scene.or((!scenes.is_empty()).then_some(0)) {
-        Some(s) => Some(&scenes[s as usize][..]),
-        None => None,
-    };
+    let roots = default_scene
+        .or((!scenes.is_empty()).then_some(0))
+        .map(|s| &scenes[s as usize][..]);
     let mesh_order = reader.read_nodes(&nodes, roots, meshes.len())?;
     drop(nodes);
     crate::memory::release_freed_heap();

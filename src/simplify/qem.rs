@@ -1117,8 +1117,7 @@ pub(crate) fn run(
             at[n1 as usize] += 1;
             at[n2 as usize] += 1;
         }
-        for i in 0..su.len() {
-            let c = su[i];
+        for &c in &su {
             let (n1, n2) = st.corner_others(c);
             for (b, other) in [(n1, n2), (n2, n1)] {
                 if b < a || at[b as usize] != 1 {
