@@ -335,12 +335,36 @@ pub struct Report {
     pub options: serde_json::Value,
     pub timings_s: Timings,
     pub peak_memory_bytes: u64,
+    /// The memory budget and where the geometry was kept (absent without a budget).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub memory: Option<MemoryReport>,
     /// Texture classification, bytes before and per pyramid level, bytes written per level.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub textures: Option<crate::texture::TextureReport>,
 }
 
 pub use crate::memory::peak_memory_bytes;
+
+/// `--memory-budget` and what it did: how many meshes stayed in memory and how many were spilled.
+#[derive(Debug, Clone, Serialize)]
+pub struct MemoryReport {
+    pub budget_bytes: u64,
+    pub geometry: crate::scene::StoreStats,
+    /// Why meshes stayed in memory past the budget (the spill file could not be written).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spill_error: Option<String>,
+}
+
+impl MemoryReport {
+    /// The process's budget (see [`crate::scene::set_memory_budget`]) and `scene`'s store.
+    pub fn of(scene: &Scene) -> Option<MemoryReport> {
+        crate::scene::memory_budget().map(|b| MemoryReport {
+            budget_bytes: b.bytes,
+            geometry: scene.meshes.stats(),
+            spill_error: scene.meshes.spill_error().map(str::to_string),
+        })
+    }
+}
 
 /// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
 /// model lies far from it (projected coordinates), then its footprint centre at ground level.
@@ -610,6 +634,7 @@ pub fn convert_scene(
     let mut report = make_report(prep, &facts_bytes, opts, &tmp, timings, texture_levels);
     report.timings_s.total = t0.elapsed().as_secs_f64();
     report.peak_memory_bytes = peak_memory_bytes();
+    report.memory = MemoryReport::of(scene);
     let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
     let finish = || -> std::io::Result<()> {
         std::fs::write(tmp.join("report.json"), &report_json)?;
@@ -754,6 +779,7 @@ pub(crate) fn make_report(
         }),
         timings_s: timings,
         peak_memory_bytes: 0,
+        memory: None,
         textures: (prep.textures_prepared.images_bound > 0)
             .then(|| texture_levels.report(prep.textures_prepared)),
     }

@@ -16,6 +16,11 @@ use serde_json::value::RawValue;
 use serde_json::Value;
 use std::sync::Arc;
 
+mod store;
+pub use store::{
+    memory_budget, set_memory_budget, MemoryBudget, MeshStore, StoreLimits, StoreStats,
+};
+
 /// glTF (y-up) → scene frame (z-up): (x, y, z) ↦ (x, -z, y), a +90° turn about x. This is the
 /// same rotation 3D Tiles clients apply to glTF content (3D Tiles 1.1, "glTF transforms").
 pub const Y_UP_TO_Z_UP: DMat4 = DMat4::from_cols_array(&[
@@ -150,7 +155,7 @@ impl Primitive {
 pub struct Mesh {
     pub name: Option<String>,
     pub primitives: Vec<Primitive>,
-    /// Box of all positions in the mesh's local frame (filled by [`Scene::finish`]).
+    /// Box of all positions in the mesh's local frame (filled by [`MeshStore`] when stored).
     pub local_bounds: Option<Aabb>,
 }
 
@@ -163,6 +168,19 @@ impl Mesh {
     }
     pub fn estimated_bytes(&self) -> usize {
         self.primitives.iter().map(Primitive::estimated_bytes).sum()
+    }
+    /// Bytes of its arrays in memory (what [`MeshStore`] counts against its limit).
+    pub fn heap_bytes(&self) -> usize {
+        self.primitives
+            .iter()
+            .map(|p| {
+                size_of_val(&p.positions[..])
+                    + p.normals.as_ref().map_or(0, |v| size_of_val(&v[..]))
+                    + p.uvs.as_ref().map_or(0, |v| size_of_val(&v[..]))
+                    + p.colors.as_ref().map_or(0, |v| size_of_val(&v[..]))
+                    + size_of_val(&p.indices[..])
+            })
+            .sum()
     }
 }
 
@@ -362,7 +380,8 @@ pub struct Scene {
     pub components: Vec<Component>,
     /// `info[i]` describes `components[i]` (same length; see [`Scene::push_component`]).
     pub info: Vec<ElementInfo>,
-    pub meshes: Vec<Mesh>,
+    /// Mesh geometry, in memory or spilled to disk under `--memory-budget`.
+    pub meshes: MeshStore,
     pub materials: Vec<Material>,
     pub images: Vec<Image>,
     /// Primitives the readers could not use (points, lines), counted for the report.
@@ -383,8 +402,8 @@ impl Scene {
     pub fn component(&self, id: ComponentId) -> &Component {
         &self.components[id.index()]
     }
-    pub fn mesh(&self, id: MeshId) -> &Mesh {
-        &self.meshes[id.index()]
+    pub fn mesh(&self, id: MeshId) -> Arc<Mesh> {
+        self.meshes.get(id)
     }
 
     /// Components whose geometry is drawn (aliases of exact duplicates are not).
@@ -396,12 +415,12 @@ impl Scene {
     /// are not drawn).
     pub fn triangle_count(&self) -> usize {
         self.drawn_components()
-            .map(|c| self.meshes[c.mesh.index()].triangle_count())
+            .map(|c| self.meshes.triangle_count(c.mesh))
             .sum()
     }
     pub fn vertex_count(&self) -> usize {
         self.drawn_components()
-            .map(|c| self.meshes[c.mesh.index()].vertex_count())
+            .map(|c| self.meshes.vertex_count(c.mesh))
             .sum()
     }
 
@@ -447,12 +466,7 @@ impl Scene {
                 }
                 m
             }));
-        self.meshes.extend(other.meshes.into_iter().map(|mut m| {
-            for p in &mut m.primitives {
-                p.material = p.material.map(|x| MaterialId(x.0 + mat0));
-            }
-            m
-        }));
+        self.meshes.append(other.meshes, mat0);
         self.info.extend(other.info);
         self.components
             .extend(other.components.into_iter().map(|mut c| {
@@ -476,20 +490,11 @@ impl Scene {
         self.compute_bounds();
     }
 
-    /// Fills the derived fields (mesh local bounds, component world bounds). Called by readers
-    /// once a scene is complete and after any transform change.
+    /// Fills the derived fields (component world bounds; mesh local bounds are the store's).
+    /// Called by readers once a scene is complete and after any geometry change.
     pub fn finish(&mut self) {
         self.info
             .resize(self.components.len(), ElementInfo::default());
-        for mesh in &mut self.meshes {
-            let mut b = Aabb::EMPTY;
-            for p in &mesh.primitives {
-                for v in &p.positions {
-                    b.extend(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
-                }
-            }
-            mesh.local_bounds = Some(b);
-        }
         self.compute_bounds();
     }
 
@@ -500,7 +505,7 @@ impl Scene {
         let meshes = &self.meshes;
         self.components.par_iter_mut().for_each(|c| {
             let mut b = Aabb::EMPTY;
-            for p in &meshes[c.mesh.index()].primitives {
+            for p in &meshes.get(c.mesh).primitives {
                 for v in &p.positions {
                     b.extend(c.world.transform_point3(DVec3::new(
                         v[0] as f64,
@@ -579,7 +584,10 @@ mod tests {
         assert_eq!(a.components[1].mesh, MeshId(1));
         assert_eq!(a.components[1].node, Some(NodeId(1)));
         assert_eq!(a.components[1].source, 1);
-        assert_eq!(a.meshes[1].primitives[0].material, Some(MaterialId(1)));
+        assert_eq!(
+            a.mesh(MeshId(1)).primitives[0].material,
+            Some(MaterialId(1))
+        );
         assert_eq!(a.triangle_count(), 2);
         assert_eq!(a.bounds().max, DVec3::new(1.0, 1.0, 0.0));
     }

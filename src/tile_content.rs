@@ -12,9 +12,10 @@
 //! turns instances back into merged geometry for stages that need one surface (HLOD).
 
 use crate::partition::ContentItem;
-use crate::scene::{Aabb, Component, ComponentId, MaterialId, MeshId, Primitive, Scene};
+use crate::scene::{Aabb, Component, ComponentId, MaterialId, Mesh, MeshId, Primitive, Scene};
 use glam::{DMat3, DMat4, DVec3};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 /// One material's merged geometry. `normals` always has one entry per vertex; `uvs` and `colors`
 /// have one per vertex or none.
@@ -297,13 +298,13 @@ impl TileContent {
         let mut users: BTreeMap<MeshId, Vec<ComponentId>> = BTreeMap::new();
         for item in content.iter().filter(|i| i.triangles.is_none()) {
             let c = scene.component(item.component);
-            if placeable_as_instance(&c.world) && scene.mesh(c.mesh).triangle_count() > 0 {
+            if placeable_as_instance(&c.world) && scene.meshes.triangle_count(c.mesh) > 0 {
                 users.entry(c.mesh).or_default().push(c.id);
             }
         }
         users.retain(|&mesh, v| {
             v.len() >= MIN_INSTANCES_PER_SHAPE
-                && (v.len() - 1) * scene.mesh(mesh).triangle_count() >= min_saved_triangles
+                && (v.len() - 1) * scene.meshes.triangle_count(mesh) >= min_saved_triangles
         });
         let instanced: std::collections::HashSet<ComponentId> =
             users.values().flatten().copied().collect();
@@ -314,11 +315,11 @@ impl TileContent {
             .collect();
         let mut out = TileContent::gather(scene, &plain, center);
         for (mesh, comps) in users {
-            let m = scene.mesh(mesh);
-            let origin = m
-                .local_bounds
-                .filter(|b| !b.is_empty())
-                .map_or(DVec3::ZERO, |b| b.center());
+            let bounds = scene.meshes.local_bounds(mesh);
+            let origin = match bounds.is_empty() {
+                true => DVec3::ZERO,
+                false => bounds.center(),
+            };
             // The shape in its own frame: the mesh frame moved by -origin.
             let frame = Component::new("", mesh, DMat4::from_translation(-origin));
             let primitives =
@@ -416,6 +417,12 @@ impl TileContent {
     /// Features are numbered in content order (parts of one component share one).
     pub fn gather(scene: &Scene, content: &[ContentItem], center: DVec3) -> TileContent {
         let mut features: Vec<ComponentId> = Vec::new();
+        // The content's meshes, each read once and held while the parts borrow them.
+        let mut held: BTreeMap<MeshId, Arc<Mesh>> = BTreeMap::new();
+        for item in content {
+            let mesh = scene.component(item.component).mesh;
+            held.entry(mesh).or_insert_with(|| scene.mesh(mesh));
+        }
         type Part<'a> = (u32, &'a Component, &'a Primitive, Option<Vec<u32>>);
         let mut groups: BTreeMap<u32, Vec<Part>> = BTreeMap::new();
         for item in content {
@@ -424,7 +431,7 @@ impl TileContent {
             }
             let fid = (features.len() - 1) as u32;
             let comp = scene.component(item.component);
-            for (pi, prim) in scene.mesh(comp.mesh).primitives.iter().enumerate() {
+            for (pi, prim) in held[&comp.mesh].primitives.iter().enumerate() {
                 let subset: Option<Vec<u32>> = item.triangles.as_ref().map(|tris| {
                     let lo = tris.partition_point(|t| t.0 < pi as u32);
                     let hi = tris.partition_point(|t| t.0 <= pi as u32);
@@ -832,8 +839,10 @@ mod tests {
             ..red.clone()
         };
         s.materials = vec![red, green, textured];
-        s.meshes[0].primitives[0].material = Some(MaterialId(0));
-        let mut second = s.meshes[0].clone();
+        s.meshes.update(MeshId(0), |m| {
+            m.primitives[0].material = Some(MaterialId(0))
+        });
+        let mut second = (*s.mesh(MeshId(0))).clone();
         second.primitives[0].material = Some(MaterialId(1));
         second.primitives[0].colors = Some(vec![[0.5; 4]; 3]);
         s.meshes.push(second);

@@ -27,7 +27,8 @@ fn expand(scene: &Scene, c: &Component) -> Vec<(Option<u32>, Vec<[Corner; 3]>)> 
     let l = DMat3::from_mat4(c.world);
     let nm = l.inverse().transpose();
     let flip = l.determinant() < 0.0;
-    scene.meshes[c.mesh.index()]
+    scene
+        .mesh(c.mesh)
         .primitives
         .iter()
         .map(|p| {
@@ -223,10 +224,12 @@ fn assert_correct(name: &str, before: &Scene, after: &Scene) {
     );
     // Every mesh a component uses still holds its geometry (released meshes are unreferenced).
     for c in &after.components {
-        let m = &after.meshes[c.mesh.index()];
+        let m = after.mesh(c.mesh);
         assert_eq!(
             m.triangle_count(),
-            before.meshes[before.components[c.id.index()].mesh.index()].triangle_count()
+            before
+                .meshes
+                .triangle_count(before.components[c.id.index()].mesh)
         );
     }
 }

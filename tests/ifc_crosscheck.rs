@@ -151,7 +151,7 @@ fn ours(scene: &Scene) -> BTreeMap<String, Ours> {
                 storey: info.storey.clone(),
                 min: c.world_bounds.min.to_array(),
                 max: c.world_bounds.max.to_array(),
-                triangles: scene.meshes[c.mesh.index()].triangle_count(),
+                triangles: scene.meshes.triangle_count(c.mesh),
             },
         );
     }
@@ -173,7 +173,7 @@ fn dump(name: &str, scene: &Scene, report: &IfcReadReport) {
                 "guid": c.key, "class": i.class, "storey": i.storey, "building": i.building,
                 "site": i.site, "name": c.name,
                 "bbox_min": c.world_bounds.min.to_array(), "bbox_max": c.world_bounds.max.to_array(),
-                "triangles": scene.meshes[c.mesh.index()].triangle_count(),
+                "triangles": scene.meshes.triangle_count(c.mesh),
             })
         })
         .collect();
@@ -400,7 +400,7 @@ fn check_scene_invariants(name: &str, scene: &Scene) {
             "{class}"
         );
         assert!(!["IfcOpeningElement", "IfcSpace", "IfcAnnotation", "IfcGrid"].contains(&class));
-        let mesh = &scene.meshes[c.mesh.index()];
+        let mesh = scene.mesh(c.mesh);
         assert!(mesh.triangle_count() > 0);
         for p in &mesh.primitives {
             let nv = p.positions.len() as u32;
@@ -615,7 +615,7 @@ fn site_placement_far_away_and_rotated() {
     for (c0, c1) in s0.components.iter().zip(&s1.components) {
         assert_eq!(c0.key, c1.key);
         let mut b = bimtiles::scene::Aabb::EMPTY;
-        for pr in &s0.meshes[c0.mesh.index()].primitives {
+        for pr in &s0.mesh(c0.mesh).primitives {
             for v in &pr.positions {
                 let w = c0.world.transform_point3(glam::DVec3::new(
                     v[0] as f64,
@@ -627,7 +627,7 @@ fn site_placement_far_away_and_rotated() {
         }
         worst = worst.max((b.min - c1.world_bounds.min).abs().max_element());
         worst = worst.max((b.max - c1.world_bounds.max).abs().max_element());
-        let lb = s1.meshes[c1.mesh.index()].local_bounds.unwrap();
+        let lb = s1.meshes.local_bounds(c1.mesh);
         assert!(
             lb.max.abs().max_element() < 100.0 && lb.min.abs().max_element() < 100.0,
             "positions stay local"

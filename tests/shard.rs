@@ -2,7 +2,8 @@
 //! tileset `convert` gives, byte for byte: every tile, tileset.json and schema.json, and
 //! report.json apart from timings, memory and the texture tallies of the merging process. A job
 //! killed mid-write (simulated by its leftover temporary files) is not accepted by `merge`, and
-//! rerunning only that job completes the build.
+//! rerunning only that job completes the build. A tiny `--memory-budget` (geometry spilled to disk
+//! and read back) gives the same tileset too.
 
 mod common;
 use common::*;
@@ -66,6 +67,7 @@ fn report_content(dir: &Path) -> Value {
     let o = r.as_object_mut().unwrap();
     o.remove("timings_s");
     o.remove("peak_memory_bytes");
+    o.remove("memory");
     if let Some(d) = o.get_mut("dedup").and_then(Value::as_object_mut) {
         d.remove("seconds");
     }
@@ -270,4 +272,109 @@ fn real_campus_sharded_is_byte_identical() {
     let out = dir.join("shard-4");
     sharded(&[c], &out, 4, &extra);
     assert_identical(&conv, &out);
+
+    let tiny = dir.join("convert-tiny-budget");
+    ok(&[
+        "convert",
+        c,
+        "--out",
+        tiny.to_str().unwrap(),
+        "--quiet",
+        extra[0],
+        extra[1],
+        "--memory-budget",
+        "64K",
+    ]);
+    let (spilled, resident) = spilled_bytes(&tiny);
+    assert!(
+        spilled > 20 * resident,
+        "{spilled} bytes spilled, {resident} kept"
+    );
+    assert_identical(&conv, &tiny);
+}
+
+/// Bytes of geometry report.json says were spilled to disk, and kept in memory.
+fn spilled_bytes(dir: &Path) -> (u64, u64) {
+    let r: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    let g = &r["memory"]["geometry"];
+    let n = |k: &str| {
+        g[k].as_u64()
+            .unwrap_or_else(|| panic!("no {k} in {}/report.json", dir.display()))
+    };
+    (n("spilled_bytes"), n("resident_bytes"))
+}
+
+#[test]
+fn tiny_memory_budget_gives_the_same_tileset() {
+    let dir = tmpdir("memory-budget");
+    let m = sample_campus(&dir);
+    let m = m.to_str().unwrap();
+    let extra = ["--max-tile-triangles", "3000"];
+    let run_convert = |name: &str, budget: &str| {
+        let out = dir.join(name);
+        let _ = std::fs::remove_dir_all(&out);
+        ok(&[
+            "convert",
+            "--manifest",
+            m,
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+            extra[0],
+            extra[1],
+            "--memory-budget",
+            budget,
+        ]);
+        out
+    };
+    let full = run_convert("in-memory", "none");
+    let default = run_convert("default-budget", "4G");
+    assert_eq!(spilled_bytes(&default).0, 0, "the sample fits in 4 GB");
+    // 64 KiB: a 16 KiB resident limit and a 4 KiB cache, so nearly every mesh is on disk and read
+    // back each time it is used.
+    let tiny = run_convert("tiny-budget", "64K");
+    let (spilled, resident) = spilled_bytes(&tiny);
+    assert!(
+        spilled > 20 * resident,
+        "{spilled} bytes spilled, {resident} kept"
+    );
+    assert_identical(&full, &default);
+    assert_identical(&full, &tiny);
+
+    // A sharded build under the same budget: every job and the merge spill too.
+    let out = dir.join("shard-tiny");
+    let mut args = extra.to_vec();
+    args.extend_from_slice(&["--memory-budget", "64K"]);
+    sharded(&["--manifest", m], &out, 2, &args);
+    let (spilled, resident) = spilled_bytes(&out);
+    assert!(
+        spilled > 20 * resident,
+        "{spilled} bytes spilled, {resident} kept"
+    );
+    assert_identical(&full, &out);
+}
+
+#[test]
+fn bad_memory_options_are_refused_clearly() {
+    let dir = tmpdir("memory-options");
+    for (args, expect) in [
+        (vec!["--memory-budget", "12Q"], "unknown unit"),
+        (vec!["--memory-budget", "0"], "not a size"),
+        (
+            vec!["--spill-dir", "/nonexistent/spill"],
+            "/nonexistent/spill",
+        ),
+    ] {
+        let out = dir.join("out");
+        let mut a = vec!["convert", "--out", out.to_str().unwrap(), "--quiet"];
+        a.extend_from_slice(&args);
+        let o = run(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(expect),
+            "{args:?}: {err}"
+        );
+        assert!(!out.exists(), "{args:?} left {}", out.display());
+    }
 }

@@ -208,6 +208,15 @@ struct ConvertArgs {
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
+    /// Memory the conversion aims to stay within (e.g. 4G, 512M, 800MB; `none`: no limit). Past a
+    /// quarter of it, mesh geometry is spilled to a temporary file and read back when used. The
+    /// output does not depend on it.
+    #[arg(long, default_value = "4G", value_parser = parse_budget)]
+    memory_budget: Budget,
+    /// Folder for the spill file (default: the output's folder; not a RAM-backed /tmp). The file
+    /// has no name and is gone when the process ends.
+    #[arg(long)]
+    spill_dir: Option<PathBuf>,
     /// No progress bars and no summary (report.json is still written).
     #[arg(long, short)]
     quiet: bool,
@@ -378,6 +387,58 @@ pub fn main() -> Result<()> {
     }
 }
 
+/// `--memory-budget` in bytes; `None`: no limit.
+#[derive(Debug, Clone, Copy)]
+struct Budget(Option<u64>);
+
+/// `--memory-budget`: a number with an optional K, M, G or T (powers of 1024; a trailing B or iB
+/// is allowed), or `none`.
+fn parse_budget(text: &str) -> std::result::Result<Budget, String> {
+    let t = text.trim().to_ascii_lowercase();
+    if t == "none" {
+        return Ok(Budget(None));
+    }
+    let t = t.trim_end_matches("ib").trim_end_matches('b');
+    let (number, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => t.split_at(i),
+        None => (t, ""),
+    };
+    let scale: u64 = match unit {
+        "" => 1,
+        "k" => 1 << 10,
+        "m" => 1 << 20,
+        "g" => 1 << 30,
+        "t" => 1 << 40,
+        _ => return Err(format!("unknown unit in '{text}' (use K, M, G or T)")),
+    };
+    match number.trim().parse::<f64>() {
+        Ok(n) if n.is_finite() && n > 0.0 => Ok(Budget(Some((n * scale as f64) as u64))),
+        _ => Err(format!("'{text}' is not a size (e.g. 4G, 512M, none)")),
+    }
+}
+
+/// Sets the process's memory budget (read by every mesh store created after); `out` is where the
+/// output goes.
+fn set_budget(a: &ConvertArgs, out: &std::path::Path) -> Result<()> {
+    if let Some(d) = a.spill_dir.as_ref().filter(|d| !d.is_dir()) {
+        anyhow::bail!("--spill-dir {}: no such folder", d.display());
+    }
+    // The spill file goes beside the output, on the first folder of its path that exists.
+    let spill_dir = a.spill_dir.clone().or_else(|| {
+        let out = std::path::absolute(out).ok()?;
+        out.ancestors()
+            .skip(1)
+            .find(|d| d.is_dir())
+            .map(PathBuf::from)
+    });
+    bimtiles::scene::set_memory_budget(
+        a.memory_budget
+            .0
+            .map(|bytes| bimtiles::scene::MemoryBudget { bytes, spill_dir }),
+    );
+    Ok(())
+}
+
 fn set_threads(threads: Option<usize>) -> Result<()> {
     if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
@@ -392,6 +453,7 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 /// that build-job and merge re-create the same inputs and options.
 fn run_plan(a: PlanArgs) -> Result<()> {
     set_threads(a.convert.threads)?;
+    set_budget(&a.convert, &a.convert.out)?;
     let opts = convert_options(&a.convert)?;
     let argv: Vec<String> = std::env::args().collect();
     let at = argv.iter().position(|s| s == "plan").unwrap_or(argv.len());
@@ -430,6 +492,7 @@ fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptio
         .map_err(|e| anyhow::anyhow!("{}: the plan's command: {e}", dir.display()))?;
     let mut opts = convert_options(&a.convert)?;
     opts.out_dir = std::path::absolute(dir).context("cannot resolve the build folder")?;
+    set_budget(&a.convert, &opts.out_dir.join("tileset"))?;
     opts.force = false;
     opts.progress = !quiet;
     // Where the plan was made, so that relative input paths (and the report's names for them)
@@ -447,6 +510,7 @@ fn planned(dir: &std::path::Path, quiet: bool) -> Result<(InputSet, ConvertOptio
 
 fn run_convert(a: ConvertArgs) -> Result<()> {
     set_threads(a.threads)?;
+    set_budget(&a, &a.out)?;
     let opts = convert_options(&a)?;
     let inputs = InputSet::new(&a.inputs, a.manifest.as_deref());
     let r = convert_input_set(&inputs, &opts)?;

@@ -19,7 +19,7 @@
 pub mod geom;
 mod matcher;
 
-use crate::scene::{Component, ComponentId, MaterialId, Mesh, MeshId, Scene};
+use crate::scene::{ComponentId, MaterialId, Mesh, MeshId, MeshStore, Scene};
 use geom::Similarity;
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use matcher::{
@@ -203,13 +203,18 @@ pub fn deduplicate(scene: &mut Scene, opts: &DedupOptions) -> DedupReport {
     }
     if opts.release_unused_meshes {
         let now = referenced(scene);
-        for (i, mesh) in scene.meshes.iter_mut().enumerate() {
+        for i in 0..scene.meshes.len() {
             if referenced_before[i] && !now[i] {
-                *mesh = Mesh {
-                    name: mesh.name.take(),
-                    primitives: Vec::new(),
-                    local_bounds: None,
-                };
+                let id = MeshId(i as u32);
+                let name = scene.mesh(id).name.clone();
+                scene.meshes.set(
+                    id,
+                    Mesh {
+                        name,
+                        primitives: Vec::new(),
+                        local_bounds: None,
+                    },
+                );
                 report.meshes_released += 1;
             }
         }
@@ -257,7 +262,8 @@ struct Counts {
 
 impl Counts {
     fn of(scene: &Scene) -> Counts {
-        let mesh = |c: &Component| scene.meshes.get(c.mesh.index());
+        let meshes = &scene.meshes;
+        let known = |m: MeshId| m.index() < meshes.len();
         let groups = shape_groups(scene);
         let mut k = Counts {
             unique_shapes: groups.len(),
@@ -268,18 +274,15 @@ impl Counts {
             stored_triangles: 0,
             instanced_bytes: 0,
         };
-        for c in &scene.components {
-            let Some(m) = mesh(c) else { continue };
-            k.expanded_triangles += m.triangle_count();
-            k.expanded_bytes += m.estimated_bytes();
+        for c in scene.components.iter().filter(|c| known(c.mesh)) {
+            k.expanded_triangles += meshes.triangle_count(c.mesh);
+            k.expanded_bytes += meshes.estimated_bytes(c.mesh);
         }
-        for g in &groups {
-            let Some(m) = scene.meshes.get(g.mesh.index()) else {
-                continue;
-            };
-            k.drawn_triangles += m.triangle_count() * g.components.len();
-            k.stored_triangles += m.triangle_count();
-            k.instanced_bytes += m.estimated_bytes();
+        for g in groups.iter().filter(|g| known(g.mesh)) {
+            let triangles = meshes.triangle_count(g.mesh);
+            k.drawn_triangles += triangles * g.components.len();
+            k.stored_triangles += triangles;
+            k.instanced_bytes += meshes.estimated_bytes(g.mesh);
             if g.components.len() > 1 {
                 k.instanced += g.components.len();
                 k.instanced_bytes += INSTANCE_BYTES * g.components.len();
@@ -315,30 +318,27 @@ struct PrimSig {
 
 /// Signature id per mesh (equal ids: equal exact signatures); None for meshes without triangles,
 /// which have no shape to share.
-fn signature_ids(meshes: &[Mesh], canon: &[u32]) -> Vec<Option<u32>> {
-    let sigs: Vec<Option<Vec<PrimSig>>> = meshes
-        .par_iter()
-        .map(|m| {
-            if m.triangle_count() == 0 {
-                return None;
-            }
-            Some(
-                m.primitives
-                    .iter()
-                    .map(|p| PrimSig {
-                        material: p.material.map_or(u32::MAX, |MaterialId(x)| {
-                            canon.get(x as usize).copied().unwrap_or(x)
-                        }),
-                        vertices: p.positions.len(),
-                        indices: p.indices.len(),
-                        attrs: u8::from(p.normals.is_some())
-                            | u8::from(p.uvs.is_some()) << 1
-                            | u8::from(p.colors.is_some()) << 2,
-                    })
-                    .collect(),
-            )
-        })
-        .collect();
+fn signature_ids(meshes: &MeshStore, canon: &[u32]) -> Vec<Option<u32>> {
+    let sigs: Vec<Option<Vec<PrimSig>>> = meshes.par_map(|m| {
+        if m.triangle_count() == 0 {
+            return None;
+        }
+        Some(
+            m.primitives
+                .iter()
+                .map(|p| PrimSig {
+                    material: p.material.map_or(u32::MAX, |MaterialId(x)| {
+                        canon.get(x as usize).copied().unwrap_or(x)
+                    }),
+                    vertices: p.positions.len(),
+                    indices: p.indices.len(),
+                    attrs: u8::from(p.normals.is_some())
+                        | u8::from(p.uvs.is_some()) << 1
+                        | u8::from(p.colors.is_some()) << 2,
+                })
+                .collect(),
+        )
+    });
     let mut ids: BTreeMap<Vec<PrimSig>, u32> = BTreeMap::new();
     sigs.into_iter()
         .map(|s| {
@@ -367,21 +367,17 @@ fn exact_duplicates(
     tol: &Tol,
 ) -> Vec<(ComponentId, ComponentId)> {
     let size = (4.0 * tol.pos).max(1e-9);
-    let centroids: Vec<Option<DVec3>> = scene
-        .meshes
-        .par_iter()
-        .map(|m| {
-            let n = m.vertex_count();
-            (n > 0).then(|| {
-                m.primitives
-                    .iter()
-                    .flat_map(|p| p.positions.iter())
-                    .map(|v| DVec3::from_array(v.map(f64::from)))
-                    .sum::<DVec3>()
-                    / n as f64
-            })
+    let centroids: Vec<Option<DVec3>> = scene.meshes.par_map(|m| {
+        let n = m.vertex_count();
+        (n > 0).then(|| {
+            m.primitives
+                .iter()
+                .flat_map(|p| p.positions.iter())
+                .map(|v| DVec3::from_array(v.map(f64::from)))
+                .sum::<DVec3>()
+                / n as f64
         })
-        .collect();
+    });
     // The vertex centroid is affine-equivariant: world centroid = world · local centroid.
     let keys: Vec<Option<(u32, DVec3)>> = scene
         .components
@@ -408,12 +404,13 @@ fn exact_duplicates(
             .collect();
         cands.sort_unstable();
         let c = &scene.components[i];
+        let mesh_c = scene.mesh(c.mesh);
         let mut shape_c: Option<Shape> = None;
         let kept = cands.into_iter().find(|&j| {
             let p = &scene.components[j as usize];
-            let sc =
-                shape_c.get_or_insert_with(|| Shape::new(&scene.meshes[c.mesh.index()], &c.world));
-            let sp = Shape::new(&scene.meshes[p.mesh.index()], &p.world);
+            let sc = shape_c.get_or_insert_with(|| Shape::new(&mesh_c, &c.world));
+            let mesh_p = scene.mesh(p.mesh);
+            let sp = Shape::new(&mesh_p, &p.world);
             // Identity motion: the alias would be drawn by the kept component as it is.
             MatchKind::SameOrder.verify(sc, &sp, &DMat4::IDENTITY, sp.mirrored, tol)
                 || MatchKind::Triangles.verify(sc, &sp, &DMat4::IDENTITY, sp.mirrored, tol)
@@ -473,14 +470,16 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
         shape: Shape<'a>,
         inv: Invariants,
     }
+    // The bucket's meshes, held while their shapes (which borrow them) are compared.
+    let held: Vec<_> = meshes.iter().map(|&(m, _)| scene.mesh(m)).collect();
     let mut protos: Vec<Proto> = Vec::new();
     // Per cell: prototype index and its comparison key, side by side for the scan.
     let mut grid: HashMap<[i64; 3], Vec<(usize, InvariantKey)>> = HashMap::new();
     let mut out = Vec::new();
     let mut near_twins = 0;
-    for &(mesh, rep) in meshes {
+    for (&(mesh, rep), geometry) in meshes.iter().zip(&held) {
         let c = &scene.components[rep.index()];
-        let shape = Shape::new(&scene.meshes[mesh.index()], &c.world);
+        let shape = Shape::new(geometry, &c.world);
         let Some(inv) = Invariants::of(&shape) else {
             continue;
         };
@@ -601,8 +600,9 @@ fn congruent_moves(
                 if !m.is_finite() {
                     return None;
                 }
-                let sd = Shape::new(&scene.meshes[comp.mesh.index()], &comp.world);
-                let sp = Shape::new(&scene.meshes[proto.mesh.index()], &proto.world);
+                let (mesh_d, mesh_p) = (scene.mesh(comp.mesh), scene.mesh(proto.mesh));
+                let sd = Shape::new(&mesh_d, &comp.world);
+                let sp = Shape::new(&mesh_p, &proto.world);
                 let mirrored = DMat3::from_mat4(m * proto.world).determinant() < 0.0;
                 if !f.kind.verify(&sd, &sp, &m, mirrored, tol) {
                     return None;

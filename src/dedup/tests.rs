@@ -2,7 +2,7 @@
 //! order, symmetric shapes, near misses, mirrors, materials, exact duplicates.
 
 use super::*;
-use crate::scene::{Material, Primitive};
+use crate::scene::{Component, Material, Primitive};
 use glam::{DMat4, DQuat, DVec3};
 
 /// A box [lo, hi] as 6 faces of 4 vertices (split at the edges, face normals), UVs per face.
@@ -235,7 +235,7 @@ type Corner = (DVec3, Option<DVec3>, Option<[f32; 2]>);
 fn world_triangles(s: &Scene, c: &Component) -> Vec<Vec<[Corner; 3]>> {
     let nm = c.normal_matrix();
     let flip = c.mirrors();
-    s.meshes[c.mesh.index()]
+    s.mesh(c.mesh)
         .primitives
         .iter()
         .map(|p| {
@@ -338,7 +338,7 @@ fn baked_rotated_and_translated_copies_share_one_mesh() {
     assert_eq!(r.instanced_components, 4);
     assert_eq!(r.redundant_removed, 0);
     assert_eq!(r.meshes_released, 3);
-    assert!(after.meshes[1].primitives.is_empty());
+    assert!(after.mesh(MeshId(1)).primitives.is_empty());
     assert!(r.bytes_after < r.bytes_before / 3);
     assert_eq!(r.triangles_after, r.triangles_before);
     assert_eq!(r.triangles_stored_after * 4, r.triangles_stored_before);
@@ -415,7 +415,7 @@ fn a_copy_is_found_among_many_near_twins() {
     let s = scene(parts.clone());
     let inv = |i: usize| {
         let c = &s.components[i];
-        matcher::Invariants::of(&Shape::new(&s.meshes[c.mesh.index()], &c.world)).unwrap()
+        matcher::Invariants::of(&Shape::new(&s.mesh(c.mesh), &c.world)).unwrap()
     };
     let last = inv(noisy + 1);
     let compatible = (0..noisy)

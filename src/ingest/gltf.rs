@@ -609,7 +609,7 @@ impl Reader<'_> {
     fn read_meshes(&mut self, meshes: &[MeshDesc], order: &[usize]) -> Result<()> {
         use rayon::prelude::*;
         const RUN_MESHES: usize = 4096;
-        self.scene.meshes.reserve_exact(order.len());
+        self.scene.meshes.reserve(order.len());
         for run in order.chunks(RUN_MESHES) {
             let this = &*self;
             let decoded: Vec<Result<(Mesh, usize)>> = run

@@ -455,9 +455,11 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         tileset: 0.0,
         total: 0.0,
     };
+    let memory = crate::convert::MemoryReport::of(&l.scene);
     let mut report = make_report(l.prep, &stats, opts, dir, timings, textures);
     report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     report.peak_memory_bytes = peak_memory_bytes();
+    report.memory = memory;
     let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(dir, e))?;
     write_renamed(&dir.join("report.json"), &json)?;
     Ok(report)

@@ -16,7 +16,7 @@
 
 use super::classify::{ImageUse, TextureClass};
 use super::codec::{decode, dimensions, encode_rgba, TextureFormat};
-use crate::scene::{ImageId, Scene};
+use crate::scene::{ImageId, MeshId, Primitive, Scene};
 use serde::Serialize;
 use std::sync::Arc;
 
@@ -111,20 +111,20 @@ fn remap_uvs(scene: &mut Scene, image: ImageId, offset: [u32; 2], size: [u32; 2]
                 .is_some_and(|t| t.image == image)
         })
         .collect();
-    for mesh in &mut scene.meshes {
-        for p in &mut mesh.primitives {
-            if !p.material.is_some_and(|m| uses[m.index()]) {
-                continue;
-            }
-            if let Some(uvs) = p.uvs.as_mut() {
-                for uv in uvs.iter_mut() {
+    let sampling = |p: &Primitive| p.uvs.is_some() && p.material.is_some_and(|m| uses[m.index()]);
+    // Which meshes sample the image first (a spilled mesh is read, not rewritten, when it does not).
+    let touched = scene.meshes.par_map(|m| m.primitives.iter().any(sampling));
+    for (i, _) in touched.iter().enumerate().filter(|t| *t.1) {
+        scene.meshes.update(MeshId(i as u32), |mesh| {
+            for p in mesh.primitives.iter_mut().filter(|p| sampling(p)) {
+                for uv in p.uvs.iter_mut().flatten() {
                     for a in 0..2 {
                         uv[a] = ((uv[a] as f64 * size[a] as f64 - offset[a] as f64)
                             / crop[a] as f64) as f32;
                     }
                 }
             }
-        }
+        });
     }
 }
 
@@ -212,7 +212,7 @@ mod tests {
             *s.images[2].bytes, *before.images[2].bytes,
             "repeated: untouched"
         );
-        for (mb, ma) in before.meshes.iter().zip(&s.meshes) {
+        for (mb, ma) in before.meshes.iter().zip(s.meshes.iter()) {
             for (pb, pa) in mb.primitives.iter().zip(&ma.primitives) {
                 let img = |sc: &Scene| {
                     let m = &sc.materials[pb.material.unwrap().index()];
