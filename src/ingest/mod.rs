@@ -79,11 +79,17 @@ pub fn read_embedded_sample() -> Result<Scene> {
 
 /// Reads several inputs into one scene, in the order given.
 pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
-    let mut scene = Scene::default();
+    // The first scene is taken as it is: appending it to an empty one would copy every vector
+    // (briefly twice the metadata of a whole campus).
+    let mut scene: Option<Scene> = None;
     for p in paths {
-        scene.append(read_input(p.as_ref())?);
+        let next = read_input(p.as_ref())?;
+        match scene.as_mut() {
+            None => scene = Some(next),
+            Some(s) => s.append(next),
+        }
     }
-    Ok(scene)
+    Ok(scene.unwrap_or_default())
 }
 
 /// What a conversion reads: the embedded sample, model files, or a campus manifest.

@@ -310,12 +310,19 @@ impl MeshStore {
         self.slots.reserve(other.slots.len());
         for slot in other.slots {
             let slot = match slot {
-                Slot::Resident(mesh, _) => {
-                    let mut mesh = Arc::unwrap_or_clone(mesh);
-                    for p in &mut mesh.primitives {
-                        p.material = p.material.map(|m| MaterialId(m.0 + material_base));
+                Slot::Resident(mut mesh, facts) => {
+                    if material_base != 0 {
+                        for p in &mut Arc::make_mut(&mut mesh).primitives {
+                            p.material = p.material.map(|m| MaterialId(m.0 + material_base));
+                        }
                     }
-                    self.place(mesh)
+                    let total = self.resident_bytes.saturating_add(facts.heap_bytes);
+                    if total <= self.limits.resident_bytes {
+                        self.resident_bytes = total;
+                        Slot::Resident(mesh, facts)
+                    } else {
+                        self.place(Arc::unwrap_or_clone(mesh))
+                    }
                 }
                 Slot::Spilled(mut s, facts) => {
                     s.material_base += material_base;
