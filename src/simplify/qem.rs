@@ -33,7 +33,9 @@
 //!   squared distance of an endpoint to the new position) cannot raise the
 //!   key; coverage and interior checks take the current cost as a threshold
 //!   and stop as soon as they cannot exceed it (box and plane distance
-//!   bounds before exact point-triangle distances); an edge whose
+//!   bounds before exact point-triangle distances); at apply time the
+//!   threshold is raised to what cannot change the outcome (the collapse
+//!   stays within the pass goal and below the largest error so far); an edge whose
 //!   neighbourhood is untouched since its coverage was computed reuses it;
 //!   the ranking reads each vertex's star once for all its edges
 //!   (`star_edges`), the interior check resolves the old star once.
@@ -1468,6 +1470,19 @@ pub(crate) fn run(
                         // the key also holds the tie-break term).
                         let f = st.factor(u, v);
                         let t = c.key / f;
+                        // Errors up to `t_free` change nothing either: the
+                        // collapse is still within the pass goal and its
+                        // distance does not raise the largest one so far
+                        // (`max_d2`), so the checks below may stop at that
+                        // threshold instead of `t`.
+                        let t_free = max_d2.min(error_goal / f);
+                        let tt =
+                            if c.key <= error_goal && c.dist2 <= max_d2 && t_free * f <= error_goal
+                            {
+                                t.max(t_free)
+                            } else {
+                                t
+                            };
                         let mut d1 = if ci == 0 && unchanged && RANK_COVERAGE {
                             if en.key > c.key {
                                 en.key / f
@@ -1475,13 +1490,13 @@ pub(crate) fn run(
                                 0.0
                             }
                         } else {
-                            st.coverage2(u, v, c.p, &su, &sv, t)
+                            st.coverage2(u, v, c.p, &su, &sv, tt)
                         };
                         if INTERIOR {
-                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, t.max(d1), &mut old));
+                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
                         }
-                        if d1 > t {
-                            c.key = c.key.max(d1 * st.factor(u, v));
+                        if d1 > tt {
+                            c.key = c.key.max(d1 * f);
                             c.dist2 = c.dist2.max(d1);
                         }
                     }

@@ -113,24 +113,26 @@ pub(crate) fn weld(
             }
         };
         let n_used = used.iter().filter(|&&u| u).count();
-        let mut heads: HashMap<(u32, i64, i64, i64), u32> =
-            HashMap::with_capacity_and_hasher(n_used, Default::default());
-        // Occupied cells, by hash (no false negatives): most of the 8 probes
-        // are of empty cells, and each was a cache miss in the large map
-        // (welding was ~10 % of a run on a 1M-triangle grid). Exact
-        // duplicates take the same path (a map of exact positions saved
-        // probes, but cost a lookup and an insert per vertex).
-        let bits = (4 * n_used).next_power_of_two().max(64);
-        let mut occupied = vec![0u64; bits / 64];
-        let cell_bit = |key: &(u32, i64, i64, i64)| {
+        // Compact cell table: a bucket per hash of (group, cell) holding
+        // the head of a list of position vertices (`next_in_cell`). Cells
+        // sharing a bucket share its list: the extra entries are farther
+        // than the tolerance (every point within it lies in a probed
+        // cell) or of another group (checked), so the result is the same
+        // as with one list per cell; an empty bucket is one load (a map
+        // probe was a cache miss and most probes are of empty cells).
+        let bits = (2 * n_used).next_power_of_two().max(64);
+        let shift = 64 - bits.trailing_zeros();
+        let mut heads = vec![NONE; bits];
+        let bucket = |g: u32, cx: i64, cy: i64, cz: i64| {
             let mut h = FxHasher::default();
-            h.write_u32(key.0);
-            h.write_i64(key.1);
-            h.write_i64(key.2);
-            h.write_i64(key.3);
-            (h.finish() >> 32) as usize & (bits - 1)
+            h.write_u32(g);
+            h.write_i64(cx);
+            h.write_i64(cy);
+            h.write_i64(cz);
+            (h.finish() >> shift) as usize
         };
         let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
+        let mut rep_group: Vec<u32> = Vec::new(); // per position vertex
         let tol2 = tolerance * tolerance;
         for i in 0..n {
             if !used[i] {
@@ -140,18 +142,12 @@ pub(crate) fn weld(
             let lk = locked(i);
             let p = p64(i);
             let (cx, cy, cz) = cell(p);
-            let own = cell_bit(&(g, cx, cy, cz));
             let (sx, sy, sz) = (span(p.x, cx), span(p.y, cy), span(p.z, cz));
             let mut best = NONE;
             for dx in sx.0..=sx.1 {
                 for dy in sy.0..=sy.1 {
                     for dz in sz.0..=sz.1 {
-                        let key = (g, cx + dx, cy + dy, cz + dz);
-                        let b = cell_bit(&key);
-                        if occupied[b / 64] >> (b % 64) & 1 == 0 {
-                            continue;
-                        }
-                        let mut r = heads.get(&key).copied().unwrap_or(NONE);
+                        let mut r = heads[bucket(g, cx + dx, cy + dy, cz + dz)];
                         while r != NONE {
                             let q = pos[r as usize];
                             let ok = if lk {
@@ -159,7 +155,7 @@ pub(crate) fn weld(
                             } else {
                                 (q - p).length_squared() <= tol2
                             };
-                            if ok && r < best {
+                            if ok && r < best && rep_group[r as usize] == g {
                                 best = r;
                             }
                             r = next_in_cell[r as usize];
@@ -172,10 +168,10 @@ pub(crate) fn weld(
                 pos.push(p);
                 plocked.push(false);
                 rep_src.push(i as u32);
-                let h = heads.entry((g, cx, cy, cz)).or_insert(NONE);
+                rep_group.push(g);
+                let h = &mut heads[bucket(g, cx, cy, cz)];
                 next_in_cell.push(*h);
                 *h = best;
-                occupied[own / 64] |= 1 << (own % 64);
             }
             if lk {
                 plocked[best as usize] = true;
