@@ -1443,7 +1443,7 @@ impl HlodBuilder<'_> {
 fn continuing(scene: &Scene, cut_triangles: &BTreeMap<ComponentId, usize>) -> Vec<ComponentId> {
     cut_triangles
         .iter()
-        .filter(|&(&c, &n)| n < scene.mesh(scene.component(c).mesh).triangle_count())
+        .filter(|&(&c, &n)| n < scene.meshes.triangle_count(scene.component(c).mesh))
         .map(|(&c, _)| c)
         .collect()
 }

@@ -150,15 +150,14 @@ pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
         .drawn_components()
         .filter(|c| !c.world_bounds.is_empty())
         .map(|c| {
-            let mesh = scene.mesh(c.mesh);
             let s = c.world_bounds.size();
             Item {
                 id: c.id,
                 part: None,
                 center: c.world_bounds.center(),
                 extent: s.max_element(),
-                triangles: mesh.triangle_count(),
-                bytes: mesh.estimated_bytes(),
+                triangles: scene.meshes.triangle_count(c.mesh),
+                bytes: scene.meshes.estimated_bytes(c.mesh),
                 diagonal: s.length(),
                 bounds: c.world_bounds,
             }
@@ -467,7 +466,7 @@ mod tests {
         let mut seen: Vec<Vec<u32>> = scene
             .components
             .iter()
-            .map(|c| vec![0; scene.mesh(c.mesh).triangle_count()])
+            .map(|c| vec![0; scene.meshes.triangle_count(c.mesh)])
             .collect();
         for t in &plan.tiles {
             for c in &t.content {
