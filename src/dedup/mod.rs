@@ -19,7 +19,7 @@
 pub mod geom;
 mod matcher;
 
-use crate::scene::{ComponentId, MaterialId, Mesh, MeshId, MeshStore, Scene};
+use crate::scene::{ComponentId, MaterialId, MeshId, MeshStore, Scene};
 use geom::Similarity;
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use matcher::{
@@ -205,16 +205,7 @@ pub fn deduplicate(scene: &mut Scene, opts: &DedupOptions) -> DedupReport {
         let now = referenced(scene);
         for i in 0..scene.meshes.len() {
             if referenced_before[i] && !now[i] {
-                let id = MeshId(i as u32);
-                let name = scene.mesh(id).name.clone();
-                scene.meshes.set(
-                    id,
-                    Mesh {
-                        name,
-                        primitives: Vec::new(),
-                        local_bounds: None,
-                    },
-                );
+                scene.meshes.release(MeshId(i as u32));
                 report.meshes_released += 1;
             }
         }

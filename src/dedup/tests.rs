@@ -2,7 +2,7 @@
 //! order, symmetric shapes, near misses, mirrors, materials, exact duplicates.
 
 use super::*;
-use crate::scene::{Component, Material, Primitive};
+use crate::scene::{Component, Material, Mesh, Primitive};
 use glam::{DMat4, DQuat, DVec3};
 
 /// A box [lo, hi] as 6 faces of 4 vertices (split at the edges, face normals), UVs per face.

@@ -252,6 +252,20 @@ impl MeshStore {
         self.slots[id.index()] = self.place(mesh);
     }
 
+    /// Empties a mesh (name included) that nothing references any more: its slot then shares one
+    /// empty mesh with every other such slot (dedup releases most meshes of a campus of copies).
+    pub fn release(&mut self, id: MeshId) {
+        static EMPTY: std::sync::OnceLock<Arc<Mesh>> = std::sync::OnceLock::new();
+        let empty = EMPTY.get_or_init(|| {
+            Arc::new(Mesh {
+                local_bounds: Some(Aabb::EMPTY),
+                ..Mesh::default()
+            })
+        });
+        self.unplace(id);
+        self.slots[id.index()] = Slot::Resident(empty.clone(), Facts::of(empty));
+    }
+
     /// Changes a mesh through `f` (on a copy, stored again with [`set`](Self::set)).
     pub fn update(&mut self, id: MeshId, f: impl FnOnce(&mut Mesh)) {
         let mut mesh = Arc::unwrap_or_clone(self.get(id));
@@ -699,6 +713,11 @@ mod tests {
         a.set(MeshId(8), Mesh::default());
         assert_eq!(a.triangle_count(MeshId(8)), 0);
         assert!(a.local_bounds(MeshId(8)).is_empty());
+        a.release(MeshId(7));
+        a.release(MeshId(0));
+        assert!(Arc::ptr_eq(&a.get(MeshId(7)), &a.get(MeshId(0))));
+        assert_eq!(a.get(MeshId(7)).local_bounds, Some(Aabb::EMPTY));
+        assert_eq!(a.stats().empty_meshes, 3);
 
         let copy = b.clone();
         a.append(b, 100);
