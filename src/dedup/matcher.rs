@@ -21,6 +21,7 @@
 use super::geom::{fit_similarity, KdTree, Moments, Similarity};
 use crate::scene::{Mesh, Primitive};
 use glam::{DMat3, DMat4, DVec3};
+use std::sync::Arc;
 
 /// How close two geometries must be to count as the same.
 #[derive(Debug, Clone, Copy)]
@@ -37,28 +38,40 @@ pub(crate) struct Tol {
 const UV_TOL: f32 = 1e-4;
 const COLOR_TOL: f32 = 2e-3;
 
-/// One component's geometry in the scene frame (f64), primitive by primitive.
-pub(crate) struct Shape<'a> {
-    pub prims: Vec<ShapePrim<'a>>,
+/// One component's geometry in the scene frame (f64), primitive by primitive. It holds its mesh
+/// (an `Arc` from the store), so a prototype's shape can be kept or dropped on its own: dedup
+/// keeps only as many as its share of the memory budget allows and rebuilds the others.
+pub(crate) struct Shape {
+    pub prims: Vec<ShapePrim>,
     /// The component's world transform mirrors: its triangles are drawn with flipped winding.
     pub mirrored: bool,
 }
 
-pub(crate) struct ShapePrim<'a> {
-    pub src: &'a Primitive,
+pub(crate) struct ShapePrim {
+    mesh: Arc<Mesh>,
+    index: usize,
     pub pos: Vec<DVec3>,
     /// Unit normals in the scene frame (zero where the input normal is zero).
     pub nrm: Option<Vec<DVec3>>,
 }
 
-impl<'a> Shape<'a> {
-    pub fn new(mesh: &'a Mesh, world: &DMat4) -> Shape<'a> {
+impl ShapePrim {
+    /// The primitive as stored (indices, UVs, colours).
+    pub fn src(&self) -> &Primitive {
+        &self.mesh.primitives[self.index]
+    }
+}
+
+impl Shape {
+    pub fn new(mesh: Arc<Mesh>, world: &DMat4) -> Shape {
         let nm = normal_matrix(world);
         let prims = mesh
             .primitives
             .iter()
-            .map(|p| ShapePrim {
-                src: p,
+            .enumerate()
+            .map(|(index, p)| ShapePrim {
+                mesh: mesh.clone(),
+                index,
                 pos: p
                     .positions
                     .iter()
@@ -77,6 +90,14 @@ impl<'a> Shape<'a> {
         }
     }
 
+    /// Bytes this shape holds beyond its mesh: positions and normals in f64.
+    pub fn heap_bytes(&self) -> usize {
+        self.prims
+            .iter()
+            .map(|p| size_of_val(&p.pos[..]) + p.nrm.as_ref().map_or(0, |n| size_of_val(&n[..])))
+            .sum()
+    }
+
     pub fn points(&self) -> impl Iterator<Item = DVec3> + Clone + '_ {
         self.prims.iter().flat_map(|p| p.pos.iter().copied())
     }
@@ -92,7 +113,7 @@ impl<'a> Shape<'a> {
                 .prims
                 .iter()
                 .zip(&other.prims)
-                .all(|(a, b)| a.pos.len() == b.pos.len() && a.src.indices == b.src.indices)
+                .all(|(a, b)| a.pos.len() == b.pos.len() && a.src().indices == b.src().indices)
     }
 
     /// Surface area and the sum of triangle perimeters (the latter bounds how much the area can
@@ -100,7 +121,7 @@ impl<'a> Shape<'a> {
     pub fn area_perimeter(&self) -> (f64, f64) {
         let (mut area, mut perim) = (0.0, 0.0);
         for p in &self.prims {
-            for t in p.src.indices.chunks_exact(3) {
+            for t in p.src().indices.chunks_exact(3) {
                 let [a, b, c] = [0, 1, 2].map(|k| p.pos[t[k] as usize]);
                 area += 0.5 * (b - a).cross(c - a).length();
                 perim += a.distance(b) + b.distance(c) + c.distance(a);
@@ -135,7 +156,7 @@ fn attrs_match(p: &ShapePrim, j: usize, c: &ShapePrim, k: usize, nm: &DMat3, tol
         (None, None) => {}
         _ => return false,
     }
-    match (&p.src.uvs, &c.src.uvs) {
+    match (&p.src().uvs, &c.src().uvs) {
         (Some(pu), Some(cu)) => {
             let (a, b) = (pu[j], cu[k]);
             for i in 0..2 {
@@ -147,7 +168,7 @@ fn attrs_match(p: &ShapePrim, j: usize, c: &ShapePrim, k: usize, nm: &DMat3, tol
         (None, None) => {}
         _ => return false,
     }
-    match (&p.src.colors, &c.src.colors) {
+    match (&p.src().colors, &c.src().colors) {
         (Some(pc), Some(cc)) => (0..4).all(|i| (pc[j][i] - cc[k][i]).abs() <= COLOR_TOL),
         (None, None) => true,
         _ => false,
@@ -209,7 +230,7 @@ pub(crate) fn verify_triangles(
     let nm = normal_matrix(m);
     let tol2 = tol.pos * tol.pos;
     for (cp, pp) in c.prims.iter().zip(&p.prims) {
-        let (ci, pi) = (&cp.src.indices, &pp.src.indices);
+        let (ci, pi) = (&cp.src().indices, &pp.src().indices);
         if ci.len() != pi.len() {
             return false;
         }
@@ -551,7 +572,7 @@ fn same_area_profile(c: &Shape, p: &Shape, tol: &Tol) -> bool {
         let mut areas = Vec::new();
         let mut max_perim = 0f64;
         for pr in &s.prims {
-            for t in pr.src.indices.chunks_exact(3) {
+            for t in pr.src().indices.chunks_exact(3) {
                 let [a, b, c] = [0, 1, 2].map(|k| pr.pos[t[k] as usize]);
                 areas.push(0.5 * (b - a).cross(c - a).length());
                 max_perim = max_perim.max(a.distance(b) + b.distance(c) + c.distance(a));

@@ -395,13 +395,11 @@ fn exact_duplicates(
             .collect();
         cands.sort_unstable();
         let c = &scene.components[i];
-        let mesh_c = scene.mesh(c.mesh);
         let mut shape_c: Option<Shape> = None;
         let kept = cands.into_iter().find(|&j| {
             let p = &scene.components[j as usize];
-            let sc = shape_c.get_or_insert_with(|| Shape::new(&mesh_c, &c.world));
-            let mesh_p = scene.mesh(p.mesh);
-            let sp = Shape::new(&mesh_p, &p.world);
+            let sc = shape_c.get_or_insert_with(|| Shape::new(scene.mesh(c.mesh), &c.world));
+            let sp = Shape::new(scene.mesh(p.mesh), &p.world);
             // Identity motion: the alias would be drawn by the kept component as it is.
             MatchKind::SameOrder.verify(sc, &sp, &DMat4::IDENTITY, sp.mirrored, tol)
                 || MatchKind::Triangles.verify(sc, &sp, &DMat4::IDENTITY, sp.mirrored, tol)
@@ -455,21 +453,35 @@ const SEARCH_TRIES: usize = 4;
 /// wins, else it becomes a prototype. Comparing with prototypes only (never with other members)
 /// keeps every member within the tolerance of the geometry it will be drawn with.
 /// Also returns how many meshes stayed prototypes as near-twins of one (see `SameOrder::NearTwin`).
-fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<Found>, usize) {
-    struct Proto<'a> {
+fn cluster(
+    scene: &Scene,
+    meshes: &[(MeshId, ComponentId)],
+    tol: &Tol,
+    shape_bytes: usize,
+) -> (Vec<Found>, usize) {
+    struct Proto {
         rep: ComponentId,
-        shape: Shape<'a>,
+        mesh: MeshId,
+        /// Kept while the bucket's kept shapes stay within `shape_bytes`, else rebuilt on use:
+        /// a bucket of near-twins (noisy copies, all prototypes) would otherwise hold every
+        /// copy's geometry in f64 at once, whatever the memory budget.
+        shape: Option<Shape>,
         inv: Invariants,
     }
-    // The bucket's meshes, held while their shapes (which borrow them) are compared.
-    let held: Vec<_> = meshes.iter().map(|&(m, _)| scene.mesh(m)).collect();
+    let shape_of = |p: &Proto| -> Shape {
+        Shape::new(scene.mesh(p.mesh), &scene.components[p.rep.index()].world)
+    };
+    let mut kept_bytes = 0usize;
     let mut protos: Vec<Proto> = Vec::new();
     // Per cell: prototype index and its comparison key, side by side for the scan.
     let mut grid: HashMap<[i64; 3], Vec<(usize, InvariantKey)>> = HashMap::new();
     let mut out = Vec::new();
     let mut near_twins = 0;
-    for (&(mesh, rep), geometry) in meshes.iter().zip(&held) {
+    for &(mesh, rep) in meshes {
         let c = &scene.components[rep.index()];
+        // Loaded one at a time: a member that matches is dropped at once.
+        let geometry = scene.mesh(mesh);
+        let geometry_bytes = geometry.heap_bytes();
         let shape = Shape::new(geometry, &c.world);
         let Some(inv) = Invariants::of(&shape) else {
             continue;
@@ -498,16 +510,23 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
         let hit = cands
             .iter()
             .take(SAME_ORDER_TRIES)
-            .find_map(
-                |&(_, pi)| match find_motion_same_order(&shape, &protos[pi].shape, tol) {
+            .find_map(|&(_, pi)| {
+                let p = &protos[pi];
+                let rebuilt = p.shape.is_none().then(|| shape_of(p));
+                let ps = p
+                    .shape
+                    .as_ref()
+                    .or(rebuilt.as_ref())
+                    .expect("kept or rebuilt");
+                match find_motion_same_order(&shape, ps, tol) {
                     SameOrder::Match(m) => Some((pi, (m, MatchKind::SameOrder))),
                     SameOrder::NearTwin => {
                         near_twin = true;
                         None
                     }
                     SameOrder::No => None,
-                },
-            )
+                }
+            })
             .or_else(|| {
                 // A noisy copy of a prototype: the search would not find a motion either.
                 if near_twin {
@@ -516,7 +535,13 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
                 let mut icp_budget = ICP_RUNS_PER_CANDIDATE;
                 cands.iter().take(SEARCH_TRIES).find_map(|&(_, pi)| {
                     let p = &protos[pi];
-                    find_motion_search(&shape, &inv, &p.shape, &p.inv, tol, &mut icp_budget)
+                    let rebuilt = p.shape.is_none().then(|| shape_of(p));
+                    let ps = p
+                        .shape
+                        .as_ref()
+                        .or(rebuilt.as_ref())
+                        .expect("kept or rebuilt");
+                    find_motion_search(&shape, &inv, ps, &p.inv, tol, &mut icp_budget)
                         .map(|m| (pi, (m, MatchKind::Triangles)))
                 })
             });
@@ -531,7 +556,15 @@ fn cluster(scene: &Scene, meshes: &[(MeshId, ComponentId)], tol: &Tol) -> (Vec<F
             None => {
                 near_twins += usize::from(near_twin);
                 grid.entry(key).or_default().push((protos.len(), inv_key));
-                protos.push(Proto { rep, shape, inv });
+                let bytes = shape.heap_bytes() + geometry_bytes;
+                let keep = kept_bytes.saturating_add(bytes) <= shape_bytes;
+                kept_bytes += if keep { bytes } else { 0 };
+                protos.push(Proto {
+                    rep,
+                    mesh,
+                    shape: keep.then_some(shape),
+                    inv,
+                });
             }
         }
     }
@@ -564,10 +597,14 @@ fn congruent_moves(
             buckets.entry(sig).or_default().push((mesh, rep));
         }
     }
-    // Buckets are independent: cluster them in parallel, collect in bucket order.
+    // Buckets are independent: cluster them in parallel, collect in bucket order. Each running
+    // bucket may keep its share of the store's working memory in prototype shapes.
     let buckets: Vec<Vec<(MeshId, ComponentId)>> = buckets.into_values().collect();
-    let clustered: Vec<(Vec<Found>, usize)> =
-        buckets.par_iter().map(|b| cluster(scene, b, tol)).collect();
+    let shape_bytes = scene.meshes.limits().working_bytes / rayon::current_num_threads().max(1);
+    let clustered: Vec<(Vec<Found>, usize)> = buckets
+        .par_iter()
+        .map(|b| cluster(scene, b, tol, shape_bytes))
+        .collect();
     let near_twins = clustered.iter().map(|c| c.1).sum();
     let found: Vec<Found> = clustered.into_iter().flat_map(|c| c.0).collect();
     // Every drawn user of a matched mesh moves with its representative; users other than the
@@ -591,9 +628,8 @@ fn congruent_moves(
                 if !m.is_finite() {
                     return None;
                 }
-                let (mesh_d, mesh_p) = (scene.mesh(comp.mesh), scene.mesh(proto.mesh));
-                let sd = Shape::new(&mesh_d, &comp.world);
-                let sp = Shape::new(&mesh_p, &proto.world);
+                let sd = Shape::new(scene.mesh(comp.mesh), &comp.world);
+                let sp = Shape::new(scene.mesh(proto.mesh), &proto.world);
                 let mirrored = DMat3::from_mat4(m * proto.world).determinant() < 0.0;
                 if !f.kind.verify(&sd, &sp, &m, mirrored, tol) {
                     return None;

@@ -415,7 +415,7 @@ fn a_copy_is_found_among_many_near_twins() {
     let s = scene(parts.clone());
     let inv = |i: usize| {
         let c = &s.components[i];
-        matcher::Invariants::of(&Shape::new(&s.mesh(c.mesh), &c.world)).unwrap()
+        matcher::Invariants::of(&Shape::new(s.mesh(c.mesh), &c.world)).unwrap()
     };
     let last = inv(noisy + 1);
     let compatible = (0..noisy)
@@ -434,6 +434,54 @@ fn a_copy_is_found_among_many_near_twins() {
     // The later noisy copies and the exact one (same vertex order as the first noisy prototype,
     // every vertex a few mm off) are reported as near-twins.
     assert_eq!(r.near_twins, noisy);
+}
+
+#[test]
+fn prototype_shapes_rebuilt_on_use_match_the_same() {
+    // Under a small memory budget a bucket keeps no prototype shape and rebuilds each one it
+    // compares with: the matches (prototype, motion, kind) must be the same, bit for bit.
+    let base = chair();
+    let mut parts: Vec<(Vec<Primitive>, DMat4)> = (0..6)
+        .map(|i| (jitter(&base, 0.002, i as u64 + 1), DMat4::IDENTITY))
+        .collect();
+    parts.push((base.clone(), motion([0.0, 0.0, 1.0], 30.0, [4.0, 0.0, 0.0])));
+    parts.push((base.clone(), motion([0.0, 0.0, 1.0], 75.0, [6.0, 0.0, 0.0])));
+    parts.push((
+        shuffle(
+            &bake(&base, &motion([0.0, 0.0, 1.0], 40.0, [9.0, 0.0, 0.0])),
+            5,
+        ),
+        DMat4::IDENTITY,
+    ));
+    let s = scene(parts);
+    let bucket: Vec<(MeshId, ComponentId)> = s.components.iter().map(|c| (c.mesh, c.id)).collect();
+    let tol = Tol {
+        pos: 0.001,
+        cos_normal: 2f64.to_radians().cos(),
+        allow_scale: false,
+    };
+    let key = |(found, twins): (Vec<Found>, usize)| {
+        let f: Vec<_> = found
+            .iter()
+            .map(|f| {
+                let m = f.motion.to_mat4().to_cols_array().map(f64::to_bits);
+                (
+                    f.mesh,
+                    f.rep,
+                    f.proto_rep,
+                    m,
+                    f.kind == MatchKind::SameOrder,
+                )
+            })
+            .collect();
+        (f, twins)
+    };
+    let kept = key(cluster(&s, &bucket, &tol, usize::MAX));
+    let rebuilt = key(cluster(&s, &bucket, &tol, 0));
+    assert_eq!(kept.0.len(), 2, "the later true copies match the first");
+    assert!(kept.0.iter().any(|f| f.4), "one in the same order");
+    assert!(kept.0.iter().any(|f| !f.4), "one by the frame search");
+    assert_eq!(kept, rebuilt);
 }
 
 #[test]

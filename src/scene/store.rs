@@ -50,6 +50,9 @@ pub struct StoreLimits {
     pub resident_bytes: usize,
     /// Spilled meshes read back and kept for reuse.
     pub cache_bytes: usize,
+    /// What a stage may keep of data derived from geometry (dedup's prototype shapes), all threads
+    /// together; past it, the stage rebuilds such data from the store when it needs it again.
+    pub working_bytes: usize,
     pub spill_dir: Option<PathBuf>,
 }
 
@@ -58,11 +61,13 @@ impl StoreLimits {
     pub const UNLIMITED: StoreLimits = StoreLimits {
         resident_bytes: usize::MAX,
         cache_bytes: 0,
+        working_bytes: usize::MAX,
         spill_dir: None,
     };
 
-    /// A quarter of the budget for resident geometry and a sixteenth for the read-back cache: the
-    /// rest is for what is not geometry (per-component metadata, about 1.4 KB each, the tile plan)
+    /// A quarter of the budget for resident geometry, a sixteenth for the read-back cache and an
+    /// eighth for a stage's derived working data (dedup runs before any tile is built): the rest
+    /// is for what is not geometry (per-component metadata, about 1.4 KB each, the tile plan)
     /// and for the tiles being built (one gathered tile, its simplification and its encoding per
     /// thread, and each unfinished ancestor's children's content).
     pub fn from_budget(budget: Option<&MemoryBudget>) -> StoreLimits {
@@ -71,6 +76,7 @@ impl StoreLimits {
             Some(b) => StoreLimits {
                 resident_bytes: (b.bytes / 4) as usize,
                 cache_bytes: (b.bytes / 16) as usize,
+                working_bytes: (b.bytes / 8) as usize,
                 spill_dir: b.spill_dir.clone(),
             },
         }
@@ -226,6 +232,10 @@ impl MeshStore {
             spill_failures: 0,
             spill_error: None,
         }
+    }
+
+    pub fn limits(&self) -> &StoreLimits {
+        &self.limits
     }
 
     pub fn len(&self) -> usize {
@@ -663,6 +673,7 @@ mod tests {
         StoreLimits {
             resident_bytes: 200,
             cache_bytes: 400,
+            working_bytes: 800,
             spill_dir: None,
         }
     }
