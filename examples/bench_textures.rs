@@ -12,11 +12,11 @@
 //!   with the requests (tiles plus distinct texture files).
 //!
 //! - Memory (issue 6: texture work must not need more than a few times an image's pixel bytes):
-//!   peak RSS of the pyramid and crop passes on generated 4096² and 16384² RGBA images (PNG, and
-//!   JPEG at 4096²), each pass in a child process (this example re-run with `--child`).
-//!   `BENCH_TEXTURES_WHOLE=1` adds the code path before row streaming (the whole image decoded
-//!   to RGBA8); `BENCH_TEXTURES_SIZES=4096,8192` picks the sizes; `BENCH_TEXTURES_BIG_JPEG=1`
-//!   adds JPEG at every size.
+//!   peak RSS of the pyramid, crop and identical passes on generated 4096² and 16384² RGBA
+//!   images (PNG, and JPEG at 4096²), each pass in a child process (this example re-run with
+//!   `--child`). `BENCH_TEXTURES_WHOLE=1` adds the code path before row streaming (whole images
+//!   decoded); `BENCH_TEXTURES_SIZES=4096,8192` picks the sizes; `BENCH_TEXTURES_BIG_JPEG=1` adds
+//!   JPEG at every size.
 //!
 //! Usage: cargo run --release --example bench_textures -- [DATA_DIR [MAX_TILE_TRIANGLES]]
 //! (the tile budget of the first-view conversions; default 3000, as `tests/textures.rs`: at the
@@ -259,7 +259,8 @@ const CROP_UV: ([f32; 2], [f32; 2]) = ([0.25, 0.25], [0.75, 0.75]);
 
 /// One texture pass on one image file, run in a child process (`--child PASS FILE`) so its
 /// peak RSS is its own; prints `peak=<bytes> seconds=<s>`. The `*-whole` passes are the code
-/// before row streaming (the whole image decoded to RGBA8), for comparison.
+/// before row streaming (whole images decoded), for comparison. `identical` hashes the image and
+/// compares it with a copy of its bytes (the file is held twice).
 fn child(pass: &str, file: &Path) {
     let bytes = std::fs::read(file).unwrap();
     let mime = if bytes.starts_with(b"\x89PNG") {
@@ -324,6 +325,28 @@ fn child(pass: &str, file: &Path) {
             );
             png.unwrap().0.len()
         }
+        "identical" => {
+            // The pixel hash of one image, then the row-by-row comparison with a copy (both
+            // decoders at once).
+            let copy = bytes.clone();
+            let key = texture::identical::pixel_key(&bytes).unwrap();
+            assert!(texture::identical::same_pixels(&bytes, &copy));
+            key.2 as usize % 2
+        }
+        "identical-whole" => {
+            use std::hash::{Hash, Hasher};
+            let copy = bytes.clone();
+            let img = texture::codec::decode(&bytes).unwrap();
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            img.as_bytes().hash(&mut h);
+            drop(img);
+            let (a, b) = (
+                texture::codec::decode(&bytes).unwrap(),
+                texture::codec::decode(&copy).unwrap(),
+            );
+            assert!(a.as_bytes() == b.as_bytes());
+            h.finish() as usize % 2
+        }
         other => panic!("unknown pass {other}"),
     };
     println!(
@@ -381,15 +404,15 @@ fn write_test_jpeg(png_path: &Path, path: &Path) {
         .unwrap();
 }
 
-/// Peak RSS of the pyramid and crop passes on one big image, per size and format, each pass in a
-/// child process. `BENCH_TEXTURES_WHOLE=1` adds the whole-image code path for comparison.
+/// Peak RSS of the pyramid, crop and identical passes on one big image, per size and format,
+/// each pass in a child process. `BENCH_TEXTURES_WHOLE=1` adds the whole-image code path.
 fn memory(work: &Path, sizes: &[u32]) {
     let whole = std::env::var_os("BENCH_TEXTURES_WHOLE").is_some();
     let dir = tempfile::tempdir_in(work).unwrap();
     let exe = std::env::current_exe().unwrap();
     println!("\nMemory of the texture passes on one image (each pass in its own process: peak RSS is VmHWM; pixels = w*h*4 bytes; file = encoded input, read whole)");
     println!(
-        "{:<6} {:>12} {:<14} {:>10} {:>9} {:>9} {:>10} {:>8}",
+        "{:<6} {:>12} {:<16} {:>10} {:>9} {:>9} {:>10} {:>8}",
         "format", "size", "pass", "pixels MB", "file MB", "peak MB", "peak/pix", "s"
     );
     for &n in sizes {
@@ -404,9 +427,9 @@ fn memory(work: &Path, sizes: &[u32]) {
         let pixels = n as u64 * n as u64 * 4;
         for (format, file) in &files {
             let size = std::fs::metadata(file).unwrap().len();
-            let mut passes = vec!["pyramid", "crop"];
+            let mut passes = vec!["pyramid", "crop", "identical"];
             if whole {
-                passes.extend(["pyramid-whole", "crop-whole"]);
+                passes.extend(["pyramid-whole", "crop-whole", "identical-whole"]);
             }
             for pass in passes {
                 let out = Command::new(&exe)
@@ -430,7 +453,7 @@ fn memory(work: &Path, sizes: &[u32]) {
                     continue;
                 };
                 println!(
-                    "{:<6} {:>12} {:<14} {:>10.0} {:>9.0} {:>9.0} {:>10.2} {:>8.1}",
+                    "{:<6} {:>12} {:<16} {:>10.0} {:>9.0} {:>9.0} {:>10.2} {:>8.1}",
                     format,
                     format!("{n}x{n}"),
                     pass,

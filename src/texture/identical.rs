@@ -29,7 +29,7 @@ pub struct IdenticalReport {
 
 /// A hash of the decoded pixels (size, colour type and samples), or `None` if undecodable.
 /// Decoded row by row: one row held at a time (for PNG).
-fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
+pub fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
     let mut rows = Rows::open(bytes).ok()?;
     // DefaultHasher::new() has fixed keys: deterministic across runs.
     let mut h = std::collections::hash_map::DefaultHasher::new();
@@ -42,7 +42,7 @@ fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
 
 /// Whether two images decode to the same pixels, compared a row pair at a time; an image that
 /// does not decode to its end equals none.
-fn same_pixels(a: &[u8], b: &[u8]) -> bool {
+pub fn same_pixels(a: &[u8], b: &[u8]) -> bool {
     let (Ok(mut x), Ok(mut y)) = (Rows::open(a), Rows::open(b)) else {
         return false;
     };
