@@ -11,13 +11,23 @@
 //!   file counted once), textures embedded in every tile (`--embed-textures`), and texture LOD off;
 //!   with the requests (tiles plus distinct texture files).
 //!
+//! - Memory (issue 6: texture work must not need more than a few times an image's pixel bytes):
+//!   peak RSS of the pyramid, crop and identical passes on generated 4096² and 16384² RGBA
+//!   images (PNG, and JPEG at 4096²), each pass in a child process (this example re-run with
+//!   `--child`). `BENCH_TEXTURES_WHOLE=1` adds the code path before row streaming (whole images
+//!   decoded); `BENCH_TEXTURES_SIZES=4096,8192` picks the sizes; `BENCH_TEXTURES_BIG_JPEG=1` adds
+//!   JPEG at every size.
+//!
 //! Usage: cargo run --release --example bench_textures -- [DATA_DIR [MAX_TILE_TRIANGLES]]
 //! (the tile budget of the first-view conversions; default 3000, as `tests/textures.rs`: at the
 //! tool's default budget these small models fit one tile and a first view loads everything).
 
 use bimtiles::texture::{self, external, haar, view, TextureFormat, TextureOptions};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Arc;
+use std::time::Instant;
 
 fn mb(b: u64) -> f64 {
     b as f64 / 1e6
@@ -36,6 +46,11 @@ fn convert(bin: &Path, input: &Path, out: &Path, extra: &[&str]) -> bool {
 }
 
 fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if args.get(1).map(String::as_str) == Some("--child") {
+        child(&args[2], Path::new(&args[3]));
+        return;
+    }
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = std::env::args()
         .nth(1)
@@ -219,6 +234,236 @@ fn main() {
         );
         for (dir, _) in &runs {
             let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+
+    let sizes: Vec<u32> = std::env::var("BENCH_TEXTURES_SIZES")
+        .ok()
+        .map(|v| v.split(',').filter_map(|n| n.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![4096, 16384]);
+    memory(&work, &sizes);
+}
+
+/// Peak resident memory of this process so far (`VmHWM`), bytes.
+fn peak_rss() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+        .map_or(0, |kb| kb * 1024)
+}
+
+/// The UV box the crop pass keeps: the middle half in each direction (a quarter of the texels).
+const CROP_UV: ([f32; 2], [f32; 2]) = ([0.25, 0.25], [0.75, 0.75]);
+
+/// One texture pass on one image file, run in a child process (`--child PASS FILE`) so its
+/// peak RSS is its own; prints `peak=<bytes> seconds=<s>`. The `*-whole` passes are the code
+/// before row streaming (whole images decoded), for comparison. `identical` hashes the image and
+/// compares it with a copy of its bytes (the file is held twice).
+fn child(pass: &str, file: &Path) {
+    let bytes = std::fs::read(file).unwrap();
+    let mime = if bytes.starts_with(b"\x89PNG") {
+        "image/png"
+    } else {
+        "image/jpeg"
+    };
+    let t = Instant::now();
+    let (w, h) = texture::codec::dimensions(&bytes).unwrap();
+    let rect = texture::crop::used_rect(CROP_UV, w, h, texture::crop::CROP_PADDING_TEXELS);
+    let [x0, y0, x1, y1] = rect;
+    let out_bytes: usize = match pass {
+        "pyramid" => {
+            let image = bimtiles::scene::Image {
+                name: None,
+                mime_type: mime.into(),
+                bytes: Arc::new(bytes),
+            };
+            let p = texture::build_pyramid(&image, TextureFormat::Auto, 85).unwrap();
+            p[1..].iter().map(|l| l.bytes.len()).sum()
+        }
+        "crop" => {
+            let px = texture::crop::crop_rgba8(&bytes, rect).unwrap();
+            drop(bytes);
+            let png = texture::codec::encode_rgba(x1 - x0, y1 - y0, px, TextureFormat::Png, "", 0);
+            png.unwrap().0.len()
+        }
+        "pyramid-whole" => {
+            let img = texture::codec::decode(&bytes).unwrap().to_rgba8();
+            let mut level = haar::next_level_rgba8(w, h, img.as_raw());
+            drop(img);
+            let mut total = 0;
+            loop {
+                let px = level.to_rgba8();
+                let enc = texture::codec::encode_rgba(
+                    level.width,
+                    level.height,
+                    px,
+                    TextureFormat::Auto,
+                    mime,
+                    85,
+                );
+                total += enc.unwrap().0.len();
+                if level.width <= 1 && level.height <= 1 {
+                    break total;
+                }
+                level = haar::next_level(&level);
+            }
+        }
+        "crop-whole" => {
+            let img = texture::codec::decode(&bytes).unwrap();
+            let sub =
+                image::imageops::crop_imm(&img.to_rgba8(), x0, y0, x1 - x0, y1 - y0).to_image();
+            drop(img);
+            let png = texture::codec::encode_rgba(
+                x1 - x0,
+                y1 - y0,
+                sub.into_raw(),
+                TextureFormat::Png,
+                "",
+                0,
+            );
+            png.unwrap().0.len()
+        }
+        "identical" => {
+            // The pixel hash of one image, then the row-by-row comparison with a copy (both
+            // decoders at once).
+            let copy = bytes.clone();
+            let key = texture::identical::pixel_key(&bytes).unwrap();
+            assert!(texture::identical::same_pixels(&bytes, &copy));
+            key.2 as usize % 2
+        }
+        "identical-whole" => {
+            use std::hash::{Hash, Hasher};
+            let copy = bytes.clone();
+            let img = texture::codec::decode(&bytes).unwrap();
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            img.as_bytes().hash(&mut h);
+            drop(img);
+            let (a, b) = (
+                texture::codec::decode(&bytes).unwrap(),
+                texture::codec::decode(&copy).unwrap(),
+            );
+            assert!(a.as_bytes() == b.as_bytes());
+            h.finish() as usize % 2
+        }
+        other => panic!("unknown pass {other}"),
+    };
+    println!(
+        "peak={} seconds={:.2} out={out_bytes}",
+        peak_rss(),
+        t.elapsed().as_secs_f64()
+    );
+}
+
+/// A `n x n` RGBA PNG streamed to `path` row by row (never a whole image in memory): gradients,
+/// a grid of "windows", a translucent band at the bottom, and 2 bits of noise, so that it is
+/// neither trivially compressible nor noise.
+fn write_test_png(path: &Path, n: u32) {
+    let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut e = png::Encoder::new(f, n, n);
+    e.set_color(png::ColorType::Rgba);
+    e.set_depth(png::BitDepth::Eight);
+    e.set_compression(png::Compression::Fast);
+    let mut w = e.write_header().unwrap().into_stream_writer().unwrap();
+    let mut row = vec![0u8; n as usize * 4];
+    let mut s = 0x9E37_79B9_7F4A_7C15u64;
+    for y in 0..n {
+        for (x, px) in row.chunks_exact_mut(4).enumerate() {
+            let x = x as u32;
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let noise = (s >> 62) as u8;
+            let (gx, gy) = (
+                (x as u64 * 255 / n as u64) as u8,
+                (y as u64 * 255 / n as u64) as u8,
+            );
+            let window = x % 64 < 40 && y % 96 < 60;
+            let rgb = if window {
+                [gx / 4 + 20, gy / 4 + 30, 90]
+            } else {
+                [gx, gy, gx / 2 + gy / 2]
+            };
+            let alpha = if y >= n / 8 * 7 { 128 + gx / 2 } else { 255 };
+            px.copy_from_slice(&[rgb[0] ^ noise, rgb[1] ^ noise, rgb[2], alpha]);
+        }
+        w.write_all(&row).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// A `n x n` JPEG (q90) of the same content, through `image` (no row-wise JPEG encoder).
+fn write_test_jpeg(png_path: &Path, path: &Path) {
+    let img = texture::codec::decode(&std::fs::read(png_path).unwrap())
+        .unwrap()
+        .to_rgb8();
+    let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    image::codecs::jpeg::JpegEncoder::new_with_quality(f, 90)
+        .encode_image(&img)
+        .unwrap();
+}
+
+/// Peak RSS of the pyramid, crop and identical passes on one big image, per size and format,
+/// each pass in a child process. `BENCH_TEXTURES_WHOLE=1` adds the whole-image code path.
+fn memory(work: &Path, sizes: &[u32]) {
+    let whole = std::env::var_os("BENCH_TEXTURES_WHOLE").is_some();
+    let dir = tempfile::tempdir_in(work).unwrap();
+    let exe = std::env::current_exe().unwrap();
+    println!("\nMemory of the texture passes on one image (each pass in its own process: peak RSS is VmHWM; pixels = w*h*4 bytes; file = encoded input, read whole)");
+    println!(
+        "{:<6} {:>12} {:<16} {:>10} {:>9} {:>9} {:>10} {:>8}",
+        "format", "size", "pass", "pixels MB", "file MB", "peak MB", "peak/pix", "s"
+    );
+    for &n in sizes {
+        let png_path = dir.path().join(format!("{n}.png"));
+        write_test_png(&png_path, n);
+        let mut files = vec![("png", png_path.clone())];
+        if n <= 4096 || std::env::var_os("BENCH_TEXTURES_BIG_JPEG").is_some() {
+            let jpg = dir.path().join(format!("{n}.jpg"));
+            write_test_jpeg(&png_path, &jpg);
+            files.push(("jpeg", jpg));
+        }
+        let pixels = n as u64 * n as u64 * 4;
+        for (format, file) in &files {
+            let size = std::fs::metadata(file).unwrap().len();
+            let mut passes = vec!["pyramid", "crop", "identical"];
+            if whole {
+                passes.extend(["pyramid-whole", "crop-whole", "identical-whole"]);
+            }
+            for pass in passes {
+                let out = Command::new(&exe)
+                    .arg("--child")
+                    .arg(pass)
+                    .arg(file)
+                    .output()
+                    .unwrap();
+                let text = String::from_utf8_lossy(&out.stdout);
+                let field = |k: &str| {
+                    text.split_whitespace()
+                        .find_map(|f| f.strip_prefix(k))
+                        .and_then(|v| v.parse::<f64>().ok())
+                };
+                let (Some(peak), Some(secs)) = (field("peak="), field("seconds=")) else {
+                    eprintln!(
+                        "{pass} on {}: failed: {}",
+                        file.display(),
+                        String::from_utf8_lossy(&out.stderr)
+                    );
+                    continue;
+                };
+                println!(
+                    "{:<6} {:>12} {:<16} {:>10.0} {:>9.0} {:>9.0} {:>10.2} {:>8.1}",
+                    format,
+                    format!("{n}x{n}"),
+                    pass,
+                    mb(pixels),
+                    mb(size),
+                    mb(peak as u64),
+                    peak / pixels as f64,
+                    secs
+                );
+            }
         }
     }
 }

@@ -13,9 +13,11 @@
 //! when it drops at least [`MIN_CROP_SAVING`] of the texels and its encoding is smaller than the
 //! original file: crops are encoded losslessly (PNG), which for a JPEG source can be larger.
 //! The paper's integer offset of shared textures is this shift by `x0, y0` in texels.
+//!
+//! Memory: the image is decoded row by row and only the used rectangle is kept ([`crop_rgba8`]).
 
 use super::classify::{ImageUse, TextureClass};
-use super::codec::{decode, dimensions, encode_rgba, TextureFormat};
+use super::codec::{dimensions, encode_rgba, row_to_rgba8, Rows, TextureFormat};
 use crate::scene::{ImageId, MeshId, Primitive, Scene};
 use serde::Serialize;
 use std::sync::Arc;
@@ -56,6 +58,31 @@ pub fn used_rect(uv_box: ([f32; 2], [f32; 2]), w: u32, h: u32, pad: u32) -> [u32
     [x0, y0, x1, y1]
 }
 
+/// The texels `[x0, x1) x [y0, y1)` of an encoded image as 8-bit RGBA, decoded row by row: only
+/// the rectangle is held (plus the whole decoded image for formats without a row decoder). The
+/// image is decoded to its end, so one that does not decode is not cropped.
+pub fn crop_rgba8(bytes: &[u8], rect: [u32; 4]) -> Result<Vec<u8>, String> {
+    let [x0, y0, x1, y1] = rect.map(|v| v as usize);
+    let mut rows = Rows::open(bytes)?;
+    let (w, h) = (rows.width() as usize, rows.height() as usize);
+    if x0 >= x1 || y0 >= y1 || x1 > w || y1 > h {
+        return Err(format!("crop {rect:?} outside {w}x{h}"));
+    }
+    let bpp = rows.color().bytes_per_pixel() as usize;
+    let color = rows.color();
+    let line = (x1 - x0) * 4;
+    let mut out = vec![0u8; line * (y1 - y0)];
+    let mut y = 0;
+    while let Some(row) = rows.next_row()? {
+        if (y0..y1).contains(&y) {
+            let dst = &mut out[(y - y0) * line..(y - y0 + 1) * line];
+            row_to_rgba8(color, &row[x0 * bpp..x1 * bpp], dst);
+        }
+        y += 1;
+    }
+    Ok(out)
+}
+
 /// Crops every eligible image of `scene` in place and remaps the UVs that sample it.
 pub fn crop_unused(scene: &mut Scene, uses: &[ImageUse]) -> CropReport {
     let mut report = CropReport::default();
@@ -75,13 +102,10 @@ pub fn crop_unused(scene: &mut Scene, uses: &[ImageUse]) -> CropReport {
         if after as f64 > before as f64 * (1.0 - MIN_CROP_SAVING) {
             continue;
         }
-        let Ok(img) = decode(&original.bytes) else {
+        let Ok(sub) = crop_rgba8(&original.bytes, [x0, y0, x1, y1]) else {
             continue;
         };
-        let sub = image::imageops::crop_imm(&img.to_rgba8(), x0, y0, cw, ch).to_image();
-        drop(img);
-        let Ok((bytes, mime)) = encode_rgba(cw, ch, sub.into_raw(), TextureFormat::Png, "", 0)
-        else {
+        let Ok((bytes, mime)) = encode_rgba(cw, ch, sub, TextureFormat::Png, "", 0) else {
             continue;
         };
         if bytes.len() >= original.bytes.len() {
@@ -132,6 +156,7 @@ fn remap_uvs(scene: &mut Scene, image: ImageId, offset: [u32; 2], size: [u32; 2]
 mod tests {
     use super::super::classify::classify;
     use super::super::classify::tests::{quad, scene_of, textured_material};
+    use super::super::codec::decode;
     use super::*;
 
     /// The texel (nearest, clamped) an image shows at `uv`.
@@ -225,6 +250,40 @@ mod tests {
                     assert_eq!(texel(&ib, *b), texel(&ia, *a), "uv {b:?} → {a:?}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn crop_by_rows_is_the_crop_of_the_whole_image() {
+        use super::super::codec::tests::{interlaced_png, jpeg_of, noise, png_cases};
+        let (w, h) = (37u32, 22u32);
+        let mut cases = png_cases(w, h);
+        cases.push((
+            "interlaced".into(),
+            interlaced_png(w, h, &noise((w * h * 4) as usize, 5)),
+        ));
+        cases.push(("jpeg".into(), jpeg_of(w, h, false)));
+        for (name, bytes) in cases {
+            let whole = decode(&bytes).unwrap().to_rgba8();
+            for rect in [[0, 0, w, h], [3, 5, 20, 6], [30, 0, 37, 22], [0, 21, 1, 22]] {
+                let [x0, y0, x1, y1] = rect;
+                let reference = image::imageops::crop_imm(&whole, x0, y0, x1 - x0, y1 - y0);
+                assert_eq!(
+                    crop_rgba8(&bytes, rect).unwrap(),
+                    reference.to_image().into_raw(),
+                    "{name} {rect:?}"
+                );
+            }
+            assert!(crop_rgba8(&bytes, [0, 0, w + 1, h]).is_err());
+            assert!(crop_rgba8(&bytes, [4, 4, 4, 8]).is_err());
+            // Not decodable to the end, not cropped (JPEG: `image` decodes what is there).
+            let half = &bytes[..bytes.len() / 2];
+            assert_eq!(
+                crop_rgba8(half, [0, 0, 2, 2]).is_err(),
+                decode(half).is_err(),
+                "{name}"
+            );
+            assert_eq!(decode(half).is_err(), name != "jpeg", "{name}");
         }
     }
 

@@ -19,8 +19,12 @@
 //! must be viewable alone, and glTF has no wavelet texture). The detail bands are not written;
 //! [`analyze`]/[`synthesize`] exist to keep the transform honest (the LL we ship is the one the
 //! full transform gives, and the transform is invertible). [`next_level`] computes the LL band
-//! alone in one pass, holding only the source and the quarter-size result, which is what the
-//! pipeline uses (memory: the 8-bit source plus an f32 level of the same byte size).
+//! alone in one pass, holding the source and the quarter-size result.
+//!
+//! The pipeline uses [`RowPyramid`]: the same LL arithmetic fed one decoded row of level 0 at a
+//! time, each level's finished rows feeding the next level at once, so only a row pair per level
+//! is held in f32 and each level is kept only as the 8-bit RGBA that gets encoded (a third of
+//! level 0's bytes for all of them). Its levels equal [`next_level`]'s bit for bit (tested).
 
 /// An RGBA image with f32 samples, interleaved, row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -220,6 +224,141 @@ fn ll_pass<T: Copy + Into<f32>>(width: u32, height: u32, src: &[T]) -> Planes {
     }
 }
 
+/// Rounded (half up) and clamped to 8 bits, as [`Planes::to_rgba8`].
+fn to_u8(x: f32) -> u8 {
+    (x + 0.5).floor().clamp(0.0, 255.0) as u8
+}
+
+/// The row low band of one source row: `(a + b) / 2` of each column pair, edge-replicated, the
+/// first operation of [`ll_pass`] on that row.
+fn row_low<T: Copy + Into<f32>>(src: &[T], w: usize, out: &mut [f32]) {
+    for j in 0..w.div_ceil(2) {
+        let (ca, cb) = (2 * j, (2 * j + 1).min(w - 1));
+        for c in 0..4 {
+            out[j * 4 + c] = (src[ca * 4 + c].into() + src[cb * 4 + c].into()) / 2.0;
+        }
+    }
+}
+
+/// One step of [`RowPyramid`]: the LL band of a level, from that level's rows.
+struct RowStep {
+    /// Width of the level it reads.
+    src_width: usize,
+    /// Row low band of the first row of the current pair, if it came.
+    first: Option<Vec<f32>>,
+    /// Row low band of the second row (scratch).
+    second: Vec<f32>,
+}
+
+impl RowStep {
+    /// Takes one source row; gives an LL row when it completes a pair.
+    fn push<T: Copy + Into<f32>>(&mut self, row: &[T]) -> Option<Vec<f32>> {
+        match self.first.take() {
+            None => {
+                let mut l0 = vec![0.0; self.src_width.div_ceil(2) * 4];
+                row_low(row, self.src_width, &mut l0);
+                self.first = Some(l0);
+                None
+            }
+            Some(mut l0) => {
+                row_low(row, self.src_width, &mut self.second);
+                for (a, &b) in l0.iter_mut().zip(&self.second) {
+                    *a = (*a + b) / 2.0;
+                }
+                Some(l0)
+            }
+        }
+    }
+
+    /// After the last row: an odd last row pairs with itself (its row low band twice, as
+    /// [`ll_pass`] computes it from the same samples).
+    fn flush(&mut self) -> Option<Vec<f32>> {
+        let mut l0 = self.first.take()?;
+        for a in l0.iter_mut() {
+            *a = (*a + *a) / 2.0;
+        }
+        Some(l0)
+    }
+}
+
+/// Levels 1.. of the pyramid of a `width x height` RGBA image, built from its rows top to
+/// bottom ([`Self::push_row`]) and returned as 8-bit RGBA ([`Self::finish`]): the values of
+/// [`next_level_rgba8`] then [`next_level`] repeatedly, rounded as [`Planes::to_rgba8`].
+pub struct RowPyramid {
+    /// Rows of level 0 still to come.
+    rows_left: u32,
+    /// Step `k` makes level `k + 1`.
+    steps: Vec<RowStep>,
+    /// Level `k + 1` as 8-bit RGBA, rows so far.
+    levels: Vec<(u32, u32, Vec<u8>)>,
+}
+
+impl RowPyramid {
+    /// Every level down to 1x1 ([`level_sizes`]); none for a 1x1 image.
+    pub fn new(width: u32, height: u32) -> RowPyramid {
+        let sizes = level_sizes(width, height);
+        let steps = sizes[..sizes.len() - 1]
+            .iter()
+            .map(|&(w, _)| RowStep {
+                src_width: w as usize,
+                first: None,
+                second: vec![0.0; half(w) as usize * 4],
+            })
+            .collect();
+        let levels = sizes[1..]
+            .iter()
+            // Exact capacity: growing by doubling would hold up to twice the level.
+            .map(|&(w, h)| (w, h, Vec::with_capacity(w as usize * h as usize * 4)))
+            .collect();
+        RowPyramid {
+            rows_left: height,
+            steps,
+            levels,
+        }
+    }
+
+    /// The next row of level 0, 8-bit RGBA, `width * 4` bytes.
+    pub fn push_row(&mut self, rgba: &[u8]) {
+        self.rows_left = self
+            .rows_left
+            .checked_sub(1)
+            .expect("more rows than the height");
+        let Some(step) = self.steps.first_mut() else {
+            return;
+        };
+        assert_eq!(rgba.len(), step.src_width * 4);
+        if let Some(ll) = step.push(rgba) {
+            self.emit(0, ll);
+        }
+    }
+
+    /// A finished row of level `k + 1`: kept in 8 bits, fed to the next step.
+    fn emit(&mut self, mut k: usize, mut row: Vec<f32>) {
+        loop {
+            self.levels[k].2.extend(row.iter().map(|&x| to_u8(x)));
+            match self.steps.get_mut(k + 1).and_then(|s| s.push(&row[..])) {
+                Some(next) => (k, row) = (k + 1, next),
+                None => return,
+            }
+        }
+    }
+
+    /// After the last row of level 0: every level as `(width, height, rgba)`, level 1 first.
+    pub fn finish(mut self) -> Vec<(u32, u32, Vec<u8>)> {
+        assert_eq!(self.rows_left, 0, "rows of level 0 missing");
+        // Finer steps first: a flushed row can complete a pair of the next step.
+        for k in 0..self.steps.len() {
+            if let Some(ll) = self.steps[k].flush() {
+                self.emit(k, ll);
+            }
+        }
+        for (w, h, px) in &self.levels {
+            debug_assert_eq!(px.len(), *w as usize * *h as usize * 4);
+        }
+        self.levels
+    }
+}
+
 /// Peak signal-to-noise ratio (dB) between two 8-bit images of one size over all four channels;
 /// infinite when they are equal.
 pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
@@ -377,5 +516,56 @@ mod tests {
         assert_eq!(psnr(&a, &b), f64::INFINITY);
         b[0] = 20; // mse = 1
         assert!((psnr(&a, &b) - 48.1308).abs() < 1e-3);
+    }
+
+    /// [`RowPyramid`] against the whole-image path: level 1 from 8-bit RGBA, then
+    /// [`next_level`] down to 1x1, each rounded to 8 bits.
+    #[test]
+    fn row_pyramid_is_the_whole_image_pyramid_bit_for_bit() {
+        for &(w, h) in &[
+            (1, 1),
+            (2, 1),
+            (1, 2),
+            (3, 1),
+            (1, 7),
+            (7, 5),
+            (600, 3),
+            (13, 1),
+            (37, 22),
+            (45, 27),
+            (64, 64),
+            (100, 75),
+        ] {
+            let px = noise(w, h, (w * 131 + h) as u64);
+            let mut whole = Vec::new();
+            if w > 1 || h > 1 {
+                let mut level = next_level_rgba8(w, h, &px);
+                loop {
+                    whole.push((level.width, level.height, level.to_rgba8()));
+                    if level.width <= 1 && level.height <= 1 {
+                        break;
+                    }
+                    level = next_level(&level);
+                }
+            }
+            let mut rows = RowPyramid::new(w, h);
+            for row in px.chunks_exact(w as usize * 4) {
+                rows.push_row(row);
+            }
+            let streamed = rows.finish();
+            assert_eq!(streamed.len(), level_sizes(w, h).len() - 1, "{w}x{h}");
+            assert_eq!(streamed, whole, "{w}x{h}");
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "rows of level 0 missing")]
+    fn row_pyramid_needs_every_row() {
+        let px = noise(4, 4, 1);
+        let mut rows = RowPyramid::new(4, 4);
+        for row in px.chunks_exact(16).take(3) {
+            rows.push_row(row);
+        }
+        rows.finish();
     }
 }

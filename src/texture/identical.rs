@@ -6,11 +6,12 @@
 //! such image (lowest id), so tiles embed one copy. The dropped images stay in `Scene::images`
 //! (ids do not move) but share the kept image's bytes, so their memory is freed.
 //!
-//! Images are decoded one at a time; only a 64-bit hash per image is kept. Images with equal
-//! bytes are equal without decoding; a hash match is confirmed by decoding both again, so a
-//! collision cannot merge two different images.
+//! Images are decoded one at a time, row by row ([`Rows`]: one row held for PNG); only a 64-bit
+//! hash per image is kept. Images with equal bytes are equal without decoding; a hash match is
+//! confirmed by decoding both again and comparing row by row, so a collision cannot merge two
+//! different images.
 
-use super::codec::decode;
+use super::codec::Rows;
 use crate::scene::{ImageId, Scene};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -27,24 +28,33 @@ pub struct IdenticalReport {
 }
 
 /// A hash of the decoded pixels (size, colour type and samples), or `None` if undecodable.
-fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
-    let img = decode(bytes).ok()?;
+/// Decoded row by row: one row held at a time (for PNG).
+pub fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
+    let mut rows = Rows::open(bytes).ok()?;
     // DefaultHasher::new() has fixed keys: deterministic across runs.
     let mut h = std::collections::hash_map::DefaultHasher::new();
-    format!("{:?}", img.color()).hash(&mut h);
-    img.as_bytes().hash(&mut h);
-    Some((img.width(), img.height(), h.finish()))
+    format!("{:?}", rows.color()).hash(&mut h);
+    while let Some(row) = rows.next_row().ok()? {
+        h.write(row);
+    }
+    Some((rows.width(), rows.height(), h.finish()))
 }
 
-fn same_pixels(a: &[u8], b: &[u8]) -> bool {
-    match (decode(a), decode(b)) {
-        (Ok(x), Ok(y)) => {
-            x.width() == y.width()
-                && x.height() == y.height()
-                && x.color() == y.color()
-                && x.as_bytes() == y.as_bytes()
+/// Whether two images decode to the same pixels, compared a row pair at a time; an image that
+/// does not decode to its end equals none.
+pub fn same_pixels(a: &[u8], b: &[u8]) -> bool {
+    let (Ok(mut x), Ok(mut y)) = (Rows::open(a), Rows::open(b)) else {
+        return false;
+    };
+    if (x.width(), x.height(), x.color()) != (y.width(), y.height(), y.color()) {
+        return false;
+    }
+    loop {
+        match (x.next_row(), y.next_row()) {
+            (Ok(Some(r)), Ok(Some(s))) if r == s => {}
+            (Ok(None), Ok(None)) => return true,
+            _ => return false,
         }
-        _ => false,
     }
 }
 

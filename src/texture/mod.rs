@@ -9,7 +9,9 @@
 //! While tiles are written, [`TextureLevels`] gives each tile, per image, the pyramid level of
 //! [`lod`] (from the tile's geometricError and its triangles' texel size) and the encoded bytes of
 //! that level ([`haar`] + [`codec`]). A pyramid is built once per image, on the first tile that
-//! needs a coarser level, and kept encoded (one decoded image per worker thread at a time). Level
+//! needs a coarser level, and kept encoded. Level 0 is decoded row by row into it, so a worker
+//! thread holds the coarser levels in 8 bits (a third of the image's RGBA bytes), not the image
+//! (JPEG and WebP, which have no row decoder, are decoded whole in their own colour type). Level
 //! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
 //! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. [`view`] measures what a client loads for a first whole-model view.
@@ -124,44 +126,41 @@ pub struct EncodedLevel {
 
 /// The pyramid of one image: level 0 is the image as given (its bytes untouched), then the LL
 /// band of each Haar step, encoded, down to 1x1.
+///
+/// Memory: level 0 is decoded row by row into the levels' accumulation ([`haar::RowPyramid`]),
+/// so what is held is the coarser levels in 8 bits (a third of level 0's RGBA bytes) plus, for
+/// formats decoded whole (JPEG, WebP, interlaced PNG), the decoded image in its own colour type.
 pub fn build_pyramid(
     image: &crate::scene::Image,
     format: TextureFormat,
     jpeg_quality: u8,
 ) -> Result<Vec<EncodedLevel>, String> {
-    let img = codec::decode(&image.bytes)?.to_rgba8();
-    let (w, h) = img.dimensions();
+    let mut rows = codec::Rows::open(&image.bytes)?;
+    let (w, h, color) = (rows.width(), rows.height(), rows.color());
+    let mut pyramid = haar::RowPyramid::new(w, h);
+    let mut rgba = vec![0u8; w as usize * 4];
+    while let Some(row) = rows.next_row()? {
+        codec::row_to_rgba8(color, row, &mut rgba);
+        pyramid.push_row(&rgba);
+    }
+    drop(rows);
     let mut out = vec![EncodedLevel {
         width: w,
         height: h,
         bytes: image.bytes.clone(),
         mime: image.mime_type.clone(),
     }];
-    if w <= 1 && h <= 1 {
-        return Ok(out);
-    }
-    let mut level = haar::next_level_rgba8(w, h, img.as_raw());
-    drop(img);
-    loop {
-        let (bytes, mime) = codec::encode_rgba(
-            level.width,
-            level.height,
-            level.to_rgba8(),
-            format,
-            &image.mime_type,
-            jpeg_quality,
-        )?;
+    for (width, height, px) in pyramid.finish() {
+        let (bytes, mime) =
+            codec::encode_rgba(width, height, px, format, &image.mime_type, jpeg_quality)?;
         out.push(EncodedLevel {
-            width: level.width,
-            height: level.height,
+            width,
+            height,
             bytes: Arc::new(bytes),
             mime: mime.into(),
         });
-        if level.width <= 1 && level.height <= 1 {
-            return Ok(out);
-        }
-        level = haar::next_level(&level);
     }
+    Ok(out)
 }
 
 /// Bytes written into tiles at one pyramid level.
@@ -517,5 +516,68 @@ mod tests {
         assert_eq!(r.written_per_level.len(), 2);
         assert_eq!(r.pyramid_levels[2].texels, 64 * 48);
         assert_eq!(r.prepared.classes.standalone, 1);
+    }
+
+    /// The pyramid as it was built before rows were streamed: the whole image decoded to RGBA8,
+    /// level 1 from it, then each level from the previous one in f32.
+    fn whole_image_pyramid(bytes: &[u8], format: TextureFormat, mime: &str) -> Vec<Vec<u8>> {
+        let img = codec::decode(bytes).unwrap().to_rgba8();
+        let (w, h) = img.dimensions();
+        let mut out = Vec::new();
+        if w <= 1 && h <= 1 {
+            return out;
+        }
+        let mut level = haar::next_level_rgba8(w, h, img.as_raw());
+        loop {
+            let enc = codec::encode_rgba(
+                level.width,
+                level.height,
+                level.to_rgba8(),
+                format,
+                mime,
+                85,
+            );
+            out.push(enc.unwrap().0);
+            if level.width <= 1 && level.height <= 1 {
+                return out;
+            }
+            level = haar::next_level(&level);
+        }
+    }
+
+    #[test]
+    fn streamed_pyramid_encodes_as_the_whole_image_path() {
+        use codec::tests::{interlaced_png, jpeg_of, noise, png_cases};
+        for (w, h) in [(1, 1), (5, 1), (37, 22), (64, 48), (45, 27)] {
+            let mut cases: Vec<(String, Vec<u8>, &str)> = png_cases(w, h)
+                .into_iter()
+                .map(|(n, b)| (n, b, "image/png"))
+                .collect();
+            let rgba = noise((w * h * 4) as usize, 3);
+            cases.push((
+                "interlaced".into(),
+                interlaced_png(w, h, &rgba),
+                "image/png",
+            ));
+            cases.push(("jpeg".into(), jpeg_of(w, h, false), "image/jpeg"));
+            cases.push(("grey jpeg".into(), jpeg_of(w, h, true), "image/jpeg"));
+            cases.push(("facade".into(), facade_png(w, h), "image/png"));
+            for (name, bytes, mime) in cases {
+                let mut image = classify::tests::image(bytes.clone());
+                image.mime_type = mime.into();
+                for format in [TextureFormat::Auto, TextureFormat::Png, TextureFormat::Jpeg] {
+                    let p = build_pyramid(&image, format, 85).unwrap();
+                    let got: Vec<Vec<u8>> = p[1..].iter().map(|l| l.bytes.to_vec()).collect();
+                    assert_eq!(
+                        got,
+                        whole_image_pyramid(&bytes, format, mime),
+                        "{name} {w}x{h} {format:?}"
+                    );
+                }
+            }
+        }
+        let broken = facade_png(40, 30);
+        let image = classify::tests::image(broken[..broken.len() / 2].to_vec());
+        assert!(build_pyramid(&image, TextureFormat::Auto, 85).is_err());
     }
 }
