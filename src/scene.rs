@@ -298,9 +298,32 @@ pub enum PropertyValue {
 /// for glTF node extras).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Property {
-    pub set: String,
-    pub name: String,
+    pub set: SharedText,
+    pub name: SharedText,
     pub value: PropertyValue,
+}
+
+/// Text that repeats across elements (IFC classes, storeys, materials, property-set and property
+/// names), stored once and shared: a campus of a million elements has a few hundred distinct
+/// values, and a `String` each cost about 50 bytes per element per field (issue 12: per-element
+/// metadata is what `--memory-budget` does not bound).
+pub type SharedText = Arc<str>;
+
+/// Hands out one [`SharedText`] per distinct value (readers keep one while they read a file).
+#[derive(Debug, Default)]
+pub struct TextInterner {
+    values: std::collections::HashSet<SharedText>,
+}
+
+impl TextInterner {
+    pub fn get(&mut self, s: &str) -> SharedText {
+        if let Some(t) = self.values.get(s) {
+            return t.clone();
+        }
+        let t: SharedText = Arc::from(s);
+        self.values.insert(t.clone());
+        t
+    }
 }
 
 /// What a component *is*: its BIM semantics, kept beside the geometry (in [`Scene::info`], one per
@@ -311,13 +334,13 @@ pub struct ElementInfo {
     /// IFC GlobalId (22 characters), when known.
     pub guid: Option<String>,
     /// IFC class, e.g. "IfcWindow".
-    pub class: Option<String>,
+    pub class: Option<SharedText>,
     /// Containing spatial structure, by name.
-    pub storey: Option<String>,
-    pub building: Option<String>,
-    pub site: Option<String>,
+    pub storey: Option<SharedText>,
+    pub building: Option<SharedText>,
+    pub site: Option<SharedText>,
     /// Material name, when the source names one.
-    pub material: Option<String>,
+    pub material: Option<SharedText>,
     pub properties: Vec<Property>,
 }
 
@@ -549,6 +572,15 @@ mod tests {
         assert_eq!(m.min, DVec3::new(10.0, 0.0, 0.0));
         assert_eq!(m.max, DVec3::new(11.0, 2.0, 3.0));
         assert!((a.diagonal() - 14f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn interned_text_is_one_allocation_per_value() {
+        let mut t = TextInterner::default();
+        let (a, b, c) = (t.get("IfcWall"), t.get("IfcWall"), t.get("IfcSlab"));
+        assert!(Arc::ptr_eq(&a, &b));
+        assert!(!Arc::ptr_eq(&a, &c));
+        assert_eq!((&*a, &*c), ("IfcWall", "IfcSlab"));
     }
 
     #[test]

@@ -147,8 +147,8 @@ fn ours(scene: &Scene) -> BTreeMap<String, Ours> {
         m.insert(
             c.key.clone(),
             Ours {
-                class: info.class.clone().unwrap_or_default(),
-                storey: info.storey.clone(),
+                class: info.class.as_deref().unwrap_or_default().to_string(),
+                storey: info.storey.as_deref().map(str::to_string),
                 min: c.world_bounds.min.to_array(),
                 max: c.world_bounds.max.to_array(),
                 triangles: scene.meshes.triangle_count(c.mesh),

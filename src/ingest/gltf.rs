@@ -164,6 +164,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         })
         .collect();
     let mut reader = Reader {
+        texts: TextInterner::default(),
         path,
         buffers: &buffers,
         views: &views,
@@ -338,25 +339,29 @@ struct Reader<'a> {
     file: &'a FileBytes,
     in_file: Vec<Option<usize>>,
     scene: Scene,
+    /// Repeated metadata text (classes, storeys, property names), one copy each.
+    texts: TextInterner,
 }
 
 /// BIM semantics from a node's `extras`, as BIM exporters write them (IfcOpenShell:
 /// `{ifc_class, name, storey}`; others: `guid`/`GlobalId`, `building`, `site`, `material`). Other
 /// scalar extras become properties of the set "extras".
-fn element_info(extras: Option<&Value>) -> ElementInfo {
+fn element_info(extras: Option<&Value>, texts: &mut TextInterner) -> ElementInfo {
     let mut info = ElementInfo::default();
     let Some(obj) = extras.and_then(Value::as_object) else {
         return info;
     };
     for (k, v) in obj {
-        let text = || v.as_str().map(str::to_string);
+        let mut shared = || v.as_str().map(|s| texts.get(s));
         match k.as_str() {
-            "guid" | "GlobalId" | "globalId" | "ifc_guid" => info.guid = text(),
-            "ifc_class" | "ifcClass" | "IfcClass" | "class" => info.class = text(),
-            "storey" | "Storey" | "level" | "Level" => info.storey = text(),
-            "building" => info.building = text(),
-            "site" => info.site = text(),
-            "material" => info.material = text(),
+            "guid" | "GlobalId" | "globalId" | "ifc_guid" => {
+                info.guid = v.as_str().map(str::to_string)
+            }
+            "ifc_class" | "ifcClass" | "IfcClass" | "class" => info.class = shared(),
+            "storey" | "Storey" | "level" | "Level" => info.storey = shared(),
+            "building" => info.building = shared(),
+            "site" => info.site = shared(),
+            "material" => info.material = shared(),
             _ => {
                 let value = match v {
                     Value::String(s) => PropertyValue::Text(s.clone()),
@@ -368,8 +373,8 @@ fn element_info(extras: Option<&Value>) -> ElementInfo {
                     _ => continue,
                 };
                 info.properties.push(Property {
-                    set: "extras".into(),
-                    name: k.clone(),
+                    set: texts.get("extras"),
+                    name: texts.get(k),
                     value,
                 });
             }
@@ -567,7 +572,8 @@ impl Reader<'_> {
                     MeshId(mesh_order.len() as u32 - 1)
                 });
                 let name = &self.scene.nodes[idx].name;
-                let mut info = element_info(self.scene.nodes[idx].extras_value().as_ref());
+                let extras = self.scene.nodes[idx].extras_value();
+                let mut info = element_info(extras.as_ref(), &mut self.texts);
                 if info.guid.is_none() {
                     // IfcOpenShell names each node by its element's GlobalId.
                     info.guid = name
@@ -1007,21 +1013,21 @@ mod tests {
         assert!(!is_ifc_guid("Window-07"));
         assert!(!is_ifc_guid("9V3RCMqZPE5ad58ZlBLt5Y"));
         let v = serde_json::json!({"ifc_class": "IfcWindow", "storey": "Level 1", "name": "W1", "width": 1.2, "count": 3, "fire": true});
-        let i = element_info(Some(&v));
+        let i = element_info(Some(&v), &mut TextInterner::default());
         assert_eq!(i.class.as_deref(), Some("IfcWindow"));
         assert_eq!(i.storey.as_deref(), Some("Level 1"));
         assert!(i
             .properties
             .iter()
-            .any(|p| p.name == "width" && p.value == PropertyValue::Number(1.2)));
+            .any(|p| &*p.name == "width" && p.value == PropertyValue::Number(1.2)));
         assert!(i
             .properties
             .iter()
-            .any(|p| p.name == "count" && p.value == PropertyValue::Integer(3)));
+            .any(|p| &*p.name == "count" && p.value == PropertyValue::Integer(3)));
         assert!(i
             .properties
             .iter()
-            .any(|p| p.name == "fire" && p.value == PropertyValue::Bool(true)));
+            .any(|p| &*p.name == "fire" && p.value == PropertyValue::Bool(true)));
     }
 
     #[test]

@@ -688,9 +688,15 @@ struct Builder<'a> {
     /// set id → (set name, properties) and object → set ids.
     sets_of: HashMap<u32, Vec<u32>>,
     materials_of: HashMap<u32, Vec<String>>,
+    /// Repeated metadata text (classes, storeys, property names), one copy each.
+    texts: std::cell::RefCell<TextInterner>,
 }
 
 impl<'a> Builder<'a> {
+    fn shared(&self, s: &str) -> SharedText {
+        self.texts.borrow_mut().get(s)
+    }
+
     fn entity(&self, id: u32) -> Option<&engine::RawEntity> {
         self.data.entities.get(&id)
     }
@@ -770,8 +776,8 @@ impl<'a> Builder<'a> {
                     };
                     if seen.insert((set.name.clone(), name.clone())) {
                         out.push(Property {
-                            set: set.name.clone(),
-                            name: name.clone(),
+                            set: self.shared(&set.name),
+                            name: self.shared(name),
                             value,
                         });
                     }
@@ -857,6 +863,7 @@ fn assemble(
         type_of: HashMap::new(),
         sets_of: HashMap::new(),
         materials_of: HashMap::new(),
+        texts: Default::default(),
     };
     b.scene.sources.push(SourceFile {
         path: path.to_path_buf(),
@@ -1017,11 +1024,11 @@ fn assemble(
         });
         let info = ElementInfo {
             guid: el.guid.clone(),
-            class: Some(class),
-            storey,
-            building,
-            site,
-            material: b.material_name(el.express_id),
+            class: Some(b.shared(&class)),
+            storey: storey.map(|t| b.shared(&t)),
+            building: building.map(|t| b.shared(&t)),
+            site: site.map(|t| b.shared(&t)),
+            material: b.material_name(el.express_id).map(|t| b.shared(&t)),
             properties: b.properties(el.express_id),
         };
         b.scene.push_component(

@@ -17,7 +17,7 @@
 //! `building` is the entry's name, and its hierarchy path starts with it.
 
 use crate::error::{Error, Result};
-use crate::scene::{Node, NodeId, Scene};
+use crate::scene::{Node, NodeId, Scene, SharedText};
 use crate::tileset::georef::GeoOrigin;
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
@@ -246,8 +246,9 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
                 c.key = format!("{}/{}", p.name, c.key);
             }
         }
+        let building: SharedText = p.name.as_str().into();
         for info in &mut s.info {
-            info.building = Some(p.name.clone());
+            info.building = Some(building.clone());
         }
         // A root node named after the entry heads the model's hierarchy.
         let root = NodeId(s.nodes.len() as u32);

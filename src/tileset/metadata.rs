@@ -8,7 +8,7 @@
 //! value of a property has one type (numbers → FLOAT64, booleans → an enum), else text.
 
 use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
-use crate::scene::{ComponentId, PropertyValue, Scene};
+use crate::scene::{ComponentId, PropertyValue, Scene, SharedText};
 use serde_json::{json, Map, Value};
 use std::collections::{BTreeMap, HashMap};
 
@@ -141,31 +141,34 @@ impl MetadataSchema {
             enum_codes.insert(id.clone(), codes_of(&names));
             enums.insert(id.clone(), names);
         }
-        let mut add = |enum_id: &str, v: &Option<String>| {
+        let mut add = |enum_id: &str, v: Option<&str>| {
             if let Some(v) = v {
                 let codes = enum_codes.get_mut(enum_id).expect("known enum");
                 if !codes.contains_key(v) && codes.len() < u16::MAX as usize {
                     let list = enums.get_mut(enum_id).expect("known enum");
-                    codes.insert(v.clone(), list.len() as u16);
-                    list.push(v.clone());
+                    codes.insert(v.to_string(), list.len() as u16);
+                    list.push(v.to_string());
                 }
             }
         };
         for s in &scene.sources {
             add(
                 "sourceFile",
-                &s.path.file_name().map(|n| n.to_string_lossy().to_string()),
+                s.path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().to_string())
+                    .as_deref(),
             );
         }
         for info in &scene.info {
-            add("ifcClass", &info.class);
-            add("storey", &info.storey);
-            add("building", &info.building);
-            add("site", &info.site);
-            add("material", &info.material);
+            add("ifcClass", info.class.as_deref());
+            add("storey", info.storey.as_deref());
+            add("building", info.building.as_deref());
+            add("site", info.site.as_deref());
+            add("material", info.material.as_deref());
         }
         // Property-set entries and their value types.
-        let mut kinds: BTreeMap<(String, String), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
+        let mut kinds: BTreeMap<(SharedText, SharedText), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
         for info in &scene.info {
             for p in &info.properties {
                 let k = kinds.entry((p.set.clone(), p.name.clone())).or_default();
@@ -214,7 +217,7 @@ impl MetadataSchema {
             seen: std::collections::HashSet<String>,
             uses: usize,
         }
-        let mut text_values: HashMap<(String, String), Distinct> = HashMap::new();
+        let mut text_values: HashMap<(SharedText, SharedText), Distinct> = HashMap::new();
         for info in &scene.info {
             for p in &info.properties {
                 if let PropertyValue::Text(t) = &p.value {
@@ -269,7 +272,7 @@ impl MetadataSchema {
                 column: Column::Pset(pset_keys.len()),
                 value_type,
             });
-            pset_keys.push((set, name));
+            pset_keys.push((set.to_string(), name.to_string()));
         }
         let mut aliases: HashMap<ComponentId, String> = HashMap::new();
         for c in &scene.components {
@@ -324,7 +327,7 @@ impl MetadataSchema {
                 let v = &info
                     .properties
                     .iter()
-                    .find(|q| &q.set == set && &q.name == name)?
+                    .find(|q| *q.set == **set && *q.name == **name)?
                     .value;
                 match (&self.properties[p].value_type, v) {
                     (ValueType::Float64, PropertyValue::Number(x)) => Some(MetaValue::Number(*x)),
