@@ -260,7 +260,6 @@ struct State<'a> {
     quad: Vec<Quadric>,
     curv: Vec<f32>,
     locked: Vec<bool>,
-    stamp: Vec<u32>,
     alive: Vec<bool>,
     tris: Vec<[u32; 3]>,
     tri_alive: Vec<bool>,
@@ -605,6 +604,30 @@ impl State<'_> {
         Some(Eval { cands, n })
     }
 
+    /// The first candidate of [`State::evaluate`] when its placement `p` is
+    /// known (the ranked entry of an edge whose endpoints are untouched
+    /// since the ranking: their quadrics, positions, flags and the edge's
+    /// triangles are as ranked, so the evaluation is too): the same cost
+    /// without the quadric sum, the solve, the other placements and the
+    /// sort, which are only needed when this placement is rejected.
+    #[inline]
+    fn candidate_at(&self, u: u32, v: u32, p: DVec3) -> Candidate {
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        let (qu, qv) = (&self.quad[u as usize], &self.quad[v as usize]);
+        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
+        let d2 = if MAX_OF_ENDPOINTS {
+            (qu.eval(p) * inv(qu.weight)).max(qv.eval(p) * inv(qv.weight))
+        } else {
+            Quadric::sum(qu, qv).distance2(p)
+        };
+        let tie = 1e-10 * (pu - pv).length_squared();
+        Candidate {
+            p,
+            key: d2 * self.factor(u, v) + tie,
+            dist2: d2,
+        }
+    }
+
     /// Topology check of collapsing (u, v), whatever the placement: the
     /// link condition (common neighbours must be the edge's opposite
     /// vertices). Checked once per edge, not per candidate placement.
@@ -909,8 +932,6 @@ impl State<'_> {
         let qu = self.quad[u as usize];
         self.quad[v as usize].add(&qu);
         self.curv[v as usize] = self.curv[v as usize].max(self.curv[u as usize]);
-        self.stamp[u as usize] = self.stamp[u as usize].wrapping_add(1);
-        self.stamp[v as usize] = self.stamp[v as usize].wrapping_add(1);
         self.alive[u as usize] = false;
         self.locked[v as usize] |= self.locked[u as usize];
         dist2
@@ -1085,7 +1106,6 @@ pub(crate) fn run(
         quad,
         curv,
         locked: Vec::new(),
-        stamp: vec![0; nv],
         alive: vec![true; nv],
         tris,
         tri_alive: vec![true; nt],
@@ -1438,16 +1458,22 @@ pub(crate) fn run(
                 st.gather(v, &mut sv);
             }
             let e = st.edge_info(v, &su);
-            let Some(ev) = st.evaluate(u, v, &e) else {
+            // Both endpoints are untouched: the edge evaluates as ranked
+            // (its triangles only die with a part dropped whole), and its
+            // first placement is the ranked one (`en.p`). The others are
+            // computed only if that one is rejected.
+            if e.count == 0 {
                 goal_idx += 1;
                 ranked[ri].f = -1.0;
                 continue;
-            };
+            }
+            let first = st.candidate_at(u, v, en.p);
+            let mut ev: Option<Option<Eval>> = None;
             let mut chosen = None;
             let mut over_target = false;
             // The known coverage of the first placement holds if it was just
             // computed, or if nothing around the edge changed in this pass.
-            let unchanged = (fresh.is_some() && ev.cands[0].p == en.p)
+            let unchanged = fresh.is_some()
                 || [&su, &sv].iter().all(|star| {
                     star.iter().all(|&c| {
                         let (a, b) = st.corner_others(c);
@@ -1455,7 +1481,17 @@ pub(crate) fn run(
                     })
                 });
             let mut link = None;
-            for (ci, cand) in ev.cands[..ev.n].iter().enumerate() {
+            for ci in 0..4 {
+                let cand = if ci == 0 {
+                    first
+                } else {
+                    // (`None` cannot happen for a ranked untouched edge; it
+                    // would end as an invalid edge, as before.)
+                    match ev.get_or_insert_with(|| st.evaluate(u, v, &e)) {
+                        Some(ev) if ci < ev.n => ev.cands[ci],
+                        _ => break,
+                    }
+                };
                 if cand.dist2 > params.target_error2 {
                     over_target = true;
                     break;
@@ -1464,7 +1500,7 @@ pub(crate) fn run(
                     continue;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
-                    let mut c = *cand;
+                    let mut c = cand;
                     if COVERAGE {
                         // Only values above the cost matter (`t`: early exits;
                         // the key also holds the tie-break term).
