@@ -448,6 +448,30 @@ fn moment_cell(inv: &Invariants, tol: &Tol) -> [i64; 3] {
 const SAME_ORDER_TRIES: usize = 8;
 const SEARCH_TRIES: usize = 4;
 
+/// A prototype of [`cluster`]: the first member of a group, which later members are compared with.
+struct Proto {
+    rep: ComponentId,
+    mesh: MeshId,
+    /// Kept while the bucket's kept shapes stay within its share of the working memory, else
+    /// rebuilt on use: a bucket of near-twins (noisy copies, all prototypes) would otherwise hold
+    /// every copy's geometry in f64 at once, whatever the memory budget.
+    shape: Option<Shape>,
+    inv: Invariants,
+}
+
+impl Proto {
+    /// Its shape: the kept one, or one rebuilt from the store into `rebuilt`.
+    fn shape<'p>(&'p self, scene: &Scene, rebuilt: &'p mut Option<Shape>) -> &'p Shape {
+        match &self.shape {
+            Some(s) => s,
+            None => rebuilt.insert(Shape::new(
+                scene.mesh(self.mesh),
+                &scene.components[self.rep.index()].world,
+            )),
+        }
+    }
+}
+
 /// Greedy clustering of one signature bucket, in rep-id order: each mesh is compared with the
 /// nearest prototypes found so far whose invariants are compatible; the first verified match
 /// wins, else it becomes a prototype. Comparing with prototypes only (never with other members)
@@ -459,18 +483,6 @@ fn cluster(
     tol: &Tol,
     shape_bytes: usize,
 ) -> (Vec<Found>, usize) {
-    struct Proto {
-        rep: ComponentId,
-        mesh: MeshId,
-        /// Kept while the bucket's kept shapes stay within `shape_bytes`, else rebuilt on use:
-        /// a bucket of near-twins (noisy copies, all prototypes) would otherwise hold every
-        /// copy's geometry in f64 at once, whatever the memory budget.
-        shape: Option<Shape>,
-        inv: Invariants,
-    }
-    let shape_of = |p: &Proto| -> Shape {
-        Shape::new(scene.mesh(p.mesh), &scene.components[p.rep.index()].world)
-    };
     let mut kept_bytes = 0usize;
     let mut protos: Vec<Proto> = Vec::new();
     // Per cell: prototype index and its comparison key, side by side for the scan.
@@ -511,13 +523,8 @@ fn cluster(
             .iter()
             .take(SAME_ORDER_TRIES)
             .find_map(|&(_, pi)| {
-                let p = &protos[pi];
-                let rebuilt = p.shape.is_none().then(|| shape_of(p));
-                let ps = p
-                    .shape
-                    .as_ref()
-                    .or(rebuilt.as_ref())
-                    .expect("kept or rebuilt");
+                let mut rebuilt = None;
+                let ps = protos[pi].shape(scene, &mut rebuilt);
                 match find_motion_same_order(&shape, ps, tol) {
                     SameOrder::Match(m) => Some((pi, (m, MatchKind::SameOrder))),
                     SameOrder::NearTwin => {
@@ -535,12 +542,8 @@ fn cluster(
                 let mut icp_budget = ICP_RUNS_PER_CANDIDATE;
                 cands.iter().take(SEARCH_TRIES).find_map(|&(_, pi)| {
                     let p = &protos[pi];
-                    let rebuilt = p.shape.is_none().then(|| shape_of(p));
-                    let ps = p
-                        .shape
-                        .as_ref()
-                        .or(rebuilt.as_ref())
-                        .expect("kept or rebuilt");
+                    let mut rebuilt = None;
+                    let ps = p.shape(scene, &mut rebuilt);
                     find_motion_search(&shape, &inv, ps, &p.inv, tol, &mut icp_budget)
                         .map(|m| (pi, (m, MatchKind::Triangles)))
                 })

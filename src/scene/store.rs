@@ -67,7 +67,7 @@ impl StoreLimits {
 
     /// A quarter of the budget for resident geometry, a sixteenth for the read-back cache and an
     /// eighth for a stage's derived working data (dedup runs before any tile is built): the rest
-    /// is for what is not geometry (per-component metadata, about 1.4 KB each, the tile plan)
+    /// is for what is not geometry (per-component metadata, about 1 KB each, the tile plan)
     /// and for the tiles being built (one gathered tile, its simplification and its encoding per
     /// thread, and each unfinished ancestor's children's content).
     pub fn from_budget(budget: Option<&MemoryBudget>) -> StoreLimits {

@@ -385,15 +385,7 @@ mod tests {
 
     /// Deterministic pseudo-random RGBA (with a varying alpha).
     fn noise(w: u32, h: u32, seed: u64) -> Vec<u8> {
-        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
-        (0..w * h * 4)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (s >> 56) as u8
-            })
-            .collect()
+        crate::texture::codec::tests::noise((w * h * 4) as usize, seed)
     }
 
     #[test]
