@@ -250,9 +250,10 @@ pub struct Image {
 pub struct Node {
     pub name: Option<String>,
     pub parent: Option<NodeId>,
-    /// The source's `extras` as written (JSON text): kept compact, since a parsed map costs
-    /// ~0.8 KB a node (90k nodes on a campus of 8M triangles), and the element's properties are
-    /// parsed into [`ElementInfo`] at ingest anyway. [`Node::extras_value`] parses it.
+    /// The source's `extras` as written (JSON text), for nodes without a mesh: kept compact,
+    /// since a parsed map costs ~0.8 KB a node. A node with a mesh has its extras parsed into its
+    /// element's [`ElementInfo`] at ingest, and the text is dropped then (a million elements on
+    /// a 100M-triangle campus). [`Node::extras_value`] parses it.
     pub extras: Option<Box<RawValue>>,
 }
 
