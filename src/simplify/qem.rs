@@ -283,6 +283,55 @@ struct State<'a> {
     p: &'a QemParams,
 }
 
+/// The cost of collapsing one edge (u, v) to a placement, with what depends only on the edge
+/// (inverse quadric weights, curvature factor, tie-break) computed once. Used by
+/// [`State::evaluate`] for each placement, and by the walk for the ranked placement of an edge
+/// whose endpoints are untouched since the ranking (its cost is then as ranked, without the
+/// solve and the other placements, which are evaluated only if that one is rejected).
+struct EdgeCost<'s> {
+    qu: &'s Quadric,
+    qv: &'s Quadric,
+    iu: f64,
+    iv: f64,
+    factor: f64,
+    tie: f64,
+}
+
+impl<'s> EdgeCost<'s> {
+    #[inline]
+    fn new(st: &'s State<'_>, u: u32, v: u32) -> EdgeCost<'s> {
+        let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
+        let (qu, qv) = (&st.quad[u as usize], &st.quad[v as usize]);
+        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
+        EdgeCost {
+            qu,
+            qv,
+            iu: inv(qu.weight),
+            iv: inv(qv.weight),
+            factor: st.factor(u, v),
+            tie: 1e-10 * (pu - pv).length_squared(),
+        }
+    }
+
+    #[inline]
+    fn at(&self, p: DVec3) -> Candidate {
+        // The error of a collapse is the larger of the two endpoints' mean squared distances
+        // to their own planes (as in meshoptimizer, which uses the removed vertex's quadric
+        // only): averaging over the union of planes would dilute the planes of a small part
+        // (the end cap of a bar) by the large ones of its neighbour.
+        let d2 = if MAX_OF_ENDPOINTS {
+            (self.qu.eval(p) * self.iu).max(self.qv.eval(p) * self.iv)
+        } else {
+            Quadric::sum(self.qu, self.qv).distance2(p)
+        };
+        Candidate {
+            p,
+            key: d2 * self.factor + self.tie,
+            dist2: d2,
+        }
+    }
+}
+
 impl State<'_> {
     #[inline]
     fn corner_vertex(&self, c: u32) -> u32 {
@@ -573,59 +622,17 @@ impl State<'_> {
                 n = 3;
             }
         }
-        let factor = self.factor(u, v);
-        let tie = 1e-10 * (pu - pv).length_squared();
         let mut cands = [Candidate {
             p: DVec3::ZERO,
             key: 0.0,
             dist2: 0.0,
         }; 4];
-        let (qu, qv) = (&self.quad[u as usize], &self.quad[v as usize]);
-        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
-        let (iu, iv) = (inv(qu.weight), inv(qv.weight));
+        let cost = EdgeCost::new(self, u, v);
         for i in 0..n {
-            // The error of a collapse is the larger of the two endpoints' mean
-            // squared distances to their own planes (as in meshoptimizer, which
-            // uses the removed vertex's quadric only): averaging over the union
-            // of planes would dilute the planes of a small part (the end cap
-            // of a bar) by the large ones of its neighbour.
-            let d2 = if MAX_OF_ENDPOINTS {
-                (qu.eval(pts[i]) * iu).max(qv.eval(pts[i]) * iv)
-            } else {
-                q.distance2(pts[i])
-            };
-            cands[i] = Candidate {
-                p: pts[i],
-                key: d2 * factor + tie,
-                dist2: d2,
-            };
+            cands[i] = cost.at(pts[i]);
         }
         cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
         Some(Eval { cands, n })
-    }
-
-    /// The first candidate of [`State::evaluate`] when its placement `p` is
-    /// known (the ranked entry of an edge whose endpoints are untouched
-    /// since the ranking: their quadrics, positions, flags and the edge's
-    /// triangles are as ranked, so the evaluation is too): the same cost
-    /// without the quadric sum, the solve, the other placements and the
-    /// sort, which are only needed when this placement is rejected.
-    #[inline]
-    fn candidate_at(&self, u: u32, v: u32, p: DVec3) -> Candidate {
-        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
-        let (qu, qv) = (&self.quad[u as usize], &self.quad[v as usize]);
-        let inv = |w: f64| if w > 0.0 { 1.0 / w } else { 0.0 };
-        let d2 = if MAX_OF_ENDPOINTS {
-            (qu.eval(p) * inv(qu.weight)).max(qv.eval(p) * inv(qv.weight))
-        } else {
-            Quadric::sum(qu, qv).distance2(p)
-        };
-        let tie = 1e-10 * (pu - pv).length_squared();
-        Candidate {
-            p,
-            key: d2 * self.factor(u, v) + tie,
-            dist2: d2,
-        }
     }
 
     /// Topology check of collapsing (u, v), whatever the placement: the
@@ -1467,7 +1474,7 @@ pub(crate) fn run(
                 ranked[ri].f = -1.0;
                 continue;
             }
-            let first = st.candidate_at(u, v, en.p);
+            let first = EdgeCost::new(&st, u, v).at(en.p);
             let mut ev: Option<Option<Eval>> = None;
             let mut chosen = None;
             let mut over_target = false;

@@ -47,10 +47,7 @@ impl Planes {
 
     /// Rounded (half up) and clamped to 8 bits.
     pub fn to_rgba8(&self) -> Vec<u8> {
-        self.data
-            .iter()
-            .map(|&x| (x + 0.5).floor().clamp(0.0, 255.0) as u8)
-            .collect()
+        self.data.iter().map(|&x| to_u8(x)).collect()
     }
 
     /// The four samples of texel (x, y).
@@ -224,7 +221,7 @@ fn ll_pass<T: Copy + Into<f32>>(width: u32, height: u32, src: &[T]) -> Planes {
     }
 }
 
-/// Rounded (half up) and clamped to 8 bits, as [`Planes::to_rgba8`].
+/// Rounded (half up) and clamped to 8 bits.
 fn to_u8(x: f32) -> u8 {
     (x + 0.5).floor().clamp(0.0, 255.0) as u8
 }
