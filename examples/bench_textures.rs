@@ -244,16 +244,6 @@ fn main() {
     memory(&work, &sizes);
 }
 
-/// Peak resident memory of this process so far (`VmHWM`), bytes.
-fn peak_rss() -> u64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
-        .map_or(0, |kb| kb * 1024)
-}
-
 /// The UV box the crop pass keeps: the middle half in each direction (a quarter of the texels).
 const CROP_UV: ([f32; 2], [f32; 2]) = ([0.25, 0.25], [0.75, 0.75]);
 
@@ -351,7 +341,7 @@ fn child(pass: &str, file: &Path) {
     };
     println!(
         "peak={} seconds={:.2} out={out_bytes}",
-        peak_rss(),
+        bimtiles::memory::peak_memory_bytes(),
         t.elapsed().as_secs_f64()
     );
 }
