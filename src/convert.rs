@@ -350,7 +350,10 @@ pub use crate::memory::peak_memory_bytes;
 pub struct MemoryReport {
     pub budget_bytes: u64,
     pub geometry: crate::scene::StoreStats,
-    /// Why meshes stayed in memory past the budget (the spill file could not be written).
+    /// Where the per-element metadata records were kept.
+    pub metadata: crate::scene::ElementStats,
+    /// Why meshes or metadata stayed in memory past the budget (the spill file could not be
+    /// written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub spill_error: Option<String>,
 }
@@ -361,7 +364,12 @@ impl MemoryReport {
         crate::scene::memory_budget().map(|b| MemoryReport {
             budget_bytes: b.bytes,
             geometry: scene.meshes.stats(),
-            spill_error: scene.meshes.spill_error().map(str::to_string),
+            metadata: scene.elements.stats(),
+            spill_error: scene
+                .meshes
+                .spill_error()
+                .or(scene.elements.spill_error())
+                .map(str::to_string),
         })
     }
 }
@@ -1583,7 +1591,7 @@ pub fn simplify_model(
     output: &Path,
     opts: &crate::simplify::SimplifyOptions,
 ) -> Result<SimplifyReport> {
-    use crate::scene::{Component, ComponentId, Mesh, MeshId, Primitive};
+    use crate::scene::{Component, ComponentId, ElementInfo, Mesh, MeshId, Primitive};
     use crate::simplify::{simplify, MeshInput};
     let t0 = Instant::now();
     let scene = crate::ingest::read_input(input)?;
@@ -1700,11 +1708,11 @@ pub fn simplify_model(
         local_bounds: None,
     });
     out.push_component(
-        Component {
+        Component::new(MeshId(0), DMat4::from_translation(center)),
+        &ElementInfo {
             name: Some("simplified".into()),
-            ..Component::new("simplified", MeshId(0), DMat4::from_translation(center))
+            ..ElementInfo::keyed("simplified")
         },
-        Default::default(),
     );
     out.finish();
     let items = [crate::partition::ContentItem {

@@ -16,7 +16,9 @@ use serde_json::value::RawValue;
 use serde_json::Value;
 use std::sync::Arc;
 
+mod elements;
 mod store;
+pub use elements::{ElementStats, ElementTable};
 pub use store::{
     memory_budget, set_memory_budget, MemoryBudget, MeshStore, StoreLimits, StoreStats,
 };
@@ -264,13 +266,11 @@ impl Node {
     }
 }
 
-/// One BIM element or one glTF node with a mesh.
+/// One BIM element or one glTF node with a mesh: what geometry work needs (its identity and
+/// semantics are its [`ElementInfo`], in [`Scene::elements`]).
 #[derive(Debug, Clone)]
 pub struct Component {
     pub id: ComponentId,
-    /// Stable identity: IFC GlobalId, or the glTF node path.
-    pub key: String,
-    pub name: Option<String>,
     /// Where it sits in the hierarchy (`nodes`), when the source has one.
     pub node: Option<NodeId>,
     pub mesh: MeshId,
@@ -327,11 +327,14 @@ impl TextInterner {
     }
 }
 
-/// What a component *is*: its BIM semantics, kept beside the geometry (in [`Scene::info`], one per
-/// component) so geometry work never copies strings. Every field is optional: a plain glTF node
-/// has none of them.
+/// What a component *is*: its identity and BIM semantics, kept beside the geometry (in
+/// [`Scene::elements`], one per component, as compact records) so geometry work never copies
+/// strings. Every field but the key is optional: a plain glTF node has none of them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ElementInfo {
+    /// Stable identity: IFC GlobalId, or the glTF node path.
+    pub key: String,
+    pub name: Option<String>,
     /// IFC GlobalId (22 characters), when known.
     pub guid: Option<String>,
     /// IFC class, e.g. "IfcWindow".
@@ -345,14 +348,22 @@ pub struct ElementInfo {
     pub properties: Vec<Property>,
 }
 
+impl ElementInfo {
+    /// An element known only by its key.
+    pub fn keyed(key: impl Into<String>) -> ElementInfo {
+        ElementInfo {
+            key: key.into(),
+            ..ElementInfo::default()
+        }
+    }
+}
+
 impl Component {
-    /// A component with no name, hierarchy node or source index (id and bounds are filled in by
+    /// A component with no hierarchy node or source index (id and bounds are filled in by
     /// [`Scene::push_component`] and [`Scene::finish`]).
-    pub fn new(key: impl Into<String>, mesh: MeshId, world: DMat4) -> Component {
+    pub fn new(mesh: MeshId, world: DMat4) -> Component {
         Component {
             id: ComponentId(0),
-            key: key.into(),
-            name: None,
             node: None,
             mesh,
             world,
@@ -402,8 +413,8 @@ pub struct Scene {
     pub skipped_elements: usize,
     pub nodes: Vec<Node>,
     pub components: Vec<Component>,
-    /// `info[i]` describes `components[i]` (same length; see [`Scene::push_component`]).
-    pub info: Vec<ElementInfo>,
+    /// `elements.get(i)` describes `components[i]` (same length; see [`Scene::push_component`]).
+    pub elements: ElementTable,
     /// Mesh geometry, in memory or spilled to disk under `--memory-budget`.
     pub meshes: MeshStore,
     pub materials: Vec<Material>,
@@ -413,14 +424,19 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Adds a component and its semantics, keeping `components` and `info` aligned; the
+    /// Adds a component and its semantics, keeping `components` and `elements` aligned; the
     /// component's id is set to its index.
-    pub fn push_component(&mut self, mut c: Component, info: ElementInfo) -> ComponentId {
+    pub fn push_component(&mut self, mut c: Component, info: &ElementInfo) -> ComponentId {
         let id = ComponentId(self.components.len() as u32);
         c.id = id;
         self.components.push(c);
-        self.info.push(info);
+        self.elements.push(info);
         id
+    }
+
+    /// The identity and semantics of component `id` (decoded from its record).
+    pub fn element(&self, id: ComponentId) -> ElementInfo {
+        self.elements.get(id.index())
     }
 
     pub fn component(&self, id: ComponentId) -> &Component {
@@ -491,7 +507,7 @@ impl Scene {
                 m
             }));
         self.meshes.append(other.meshes, mat0);
-        self.info.extend(other.info);
+        self.elements.append(other.elements);
         self.components
             .extend(other.components.into_iter().map(|mut c| {
                 c.id = ComponentId(c.id.0 + c0);
@@ -517,8 +533,7 @@ impl Scene {
     /// Fills the derived fields (component world bounds; mesh local bounds are the store's).
     /// Called by readers once a scene is complete and after any geometry change.
     pub fn finish(&mut self) {
-        self.info
-            .resize(self.components.len(), ElementInfo::default());
+        debug_assert_eq!(self.elements.len(), self.components.len(), "push_component");
         self.compute_bounds();
     }
 
@@ -604,10 +619,13 @@ mod tests {
                 }],
                 local_bounds: None,
             });
-            s.components.push(Component {
-                node: Some(NodeId(0)),
-                ..Component::new("k", MeshId(0), DMat4::IDENTITY)
-            });
+            s.push_component(
+                Component {
+                    node: Some(NodeId(0)),
+                    ..Component::new(MeshId(0), DMat4::IDENTITY)
+                },
+                &ElementInfo::keyed("k"),
+            );
             s
         };
         let mut a = mk();

@@ -321,7 +321,7 @@ impl TileContent {
                 false => bounds.center(),
             };
             // The shape in its own frame: the mesh frame moved by -origin.
-            let frame = Component::new("", mesh, DMat4::from_translation(-origin));
+            let frame = Component::new(mesh, DMat4::from_translation(-origin));
             let primitives =
                 TileContent::gather_component(scene, &frame, DVec3::ZERO, 0).primitives;
             let to_shape = DMat4::from_translation(origin);
@@ -722,12 +722,8 @@ mod tests {
         });
         for (i, x) in [0.0, 10.0].into_iter().enumerate() {
             s.push_component(
-                Component::new(
-                    format!("t{i}"),
-                    MeshId(0),
-                    DMat4::from_translation(DVec3::new(x, 0.0, 0.0)),
-                ),
-                ElementInfo::default(),
+                Component::new(MeshId(0), DMat4::from_translation(DVec3::new(x, 0.0, 0.0))),
+                &ElementInfo::keyed(format!("t{i}")),
             );
         }
         s.finish();

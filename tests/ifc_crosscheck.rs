@@ -143,9 +143,9 @@ struct Ours {
 
 fn ours(scene: &Scene) -> BTreeMap<String, Ours> {
     let mut m = BTreeMap::new();
-    for (c, info) in scene.components.iter().zip(&scene.info) {
+    for (c, info) in scene.components.iter().zip(scene.elements.iter()) {
         m.insert(
-            c.key.clone(),
+            info.key.clone(),
             Ours {
                 class: info.class.as_deref().unwrap_or_default().to_string(),
                 storey: info.storey.as_deref().map(str::to_string),
@@ -167,11 +167,11 @@ fn dump(name: &str, scene: &Scene, report: &IfcReadReport) {
     let els: Vec<Value> = scene
         .components
         .iter()
-        .zip(&scene.info)
+        .zip(scene.elements.iter())
         .map(|(c, i)| {
             json!({
-                "guid": c.key, "class": i.class, "storey": i.storey, "building": i.building,
-                "site": i.site, "name": c.name,
+                "guid": i.key, "class": i.class, "storey": i.storey, "building": i.building,
+                "site": i.site, "name": i.name,
                 "bbox_min": c.world_bounds.min.to_array(), "bbox_max": c.world_bounds.max.to_array(),
                 "triangles": scene.meshes.triangle_count(c.mesh),
             })
@@ -254,10 +254,10 @@ fn ifc_matches_ifcopenshell_exports() {
         let g = read_glb(&glb);
         row.theirs = g.len();
         row.tris_theirs = g.values().map(|e| e.triangles).sum();
-        let our_storeys: HashSet<&str> = scene
-            .info
+        let our_storeys: HashSet<String> = scene
+            .elements
             .iter()
-            .filter_map(|i| i.storey.as_deref())
+            .filter_map(|i| i.storey.as_deref().map(str::to_string))
             .collect();
         let only_ours: Vec<&String> = o.keys().filter(|k| !g.contains_key(*k)).collect();
         let only_theirs: Vec<&String> = g.keys().filter(|k| !o.contains_key(*k)).collect();
@@ -384,16 +384,16 @@ fn ifc_matches_ifcopenshell_exports() {
 }
 
 fn check_scene_invariants(name: &str, scene: &Scene) {
-    assert_eq!(scene.components.len(), scene.info.len());
+    assert_eq!(scene.components.len(), scene.elements.len());
     let mut keys = HashSet::new();
-    for (c, i) in scene.components.iter().zip(&scene.info) {
+    for (c, i) in scene.components.iter().zip(scene.elements.iter()) {
         assert!(
-            keys.insert(c.key.clone()),
+            keys.insert(i.key.clone()),
             "{name}: duplicate key {}",
-            c.key
+            i.key
         );
-        assert_eq!(Some(&c.key), i.guid.as_ref());
-        assert_eq!(c.key.len(), 22, "{name}: GlobalId {}", c.key);
+        assert_eq!(Some(&i.key), i.guid.as_ref());
+        assert_eq!(i.key.len(), 22, "{name}: GlobalId {}", i.key);
         let class = i.class.as_deref().unwrap();
         assert!(
             class.starts_with("Ifc") && class[3..].chars().next().unwrap().is_ascii_uppercase(),
@@ -441,13 +441,13 @@ fn semantics_of_fzk_haus() {
     let (c, i) = scene
         .components
         .iter()
-        .zip(&scene.info)
+        .zip(scene.elements.iter())
         .find(|(_, i)| i.class.as_deref() == Some("IfcWindow"))
         .expect("a window");
     let path = scene.node_path(c.node.unwrap());
     println!(
         "window {} at {path}; material {:?}; {} properties",
-        c.key,
+        i.key,
         i.material,
         i.properties.len()
     );
@@ -613,7 +613,7 @@ fn site_placement_far_away_and_rotated() {
     assert_eq!(s0.components.len(), s1.components.len());
     let mut worst = 0.0f64;
     for (c0, c1) in s0.components.iter().zip(&s1.components) {
-        assert_eq!(c0.key, c1.key);
+        assert_eq!(s0.element(c0.id).key, s1.element(c1.id).key);
         let mut b = bimtiles::scene::Aabb::EMPTY;
         for pr in &s0.mesh(c0.mesh).primitives {
             for v in &pr.positions {

@@ -69,7 +69,7 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
     }
 
     // Identity and building: the same element of both copies, under prefixed ids.
-    let key = &sample_scene.components[0].key;
+    let key = &sample_scene.element(bimtiles::scene::ComponentId(0)).key;
     for building in ["north", "south"] {
         let id = format!("{building}/{key}");
         let o = run(&["inspect", out.to_str().unwrap(), "--feature", &id, "--json"]);

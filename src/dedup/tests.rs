@@ -2,7 +2,7 @@
 //! order, symmetric shapes, near misses, mirrors, materials, exact duplicates.
 
 use super::*;
-use crate::scene::{Component, Material, Mesh, Primitive};
+use crate::scene::{Component, ElementInfo, Material, Mesh, Primitive};
 use glam::{DMat4, DQuat, DVec3};
 
 /// A box [lo, hi] as 6 faces of 4 vertices (split at the edges, face normals), UVs per face.
@@ -221,8 +221,8 @@ fn scene(parts: Vec<(Vec<Primitive>, DMat4)>) -> Scene {
             local_bounds: None,
         });
         s.push_component(
-            Component::new(format!("c{i}"), mesh, world),
-            Default::default(),
+            Component::new(mesh, world),
+            &ElementInfo::keyed(format!("c{i}")),
         );
     }
     s.finish();
@@ -265,10 +265,11 @@ fn world_triangles(s: &Scene, c: &Component) -> Vec<Vec<[Corner; 3]>> {
 fn assert_expands_to(before: &Scene, after: &Scene, tol: f64) {
     assert_eq!(before.components.len(), after.components.len());
     for (b, a) in before.components.iter().zip(&after.components) {
-        assert_eq!((b.id, &b.key), (a.id, &a.key));
+        let key = before.element(b.id).key;
+        assert_eq!((b.id, &key), (a.id, &after.element(a.id).key));
         let tb = world_triangles(before, b);
         let ta = world_triangles(after, a);
-        assert_eq!(tb.len(), ta.len(), "{}: primitive count", b.key);
+        assert_eq!(tb.len(), ta.len(), "{key}: primitive count");
         for (pb, pa) in tb.iter().zip(&ta) {
             assert_eq!(pb.len(), pa.len());
             let mut used = vec![false; pb.len()];
@@ -292,7 +293,7 @@ fn assert_expands_to(before: &Scene, after: &Scene, tol: f64) {
                     !used[j]
                         && (0..3).any(|r| (0..3).all(|k| corner_eq(&t[k], &pb[j][(k + r) % 3])))
                 });
-                let j = hit.unwrap_or_else(|| panic!("{}: triangle {t:?} not in the input", b.key));
+                let j = hit.unwrap_or_else(|| panic!("{key}: triangle {t:?} not in the input"));
                 used[j] = true;
             }
         }
@@ -751,8 +752,8 @@ fn gltf_reuse_is_kept_and_joined() {
         (2, motion([1.0, 0.0, 0.0], 90.0, [10.0, 10.0, 0.0])),
     ] {
         s.push_component(
-            Component::new(format!("r{mesh}"), MeshId(mesh), w),
-            Default::default(),
+            Component::new(MeshId(mesh), w),
+            &ElementInfo::keyed(format!("r{mesh}")),
         );
     }
     s.finish();

@@ -1028,10 +1028,7 @@ mod tests {
             }],
             local_bounds: None,
         });
-        s.push_component(
-            Component::new("a", MeshId(0), world),
-            ElementInfo::default(),
-        );
+        s.push_component(Component::new(MeshId(0), world), &ElementInfo::keyed("a"));
         s.finish();
         s
     }

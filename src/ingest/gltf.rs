@@ -396,7 +396,10 @@ pub fn is_ifc_guid(s: &str) -> bool {
 }
 
 /// Raw node transform as f64 (matrix, or T·R·S).
-fn node_local_matrix(raw: &IndexNode) -> DMat4 {
+fn node_local_matrix(node: &IndexNode) -> DMat4 {
+    let Some(raw) = node.transform.as_deref() else {
+        return DMat4::IDENTITY;
+    };
     if let Some(m) = raw.matrix {
         return DMat4::from_cols_array(&m);
     }
@@ -543,7 +546,7 @@ impl Reader<'_> {
         // Components are the reachable nodes with a mesh: reserved once, not grown by doubling.
         let with_mesh = nodes.iter().filter(|n| n.mesh.is_some()).count();
         self.scene.components.reserve_exact(with_mesh);
-        self.scene.info.reserve_exact(with_mesh);
+        self.scene.elements.reserve(with_mesh);
         let roots: Vec<usize> = match roots {
             Some(r) => r.iter().map(|&i| i as usize).collect(),
             None => (0..parent.len()).filter(|&i| parent[i].is_none()).collect(),
@@ -585,23 +588,17 @@ impl Reader<'_> {
                         .map(str::to_string);
                 }
                 // The GlobalId is the stable identity when the exporter gives one.
-                let key = info
+                info.key = info
                     .guid
                     .clone()
                     .unwrap_or_else(|| self.scene.node_path(NodeId(idx as u32)));
+                info.name = self.scene.nodes[idx].name.clone();
                 self.scene.push_component(
                     Component {
-                        id: ComponentId(0),
-                        key,
-                        name: self.scene.nodes[idx].name.clone(),
                         node: Some(NodeId(idx as u32)),
-                        mesh: mesh_id,
-                        world,
-                        world_bounds: Aabb::EMPTY,
-                        source: 0,
-                        alias_of: None,
+                        ..Component::new(mesh_id, world)
                     },
-                    info,
+                    &info,
                 );
             }
             for &c in node.children.iter().rev() {

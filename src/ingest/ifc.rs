@@ -1023,6 +1023,8 @@ fn assemble(
             local_bounds: None,
         });
         let info = ElementInfo {
+            key: guid,
+            name: el.name.clone(),
             guid: el.guid.clone(),
             class: Some(b.shared(&class)),
             storey: storey.map(|t| b.shared(&t)),
@@ -1033,17 +1035,10 @@ fn assemble(
         };
         b.scene.push_component(
             Component {
-                id: ComponentId(0),
-                key: guid,
-                name: el.name.clone(),
                 node: Some(node),
-                mesh,
-                world: frame * DMat4::from_translation(local),
-                world_bounds: Aabb::EMPTY,
-                source: 0,
-                alias_of: None,
+                ..Component::new(mesh, frame * DMat4::from_translation(local))
             },
-            info,
+            &info,
         );
     }
     for m in geom.missing {

@@ -228,28 +228,26 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
         parts.push(s);
     }
     // Ids used by more than one entry get the entry's name as a prefix, in every entry.
-    let mut users: BTreeMap<&str, BTreeSet<usize>> = BTreeMap::new();
+    let mut users: BTreeMap<String, BTreeSet<usize>> = BTreeMap::new();
     for (i, s) in parts.iter().enumerate() {
-        for c in &s.components {
-            users.entry(c.key.as_str()).or_default().insert(i);
+        for e in s.elements.iter() {
+            users.entry(e.key).or_default().insert(i);
         }
     }
     let clashing: BTreeSet<String> = users
         .into_iter()
         .filter(|(_, u)| u.len() > 1)
-        .map(|(k, _)| k.to_string())
+        .map(|(k, _)| k)
         .collect();
     let mut scene = Scene::default();
     for (s, p) in parts.iter_mut().zip(&placements) {
-        for c in &mut s.components {
-            if clashing.contains(&c.key) {
-                c.key = format!("{}/{}", p.name, c.key);
-            }
-        }
         let building: SharedText = p.name.as_str().into();
-        for info in &mut s.info {
-            info.building = Some(building.clone());
-        }
+        s.elements = std::mem::take(&mut s.elements).map(|e| {
+            if clashing.contains(&e.key) {
+                e.key = format!("{}/{}", p.name, e.key);
+            }
+            e.building = Some(building.clone());
+        });
         // A root node named after the entry heads the model's hierarchy.
         let root = NodeId(s.nodes.len() as u32);
         for n in &mut s.nodes {

@@ -429,7 +429,7 @@ mod tests {
             }],
             local_bounds: None,
         });
-        s.push_component(Component::new(key, mesh, world), ElementInfo::default());
+        s.push_component(Component::new(mesh, world), &ElementInfo::keyed(key));
     }
 
     /// A scene of unit-ish boxes (12 triangles each) at the given centres and sizes.

@@ -53,6 +53,8 @@ pub struct StoreLimits {
     /// What a stage may keep of data derived from geometry (dedup's prototype shapes), all threads
     /// together; past it, the stage rebuilds such data from the store when it needs it again.
     pub working_bytes: usize,
+    /// Per-element metadata records kept in memory ([`super::ElementTable`]); past it they spill.
+    pub metadata_bytes: usize,
     pub spill_dir: Option<PathBuf>,
 }
 
@@ -62,13 +64,15 @@ impl StoreLimits {
         resident_bytes: usize::MAX,
         cache_bytes: 0,
         working_bytes: usize::MAX,
+        metadata_bytes: usize::MAX,
         spill_dir: None,
     };
 
-    /// A quarter of the budget for resident geometry, a sixteenth for the read-back cache and an
-    /// eighth for a stage's derived working data (dedup runs before any tile is built): the rest
-    /// is for what is not geometry (per-component metadata, about 1 KB each, the tile plan)
-    /// and for the tiles being built (one gathered tile, its simplification and its encoding per
+    /// A quarter of the budget for resident geometry, a sixteenth for the read-back cache, an
+    /// eighth for a stage's derived working data (dedup runs before any tile is built) and a
+    /// sixteenth for per-element metadata records: the rest is for what is kept per component
+    /// whatever the budget (its transform, box and ids, about 200 bytes, and the tile plan) and
+    /// for the tiles being built (one gathered tile, its simplification and its encoding per
     /// thread, and each unfinished ancestor's children's content).
     pub fn from_budget(budget: Option<&MemoryBudget>) -> StoreLimits {
         match budget {
@@ -77,6 +81,7 @@ impl StoreLimits {
                 resident_bytes: (b.bytes / 4) as usize,
                 cache_bytes: (b.bytes / 16) as usize,
                 working_bytes: (b.bytes / 8) as usize,
+                metadata_bytes: (b.bytes / 16) as usize,
                 spill_dir: b.spill_dir.clone(),
             },
         }
@@ -123,14 +128,14 @@ struct Spilled {
 
 /// An unnamed temporary file, appended to under a lock and read anywhere with `pread`.
 #[derive(Debug)]
-struct SpillFile {
+pub(super) struct SpillFile {
     file: File,
     dir: PathBuf,
     end: Mutex<u64>,
 }
 
 impl SpillFile {
-    fn create(dir: Option<&Path>) -> std::io::Result<SpillFile> {
+    pub(super) fn create(dir: Option<&Path>) -> std::io::Result<SpillFile> {
         let dir = dir.map_or_else(std::env::temp_dir, Path::to_path_buf);
         Ok(SpillFile {
             file: tempfile::tempfile_in(&dir)?,
@@ -139,7 +144,7 @@ impl SpillFile {
         })
     }
 
-    fn append(&self, record: &[u8]) -> std::io::Result<u64> {
+    pub(super) fn append(&self, record: &[u8]) -> std::io::Result<u64> {
         let mut end = self.end.lock().unwrap_or_else(|e| e.into_inner());
         self.file.write_all_at(record, *end)?;
         let at = *end;
@@ -147,13 +152,13 @@ impl SpillFile {
         Ok(at)
     }
 
-    fn read(&self, offset: u64, len: usize) -> Vec<u8> {
+    pub(super) fn read(&self, offset: u64, len: usize) -> Vec<u8> {
         let mut buf = vec![0u8; len];
         if let Err(e) = self.file.read_exact_at(&mut buf, offset) {
             // The file is ours and was written in full: failing to read it back is a fault of the
             // machine (disk, or the folder removed under us), not of any input.
             panic!(
-                "reading back spilled geometry from a temporary file in {} failed: {e}",
+                "reading back spilled data from a temporary file in {} failed: {e}",
                 self.dir.display()
             );
         }
@@ -674,6 +679,7 @@ mod tests {
             resident_bytes: 200,
             cache_bytes: 400,
             working_bytes: 800,
+            metadata_bytes: 0,
             spill_dir: None,
         }
     }

@@ -210,8 +210,8 @@ pub(crate) mod tests {
                 local_bounds: None,
             });
             s.push_component(
-                Component::new(format!("c{k}"), MeshId(k as u32), DMat4::IDENTITY),
-                ElementInfo::default(),
+                Component::new(MeshId(k as u32), DMat4::IDENTITY),
+                &ElementInfo::keyed(format!("c{k}")),
             );
         }
         s.finish();

@@ -8,7 +8,7 @@
 //! value of a property has one type (numbers → FLOAT64, booleans → an enum), else text.
 
 use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
-use crate::scene::{ComponentId, PropertyValue, Scene, SharedText};
+use crate::scene::{Component, ComponentId, ElementInfo, PropertyValue, Scene, SharedText};
 use serde_json::{json, Map, Value};
 use std::collections::{BTreeMap, HashMap};
 
@@ -96,10 +96,9 @@ pub struct MetadataSchema {
     base: Value,
 }
 
-/// Whether component `c`'s id is its glTF node path (no GlobalId), which ends with its name.
-fn id_is_node_path(scene: &Scene, c: ComponentId) -> bool {
-    let comp = scene.component(c);
-    comp.node.is_some_and(|n| comp.key == scene.node_path(n))
+/// Whether a component's id is its glTF node path (no GlobalId), which ends with its name.
+fn id_is_node_path(scene: &Scene, comp: &Component, info: &ElementInfo) -> bool {
+    comp.node.is_some_and(|n| info.key == scene.node_path(n))
 }
 
 /// Enum value name → code (its index in `names`).
@@ -160,16 +159,14 @@ impl MetadataSchema {
                     .as_deref(),
             );
         }
-        for info in &scene.info {
+        // Property-set entries and their value types.
+        let mut kinds: BTreeMap<(SharedText, SharedText), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
+        for info in scene.elements.iter() {
             add("ifcClass", info.class.as_deref());
             add("storey", info.storey.as_deref());
             add("building", info.building.as_deref());
             add("site", info.site.as_deref());
             add("material", info.material.as_deref());
-        }
-        // Property-set entries and their value types.
-        let mut kinds: BTreeMap<(SharedText, SharedText), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
-        for info in &scene.info {
             for p in &info.properties {
                 let k = kinds.entry((p.set.clone(), p.name.clone())).or_default();
                 match p.value {
@@ -218,7 +215,7 @@ impl MetadataSchema {
             uses: usize,
         }
         let mut text_values: HashMap<(SharedText, SharedText), Distinct> = HashMap::new();
-        for info in &scene.info {
+        for info in scene.elements.iter() {
             for p in &info.properties {
                 if let PropertyValue::Text(t) = &p.value {
                     if kinds[&(p.set.clone(), p.name.clone())] == (true, false, false)
@@ -281,7 +278,7 @@ impl MetadataSchema {
                 if !list.is_empty() {
                     list.push(' ');
                 }
-                list.push_str(&c.key);
+                list.push_str(&scene.element(c.id).key);
             }
         }
         MetadataSchema {
@@ -299,14 +296,18 @@ impl MetadataSchema {
         Some(MetaValue::Code(c))
     }
 
-    /// The value of property `p` for component `c` (None: no value).
-    pub fn value(&self, scene: &Scene, c: ComponentId, p: usize) -> Option<MetaValue> {
-        let comp = scene.component(c);
-        let info = scene.info.get(c.index())?;
+    /// The value of property `p` for a component and its element (None: no value).
+    pub fn value(
+        &self,
+        scene: &Scene,
+        comp: &Component,
+        info: &ElementInfo,
+        p: usize,
+    ) -> Option<MetaValue> {
         let text = |s: Option<String>| s.filter(|s| !s.is_empty()).map(MetaValue::Text);
         match self.properties[p].column {
-            Column::Id => Some(MetaValue::Text(comp.key.clone())),
-            Column::Name => text(comp.name.clone()),
+            Column::Id => Some(MetaValue::Text(info.key.clone())),
+            Column::Name => text(info.name.clone()),
             Column::Path => text(comp.node.map(|n| scene.node_path(n))),
             Column::Source => self.code(
                 "sourceFile",
@@ -321,7 +322,7 @@ impl MetadataSchema {
             Column::Building => self.code("building", info.building.as_deref()),
             Column::Site => self.code("site", info.site.as_deref()),
             Column::Material => self.code("material", info.material.as_deref()),
-            Column::Aliases => text(self.aliases.get(&c).cloned()),
+            Column::Aliases => text(self.aliases.get(&comp.id).cloned()),
             Column::Pset(k) => {
                 let (set, name) = &self.pset_keys[k];
                 let v = &info
@@ -360,17 +361,21 @@ impl MetadataSchema {
         schema_uri: &str,
         scope: TableScope,
     ) -> PropertyTable {
+        let elements: Vec<(&Component, ElementInfo)> = features
+            .iter()
+            .map(|&c| (scene.component(c), scene.element(c)))
+            .collect();
         let mut columns = Vec::new();
         for (p, def) in self.properties.iter().enumerate() {
             let identity = scope == TableScope::Identity;
             if identity && matches!(def.column, Column::Pset(_) | Column::Path) {
                 continue;
             }
-            let values: Vec<Option<MetaValue>> = features
+            let values: Vec<Option<MetaValue>> = elements
                 .iter()
-                .map(|&c| match def.column {
-                    Column::Name if identity && id_is_node_path(scene, c) => None,
-                    _ => self.value(scene, c, p),
+                .map(|(comp, info)| match def.column {
+                    Column::Name if identity && id_is_node_path(scene, comp, info) => None,
+                    _ => self.value(scene, comp, info, p),
                 })
                 .collect();
             if values.iter().all(Option::is_none) {
@@ -500,16 +505,18 @@ mod tests {
             bytes: 0,
         });
         s.meshes.push(Mesh::default());
-        for (i, info) in infos.into_iter().enumerate() {
-            s.push_component(
-                Component {
-                    name: Some(format!("n{i}")),
-                    ..Component::new(format!("k{i}"), MeshId(0), glam::DMat4::IDENTITY)
-                },
-                info,
-            );
+        for (i, mut info) in infos.into_iter().enumerate() {
+            if info.key.is_empty() {
+                info.key = format!("k{i}");
+                info.name = Some(format!("n{i}"));
+            }
+            s.push_component(Component::new(MeshId(0), glam::DMat4::IDENTITY), &info);
         }
         s
+    }
+
+    fn value_of(m: &MetadataSchema, s: &Scene, c: ComponentId, p: usize) -> Option<MetaValue> {
+        m.value(s, s.component(c), &s.element(c), p)
     }
 
     fn prop(set: &str, name: &str, value: PropertyValue) -> Property {
@@ -560,24 +567,24 @@ mod tests {
         );
         assert_eq!(m.properties[idx("Mixed_x")].value_type, ValueType::Text);
         assert_eq!(
-            m.value(&s, ComponentId(1), idx("class")),
+            value_of(&m, &s, ComponentId(1), idx("class")),
             Some(MetaValue::Code(2))
         );
-        assert_eq!(m.value(&s, ComponentId(1), idx("storey")), None);
+        assert_eq!(value_of(&m, &s, ComponentId(1), idx("storey")), None);
         assert_eq!(
-            m.value(&s, ComponentId(1), idx("Qto_Width")),
+            value_of(&m, &s, ComponentId(1), idx("Qto_Width")),
             Some(MetaValue::Number(1.0))
         );
         assert_eq!(
-            m.value(&s, ComponentId(0), idx("Pset_WallCommon_IsExternal")),
+            value_of(&m, &s, ComponentId(0), idx("Pset_WallCommon_IsExternal")),
             Some(MetaValue::Code(2))
         );
         assert_eq!(
-            m.value(&s, ComponentId(1), idx("Mixed_x")),
+            value_of(&m, &s, ComponentId(1), idx("Mixed_x")),
             Some(MetaValue::Text("a".into()))
         );
         assert_eq!(
-            m.value(&s, ComponentId(0), idx("source")),
+            value_of(&m, &s, ComponentId(0), idx("source")),
             Some(MetaValue::Code(1))
         );
         let ids = [ComponentId(0), ComponentId(1)];
@@ -630,11 +637,11 @@ mod tests {
         };
         assert_eq!(m.enums[e], vec!["(none)", "Paint", "Tile"]);
         assert_eq!(
-            m.value(&s, ComponentId(1), finish),
+            value_of(&m, &s, ComponentId(1), finish),
             Some(MetaValue::Code(2))
         );
         assert_eq!(
-            m.value(&s, ComponentId(2), finish),
+            value_of(&m, &s, ComponentId(2), finish),
             None,
             "empty text is no value"
         );
@@ -659,7 +666,17 @@ mod tests {
 
     #[test]
     fn identity_tables_leave_out_paths_and_names_that_the_id_ends_with() {
-        let mut s = scene_with(vec![ElementInfo::default(), ElementInfo::default()]);
+        // Component 0: no GlobalId, its id is its node path; component 1: a GlobalId.
+        let mut s = scene_with(vec![
+            ElementInfo {
+                name: Some("wall#0".into()),
+                ..ElementInfo::keyed("building-0/wall#0")
+            },
+            ElementInfo {
+                name: Some("Door".into()),
+                ..ElementInfo::keyed("1CBNfY0004DZ4oDpWmD3am")
+            },
+        ]);
         s.nodes = vec![
             Node {
                 name: Some("building-0".into()),
@@ -677,13 +694,8 @@ mod tests {
                 extras: None,
             },
         ];
-        // Component 0: no GlobalId, its id is its node path; component 1: a GlobalId.
         s.components[0].node = Some(NodeId(1));
-        s.components[0].key = "building-0/wall#0".into();
-        s.components[0].name = Some("wall#0".into());
         s.components[1].node = Some(NodeId(2));
-        s.components[1].key = "1CBNfY0004DZ4oDpWmD3am".into();
-        s.components[1].name = Some("Door".into());
         let m = MetadataSchema::from_scene(&s);
         let ids = [ComponentId(0), ComponentId(1)];
         let column = |scope, id: &str| {
