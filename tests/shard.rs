@@ -290,6 +290,11 @@ fn real_campus_sharded_is_byte_identical() {
         spilled > 20 * resident,
         "{spilled} bytes spilled, {resident} kept"
     );
+    // The elements' metadata records spilled too (past 4 KiB, a 256 KiB chunk at a time).
+    let r: Value =
+        serde_json::from_slice(&std::fs::read(tiny.join("report.json")).unwrap()).unwrap();
+    let m = &r["memory"]["metadata"];
+    assert!(m["spilled_bytes"].as_u64().unwrap() > 0, "{m}");
     assert_identical(&conv, &tiny);
 }
 

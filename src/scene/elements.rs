@@ -20,10 +20,12 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-/// Records are packed into chunks of this size (a record longer than that gets a chunk of its own).
-/// Spilled chunks are read whole when the table is walked in order, and a record at a time for
-/// single lookups.
+/// Records are packed into chunks of a sixteenth of the table's resident limit, between
+/// [`MIN_CHUNK_BYTES`] and [`CHUNK_BYTES`] (a record longer than a chunk gets one of its own), so
+/// the chunk being filled stays small against the limit. Spilled chunks are read whole when the
+/// table is walked in order, and a record at a time for single lookups.
 const CHUNK_BYTES: usize = 256 * 1024;
+const MIN_CHUNK_BYTES: usize = 4096;
 
 /// Where one element's record is.
 #[derive(Debug, Clone, Copy)]
@@ -60,8 +62,9 @@ pub struct ElementTable {
     text_ids: HashMap<SharedText, u32>,
     records: Vec<RecordPos>,
     chunks: Vec<Chunk>,
-    /// The chunk being filled (not yet in `chunks`).
+    /// The chunk being filled (not yet in `chunks`), sealed at `chunk_bytes`.
     open: Vec<u8>,
+    chunk_bytes: usize,
     /// Sealed chunk bytes kept in memory, and the limit past which they spill.
     resident_bytes: usize,
     resident_limit: usize,
@@ -89,6 +92,7 @@ impl ElementTable {
             records: Vec::new(),
             chunks: Vec::new(),
             open: Vec::new(),
+            chunk_bytes: (resident_limit / 16).clamp(MIN_CHUNK_BYTES, CHUNK_BYTES),
             resident_bytes: 0,
             resident_limit,
             spill_dir,
@@ -116,7 +120,7 @@ impl ElementTable {
         self.encode(info, &mut rec);
         let len = rec.len() - start;
         self.open = rec;
-        if start > 0 && self.open.len() > CHUNK_BYTES {
+        if start > 0 && self.open.len() > self.chunk_bytes {
             // The record does not fit the open chunk: seal what was there, start anew with it.
             let tail = self.open.split_off(start);
             self.seal();
@@ -128,7 +132,7 @@ impl ElementTable {
             offset: offset as u32,
             len: len as u32,
         });
-        if self.open.len() >= CHUNK_BYTES {
+        if self.open.len() >= self.chunk_bytes {
             self.seal();
         }
     }
