@@ -330,6 +330,23 @@ impl<'s> EdgeCost<'s> {
             dist2: d2,
         }
     }
+
+    /// The key of [`EdgeCost::at`] if it is below `best` (total order), else `None`; the key is
+    /// never below either endpoint's term, so one term at or above `best` settles it.
+    #[inline]
+    fn key_below(&self, p: DVec3, best: f64) -> Option<f64> {
+        let a = self.qu.eval(p) * self.iu;
+        if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan() {
+            return None;
+        }
+        let d2 = if MAX_OF_ENDPOINTS {
+            a.max(self.qv.eval(p) * self.iv)
+        } else {
+            Quadric::sum(self.qu, self.qv).distance2(p)
+        };
+        let key = d2 * self.factor + self.tie;
+        key.total_cmp(&best).is_lt().then_some(key)
+    }
 }
 
 impl State<'_> {
@@ -573,6 +590,38 @@ impl State<'_> {
     /// `e`: [`State::edge_info`] of the edge; constraint flags from
     /// [`State::cflag`].
     fn evaluate(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<Eval> {
+        let (pts, n) = self.placements(u, v, e)?;
+        let mut cands = [Candidate {
+            p: DVec3::ZERO,
+            key: 0.0,
+            dist2: 0.0,
+        }; 4];
+        let cost = EdgeCost::new(self, u, v);
+        for i in 0..n {
+            cands[i] = cost.at(pts[i]);
+        }
+        cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
+        Some(Eval { cands, n })
+    }
+
+    /// The cheapest candidate of [`State::evaluate`] (the first of equal
+    /// keys, as its stable sort), its key and placement only: what the
+    /// ranking needs, without the sort and with the second quadric skipped
+    /// for placements the first already rules out.
+    fn evaluate_best(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<(f64, DVec3)> {
+        let (pts, n) = self.placements(u, v, e)?;
+        let cost = EdgeCost::new(self, u, v);
+        let mut best = (cost.at(pts[0]).key, pts[0]);
+        for &p in &pts[1..n] {
+            if let Some(k) = cost.key_below(p, best.0) {
+                best = (k, p);
+            }
+        }
+        Some(best)
+    }
+
+    /// Candidate placements of collapsing edge (u, v) (see [`State::evaluate`]).
+    fn placements(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<([DVec3; 4], usize)> {
         if !self.alive[u as usize] || !self.alive[v as usize] {
             return None;
         }
@@ -622,17 +671,7 @@ impl State<'_> {
                 n = 3;
             }
         }
-        let mut cands = [Candidate {
-            p: DVec3::ZERO,
-            key: 0.0,
-            dist2: 0.0,
-        }; 4];
-        let cost = EdgeCost::new(self, u, v);
-        for i in 0..n {
-            cands[i] = cost.at(pts[i]);
-        }
-        cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
-        Some(Eval { cands, n })
+        Some((pts, n))
     }
 
     /// Topology check of collapsing (u, v), whatever the placement: the
@@ -810,7 +849,7 @@ impl State<'_> {
     /// star with its normals (each point scans it, so it is resolved once).
     #[allow(clippy::too_many_arguments)]
     fn interior2(
-        &self,
+        &mut self,
         u: u32,
         v: u32,
         p: DVec3,
@@ -846,20 +885,13 @@ impl State<'_> {
             });
         }
         // A spoke (p, a) is shared by two new triangles: its midpoint is
-        // measured once, with the first.
-        for i in 0..old.len() {
-            if !old[i].survives {
-                continue;
-            }
-            let (a, b) = (old[i].a, old[i].b);
-            let seen = |y: u32| {
-                old[..i]
-                    .iter()
-                    .any(|o| o.survives && (o.a == y || o.b == y))
-            };
-            let (sa, sb) = (!seen(a), !seen(b));
-            old[i].spoke_a = sa;
-            old[i].spoke_b = sb;
+        // measured once, with the first (marks: vertices of earlier ones).
+        let g = self.next_gen();
+        for o in old.iter_mut().filter(|o| o.survives) {
+            o.spoke_a = self.mark[o.a as usize] != g;
+            o.spoke_b = self.mark[o.b as usize] != g;
+            self.mark[o.a as usize] = g;
+            self.mark[o.b as usize] = g;
         }
         for (i, tr) in old.iter().enumerate() {
             if !tr.survives || tr.px == p {
@@ -1284,10 +1316,8 @@ pub(crate) fn run(
                 stref.star_edges(a, star, |b| !dirty[b as usize], nb);
                 for &(b, ref e) in nb.iter() {
                     let (a, b) = (a.min(b), a.max(b));
-                    if let Some(ev) = stref.evaluate(a, b, e) {
-                        let key = ev.cands[0].key;
+                    if let Some((key, p)) = stref.evaluate_best(a, b, e) {
                         let f = stref.factor(a, b);
-                        let p = ev.cands[0].p;
                         // Coverage can only raise the key: computed lazily
                         // (below) unless its bound is no larger.
                         let skip = !RANK_COVERAGE
