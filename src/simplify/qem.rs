@@ -1556,16 +1556,29 @@ pub(crate) fn run(
                             } else {
                                 t
                             };
+                        // Below the threshold, both checks are bounded by how far the endpoints
+                        // move (`p` is a vertex of every new triangle, `u` and `v` of the old
+                        // star; a new triangle's sample point is within half that of the old
+                        // triangle it replaces): skipped when the bound cannot exceed it (with
+                        // a margin for rounding).
+                        let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
+                        let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
+                        let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
                         let mut d1 = if ci == 0 && unchanged && RANK_COVERAGE {
                             if en.key > c.key {
                                 en.key / f
                             } else {
                                 0.0
                             }
+                        } else if st
+                            .coverage2_bound(u, v, c.p, su.len(), &e)
+                            .is_some_and(|b| below(b, tt))
+                        {
+                            0.0
                         } else {
                             st.coverage2(u, v, c.p, &su, &sv, tt)
                         };
-                        if INTERIOR {
+                        if INTERIOR && !below(0.25 * moved2, tt.max(d1)) {
                             d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
                         }
                         if d1 > tt {
