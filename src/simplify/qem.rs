@@ -332,15 +332,27 @@ impl<'s> EdgeCost<'s> {
     }
 
     /// The key of [`EdgeCost::at`] if it is below `best` (total order), else `None`; the key is
-    /// never below either endpoint's term, so one term at or above `best` settles it.
+    /// never below either endpoint's term, so one term at or above `best` settles it. `at_u`:
+    /// `p` is `u`'s position, where `u`'s own term is usually 0, so `v`'s is tried first.
     #[inline]
-    fn key_below(&self, p: DVec3, best: f64) -> Option<f64> {
-        let a = self.qu.eval(p) * self.iu;
+    fn key_below(&self, p: DVec3, best: f64, at_u: bool) -> Option<f64> {
+        let (first, iq, second, is) = if at_u {
+            (self.qv, self.iv, self.qu, self.iu)
+        } else {
+            (self.qu, self.iu, self.qv, self.iv)
+        };
+        let a = first.eval(p) * iq;
         if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan() {
             return None;
         }
         let d2 = if MAX_OF_ENDPOINTS {
-            a.max(self.qv.eval(p) * self.iv)
+            let b = second.eval(p) * is;
+            // In `at`'s order (`max` may pick either zero of ±0).
+            if at_u {
+                b.max(a)
+            } else {
+                a.max(b)
+            }
         } else {
             Quadric::sum(self.qu, self.qv).distance2(p)
         };
@@ -611,9 +623,10 @@ impl State<'_> {
     fn evaluate_best(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<(f64, DVec3)> {
         let (pts, n) = self.placements(u, v, e)?;
         let cost = EdgeCost::new(self, u, v);
+        let pu = self.pos[u as usize];
         let mut best = (cost.at(pts[0]).key, pts[0]);
         for &p in &pts[1..n] {
-            if let Some(k) = cost.key_below(p, best.0) {
+            if let Some(k) = cost.key_below(p, best.0, p == pu) {
                 best = (k, p);
             }
         }
