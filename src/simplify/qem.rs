@@ -458,6 +458,14 @@ impl State<'_> {
         );
     }
 
+    /// Corners of `x` straight from the CSR: all live between
+    /// [`State::rebuild_csr`] and the first collapse of the pass (the
+    /// ranking), so no copy is needed there.
+    #[inline]
+    fn csr_star(&self, x: u32) -> &[u32] {
+        &self.corners[self.off[x as usize] as usize..self.off[x as usize + 1] as usize]
+    }
+
     /// Rebuilds the CSR adjacency from the live triangles.
     fn rebuild_csr(&mut self) {
         let nv = self.pos.len();
@@ -1046,9 +1054,9 @@ fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
     best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
 }
 
-/// Ranking output and scratch of one chunk of vertices: entries, a star,
-/// its edges.
-type RankBuf = (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>);
+/// Ranking output and scratch of one chunk of vertices: entries, the edges
+/// of a star.
+type RankBuf = (Vec<Ranked>, Vec<(u32, EdgeInfo)>);
 
 /// Total order of the walk: key, then endpoints.
 #[inline]
@@ -1284,35 +1292,31 @@ pub(crate) fn run(
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
         let stref = &st;
-        let cflag_chunk =
-            |lo: usize, cf: &mut [bool], star: &mut Vec<u32>, scratch: &mut Vec<u32>| {
-                for (i, cf) in cf.iter_mut().enumerate() {
-                    let a = lo + i;
-                    if !stref.alive[a] {
-                        *cf = false;
-                    } else if dirty[a] {
-                        stref.gather(a as u32, star);
-                        *cf = stref.constrained(star, scratch);
-                    }
+        let cflag_chunk = |lo: usize, cf: &mut [bool], scratch: &mut Vec<u32>| {
+            for (i, cf) in cf.iter_mut().enumerate() {
+                let a = lo + i;
+                if !stref.alive[a] {
+                    *cf = false;
+                } else if dirty[a] {
+                    *cf = stref.constrained(stref.csr_star(a as u32), scratch);
                 }
-            };
+            }
+        };
         // Small meshes (they come by the thousand) stay on this thread: a
         // hand-off to the thread pool costs more than their work.
         if n_rank_bufs == 1 {
-            let (_, star, _) = &mut rank_bufs[0];
-            cflag_chunk(0, &mut cflag, star, &mut cflag_scratch);
+            cflag_chunk(0, &mut cflag, &mut cflag_scratch);
         } else {
-            cflag.par_chunks_mut(4096).enumerate().for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(star, scratch), (ci, cf)| cflag_chunk(ci * 4096, cf, star, scratch),
-            );
+            cflag.par_chunks_mut(4096).enumerate().for_each_init(Vec::new, |scratch, (ci, cf)| {
+                cflag_chunk(ci * 4096, cf, scratch)
+            });
         }
         st.cflag = cflag;
         let stref = &st;
         // Per-chunk vectors, kept across passes (growing fresh ones every
         // pass cost page faults and copies); the order of `ranked` does not
         // matter (everything below uses the total order).
-        let rank_chunk = |ci: usize, (out, star, nb): &mut RankBuf| {
+        let rank_chunk = |ci: usize, (out, nb): &mut RankBuf| {
             out.clear();
             let lo = (ci * nv / n_rank_bufs) as u32;
             let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
@@ -1324,7 +1328,7 @@ pub(crate) fn run(
                 if !stref.alive[a as usize] || !dirty[a as usize] {
                     continue;
                 }
-                stref.gather(a, star);
+                let star = stref.csr_star(a);
                 // Those edges with their triangles, in one scan.
                 stref.star_edges(a, star, |b| !dirty[b as usize], nb);
                 for &(b, ref e) in nb.iter() {
