@@ -342,7 +342,8 @@ impl<'s> EdgeCost<'s> {
             (self.qu, self.iu, self.qv, self.iv)
         };
         let a = first.eval(p) * iq;
-        if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan() {
+        if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan()
+        {
             return None;
         }
         let d2 = if MAX_OF_ENDPOINTS {
@@ -1307,9 +1308,12 @@ pub(crate) fn run(
         if n_rank_bufs == 1 {
             cflag_chunk(0, &mut cflag, &mut cflag_scratch);
         } else {
-            cflag.par_chunks_mut(4096).enumerate().for_each_init(Vec::new, |scratch, (ci, cf)| {
-                cflag_chunk(ci * 4096, cf, scratch)
-            });
+            cflag
+                .par_chunks_mut(4096)
+                .enumerate()
+                .for_each_init(Vec::new, |scratch, (ci, cf)| {
+                    cflag_chunk(ci * 4096, cf, scratch)
+                });
         }
         st.cflag = cflag;
         let stref = &st;
