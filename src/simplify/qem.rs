@@ -920,10 +920,15 @@ impl State<'_> {
                 continue; // on the edge, or the new triangle is the old one
             }
             let (pa, pb) = (tr.pa, tr.pb);
+            // A point is within (its weight of `p`) x (how far `x` moved) of
+            // the old triangle's matching point: those bounds below `worst`
+            // (with a margin for rounding) cannot raise it.
+            let m2 = (p - tr.px).length_squared() * (1.0 + 1e-3);
+            let (spokes, centroid) = (0.25 * m2 >= worst, m2 / 9.0 >= worst);
             let pts = [
-                (tr.spoke_a, (p + pa) * 0.5),
-                (tr.spoke_b, (p + pb) * 0.5),
-                (true, (p + pa + pb) / 3.0),
+                (spokes && tr.spoke_a, (p + pa) * 0.5),
+                (spokes && tr.spoke_b, (p + pb) * 0.5),
+                (centroid, (p + pa + pb) / 3.0),
             ];
             for (_, q) in pts.into_iter().filter(|x| x.0) {
                 // The old triangle this one replaces first (often the
