@@ -35,10 +35,14 @@
 //!   and stop as soon as they cannot exceed it (box and plane distance
 //!   bounds before exact point-triangle distances); at apply time the
 //!   threshold is raised to what cannot change the outcome (the collapse
-//!   stays within the pass goal and below the largest error so far); an edge whose
+//!   stays within the pass goal and below the largest error so far), and
+//!   both checks are skipped when how far the endpoints move bounds them
+//!   below it (the interior check also per sample point); an edge whose
 //!   neighbourhood is untouched since its coverage was computed reuses it;
 //!   the ranking reads each vertex's star once for all its edges
-//!   (`star_edges`), the interior check resolves the old star once.
+//!   (`star_edges`, straight from the CSR) and keeps only the cheapest
+//!   placement (a placement one endpoint's term already rules out skips the
+//!   other's); the interior check resolves the old star once.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
