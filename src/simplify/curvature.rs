@@ -16,16 +16,16 @@ use glam::DVec3;
 pub(crate) fn vertex_curvature(pos: &[DVec3], tris: &[[u32; 3]]) -> Vec<f32> {
     let n = pos.len();
     let mut sum = vec![DVec3::ZERO; n];
-    let face_n: Vec<DVec3> = tris
-        .iter()
-        .map(|t| {
-            let (a, b, c) = (pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]);
-            (b - a).cross(c - a)
-        })
-        .collect();
-    for (t, fnrm) in tris.iter().zip(&face_n) {
+    // Face normals are recomputed in the second pass rather than stored (a
+    // stored array was 24 bytes a triangle of memory traffic).
+    let face_n = |t: &[u32; 3]| {
+        let (a, b, c) = (pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]);
+        (b - a).cross(c - a)
+    };
+    for t in tris {
+        let fnrm = face_n(t);
         for &v in t {
-            sum[v as usize] += *fnrm;
+            sum[v as usize] += fnrm;
         }
     }
     // Mean normals normalised once per vertex, not once per corner.
@@ -34,8 +34,8 @@ pub(crate) fn vertex_curvature(pos: &[DVec3], tris: &[[u32; 3]]) -> Vec<f32> {
     }
     let mut k = vec![0.0f32; n];
     let mut seen = vec![false; n];
-    for (t, fnrm) in tris.iter().zip(&face_n) {
-        let f = fnrm.normalize_or_zero();
+    for t in tris {
+        let f = face_n(t).normalize_or_zero();
         for &v in t {
             let m = sum[v as usize];
             let kv = if m == DVec3::ZERO {

@@ -35,10 +35,14 @@
 //!   and stop as soon as they cannot exceed it (box and plane distance
 //!   bounds before exact point-triangle distances); at apply time the
 //!   threshold is raised to what cannot change the outcome (the collapse
-//!   stays within the pass goal and below the largest error so far); an edge whose
+//!   stays within the pass goal and below the largest error so far), and
+//!   both checks are skipped when how far the endpoints move bounds them
+//!   below it (the interior check also per sample point); an edge whose
 //!   neighbourhood is untouched since its coverage was computed reuses it;
 //!   the ranking reads each vertex's star once for all its edges
-//!   (`star_edges`), the interior check resolves the old star once.
+//!   (`star_edges`, straight from the CSR) and keeps only the cheapest
+//!   placement (a placement one endpoint's term already rules out skips the
+//!   other's); the interior check resolves the old star once.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
@@ -330,6 +334,36 @@ impl<'s> EdgeCost<'s> {
             dist2: d2,
         }
     }
+
+    /// The key of [`EdgeCost::at`] if it is below `best` (total order), else `None`; the key is
+    /// never below either endpoint's term, so one term at or above `best` settles it. `at_u`:
+    /// `p` is `u`'s position, where `u`'s own term is usually 0, so `v`'s is tried first.
+    #[inline]
+    fn key_below(&self, p: DVec3, best: f64, at_u: bool) -> Option<f64> {
+        let (first, iq, second, is) = if at_u {
+            (self.qv, self.iv, self.qu, self.iu)
+        } else {
+            (self.qu, self.iu, self.qv, self.iv)
+        };
+        let a = first.eval(p) * iq;
+        if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan()
+        {
+            return None;
+        }
+        let d2 = if MAX_OF_ENDPOINTS {
+            let b = second.eval(p) * is;
+            // In `at`'s order (`max` may pick either zero of ±0).
+            if at_u {
+                b.max(a)
+            } else {
+                a.max(b)
+            }
+        } else {
+            Quadric::sum(self.qu, self.qv).distance2(p)
+        };
+        let key = d2 * self.factor + self.tie;
+        key.total_cmp(&best).is_lt().then_some(key)
+    }
 }
 
 impl State<'_> {
@@ -427,6 +461,14 @@ impl State<'_> {
                 .copied()
                 .filter(|&c| self.tri_alive[(c / 3) as usize]),
         );
+    }
+
+    /// Corners of `x` straight from the CSR: all live between
+    /// [`State::rebuild_csr`] and the first collapse of the pass (the
+    /// ranking), so no copy is needed there.
+    #[inline]
+    fn csr_star(&self, x: u32) -> &[u32] {
+        &self.corners[self.off[x as usize] as usize..self.off[x as usize + 1] as usize]
     }
 
     /// Rebuilds the CSR adjacency from the live triangles.
@@ -573,6 +615,39 @@ impl State<'_> {
     /// `e`: [`State::edge_info`] of the edge; constraint flags from
     /// [`State::cflag`].
     fn evaluate(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<Eval> {
+        let (pts, n) = self.placements(u, v, e)?;
+        let mut cands = [Candidate {
+            p: DVec3::ZERO,
+            key: 0.0,
+            dist2: 0.0,
+        }; 4];
+        let cost = EdgeCost::new(self, u, v);
+        for i in 0..n {
+            cands[i] = cost.at(pts[i]);
+        }
+        cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
+        Some(Eval { cands, n })
+    }
+
+    /// The cheapest candidate of [`State::evaluate`] (the first of equal
+    /// keys, as its stable sort), its key and placement only: what the
+    /// ranking needs, without the sort and with the second quadric skipped
+    /// for placements the first already rules out.
+    fn evaluate_best(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<(f64, DVec3)> {
+        let (pts, n) = self.placements(u, v, e)?;
+        let cost = EdgeCost::new(self, u, v);
+        let pu = self.pos[u as usize];
+        let mut best = (cost.at(pts[0]).key, pts[0]);
+        for &p in &pts[1..n] {
+            if let Some(k) = cost.key_below(p, best.0, p == pu) {
+                best = (k, p);
+            }
+        }
+        Some(best)
+    }
+
+    /// Candidate placements of collapsing edge (u, v) (see [`State::evaluate`]).
+    fn placements(&self, u: u32, v: u32, e: &EdgeInfo) -> Option<([DVec3; 4], usize)> {
         if !self.alive[u as usize] || !self.alive[v as usize] {
             return None;
         }
@@ -622,17 +697,7 @@ impl State<'_> {
                 n = 3;
             }
         }
-        let mut cands = [Candidate {
-            p: DVec3::ZERO,
-            key: 0.0,
-            dist2: 0.0,
-        }; 4];
-        let cost = EdgeCost::new(self, u, v);
-        for i in 0..n {
-            cands[i] = cost.at(pts[i]);
-        }
-        cands[..n].sort_by(|a, b| a.key.total_cmp(&b.key));
-        Some(Eval { cands, n })
+        Some((pts, n))
     }
 
     /// Topology check of collapsing (u, v), whatever the placement: the
@@ -810,7 +875,7 @@ impl State<'_> {
     /// star with its normals (each point scans it, so it is resolved once).
     #[allow(clippy::too_many_arguments)]
     fn interior2(
-        &self,
+        &mut self,
         u: u32,
         v: u32,
         p: DVec3,
@@ -846,30 +911,28 @@ impl State<'_> {
             });
         }
         // A spoke (p, a) is shared by two new triangles: its midpoint is
-        // measured once, with the first.
-        for i in 0..old.len() {
-            if !old[i].survives {
-                continue;
-            }
-            let (a, b) = (old[i].a, old[i].b);
-            let seen = |y: u32| {
-                old[..i]
-                    .iter()
-                    .any(|o| o.survives && (o.a == y || o.b == y))
-            };
-            let (sa, sb) = (!seen(a), !seen(b));
-            old[i].spoke_a = sa;
-            old[i].spoke_b = sb;
+        // measured once, with the first (marks: vertices of earlier ones).
+        let g = self.next_gen();
+        for o in old.iter_mut().filter(|o| o.survives) {
+            o.spoke_a = self.mark[o.a as usize] != g;
+            o.spoke_b = self.mark[o.b as usize] != g;
+            self.mark[o.a as usize] = g;
+            self.mark[o.b as usize] = g;
         }
         for (i, tr) in old.iter().enumerate() {
             if !tr.survives || tr.px == p {
                 continue; // on the edge, or the new triangle is the old one
             }
             let (pa, pb) = (tr.pa, tr.pb);
+            // A point is within (its weight of `p`) x (how far `x` moved) of
+            // the old triangle's matching point: those bounds below `worst`
+            // (with a margin for rounding) cannot raise it.
+            let m2 = (p - tr.px).length_squared() * (1.0 + 1e-3);
+            let (spokes, centroid) = (0.25 * m2 >= worst, m2 / 9.0 >= worst);
             let pts = [
-                (tr.spoke_a, (p + pa) * 0.5),
-                (tr.spoke_b, (p + pb) * 0.5),
-                (true, (p + pa + pb) / 3.0),
+                (spokes && tr.spoke_a, (p + pa) * 0.5),
+                (spokes && tr.spoke_b, (p + pb) * 0.5),
+                (centroid, (p + pa + pb) / 3.0),
             ];
             for (_, q) in pts.into_iter().filter(|x| x.0) {
                 // The old triangle this one replaces first (often the
@@ -1001,9 +1064,9 @@ fn tri_dist2_min(q: DVec3, a: DVec3, b: DVec3, c: DVec3, best: f64) -> f64 {
     best.min((closest_point_on_triangle(q, a, b, c) - q).length_squared())
 }
 
-/// Ranking output and scratch of one chunk of vertices: entries, a star,
-/// its edges.
-type RankBuf = (Vec<Ranked>, Vec<u32>, Vec<(u32, EdgeInfo)>);
+/// Ranking output and scratch of one chunk of vertices: entries, the edges
+/// of a star.
+type RankBuf = (Vec<Ranked>, Vec<(u32, EdgeInfo)>);
 
 /// Total order of the walk: key, then endpoints.
 #[inline]
@@ -1239,35 +1302,34 @@ pub(crate) fn run(
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
         let stref = &st;
-        let cflag_chunk =
-            |lo: usize, cf: &mut [bool], star: &mut Vec<u32>, scratch: &mut Vec<u32>| {
-                for (i, cf) in cf.iter_mut().enumerate() {
-                    let a = lo + i;
-                    if !stref.alive[a] {
-                        *cf = false;
-                    } else if dirty[a] {
-                        stref.gather(a as u32, star);
-                        *cf = stref.constrained(star, scratch);
-                    }
+        let cflag_chunk = |lo: usize, cf: &mut [bool], scratch: &mut Vec<u32>| {
+            for (i, cf) in cf.iter_mut().enumerate() {
+                let a = lo + i;
+                if !stref.alive[a] {
+                    *cf = false;
+                } else if dirty[a] {
+                    *cf = stref.constrained(stref.csr_star(a as u32), scratch);
                 }
-            };
+            }
+        };
         // Small meshes (they come by the thousand) stay on this thread: a
         // hand-off to the thread pool costs more than their work.
         if n_rank_bufs == 1 {
-            let (_, star, _) = &mut rank_bufs[0];
-            cflag_chunk(0, &mut cflag, star, &mut cflag_scratch);
+            cflag_chunk(0, &mut cflag, &mut cflag_scratch);
         } else {
-            cflag.par_chunks_mut(4096).enumerate().for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(star, scratch), (ci, cf)| cflag_chunk(ci * 4096, cf, star, scratch),
-            );
+            cflag
+                .par_chunks_mut(4096)
+                .enumerate()
+                .for_each_init(Vec::new, |scratch, (ci, cf)| {
+                    cflag_chunk(ci * 4096, cf, scratch)
+                });
         }
         st.cflag = cflag;
         let stref = &st;
         // Per-chunk vectors, kept across passes (growing fresh ones every
         // pass cost page faults and copies); the order of `ranked` does not
         // matter (everything below uses the total order).
-        let rank_chunk = |ci: usize, (out, star, nb): &mut RankBuf| {
+        let rank_chunk = |ci: usize, (out, nb): &mut RankBuf| {
             out.clear();
             let lo = (ci * nv / n_rank_bufs) as u32;
             let hi = ((ci + 1) * nv / n_rank_bufs) as u32;
@@ -1279,15 +1341,13 @@ pub(crate) fn run(
                 if !stref.alive[a as usize] || !dirty[a as usize] {
                     continue;
                 }
-                stref.gather(a, star);
+                let star = stref.csr_star(a);
                 // Those edges with their triangles, in one scan.
                 stref.star_edges(a, star, |b| !dirty[b as usize], nb);
                 for &(b, ref e) in nb.iter() {
                     let (a, b) = (a.min(b), a.max(b));
-                    if let Some(ev) = stref.evaluate(a, b, e) {
-                        let key = ev.cands[0].key;
+                    if let Some((key, p)) = stref.evaluate_best(a, b, e) {
                         let f = stref.factor(a, b);
-                        let p = ev.cands[0].p;
                         // Coverage can only raise the key: computed lazily
                         // (below) unless its bound is no larger.
                         let skip = !RANK_COVERAGE
@@ -1526,16 +1586,29 @@ pub(crate) fn run(
                             } else {
                                 t
                             };
+                        // Below the threshold, both checks are bounded by how far the endpoints
+                        // move (`p` is a vertex of every new triangle, `u` and `v` of the old
+                        // star; a new triangle's sample point is within half that of the old
+                        // triangle it replaces): skipped when the bound cannot exceed it (with
+                        // a margin for rounding).
+                        let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
+                        let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
+                        let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
                         let mut d1 = if ci == 0 && unchanged && RANK_COVERAGE {
                             if en.key > c.key {
                                 en.key / f
                             } else {
                                 0.0
                             }
+                        } else if st
+                            .coverage2_bound(u, v, c.p, su.len(), &e)
+                            .is_some_and(|b| below(b, tt))
+                        {
+                            0.0
                         } else {
                             st.coverage2(u, v, c.p, &su, &sv, tt)
                         };
-                        if INTERIOR {
+                        if INTERIOR && !below(0.25 * moved2, tt.max(d1)) {
                             d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
                         }
                         if d1 > tt {
