@@ -10,6 +10,8 @@
 //!   1920x1080, 60° fov) against the original textures: shared texture files (the default, each
 //!   file counted once), textures embedded in every tile (`--embed-textures`), and texture LOD off;
 //!   with the requests (tiles plus distinct texture files).
+//! - Texture atlas: first-view and whole-tileset bytes and requests with `--texture-atlas` off
+//!   and on (plus the atlas models `tests/textures.rs` writes, when present).
 //!
 //! - Memory (issue 6: texture work must not need more than a few times an image's pixel bytes):
 //!   peak RSS of the pyramid, crop and identical passes on generated 4096² and 16384² RGBA
@@ -237,11 +239,135 @@ fn main() {
         }
     }
 
+    atlas(&bin, &work, &repo, &scenes, &budget);
+
     let sizes: Vec<u32> = std::env::var("BENCH_TEXTURES_SIZES")
         .ok()
         .map(|v| v.split(',').filter_map(|n| n.trim().parse().ok()).collect())
         .unwrap_or_else(|| vec![4096, 16384]);
     memory(&work, &sizes);
+}
+
+/// Bytes and requests of a tileset: the first whole-model view (tiles selected, plus each
+/// distinct texture file they reference) and all of it (every tile and texture file).
+struct Load {
+    view_bytes: u64,
+    view_requests: usize,
+    total_bytes: u64,
+    total_requests: usize,
+}
+
+fn load(dir: &Path) -> Load {
+    let (shared, files) = external::first_view_shared(dir, &Default::default()).unwrap();
+    let plain = view::first_view(dir, &Default::default()).unwrap();
+    let sizes = |sub: &str| -> Vec<u64> {
+        std::fs::read_dir(dir.join(sub))
+            .into_iter()
+            .flatten()
+            .filter_map(|e| e.ok()?.metadata().ok().map(|m| m.len()))
+            .collect()
+    };
+    let (tiles, textures) = (sizes("tiles"), sizes(external::TEXTURE_DIR));
+    Load {
+        // Tile GLBs (embedded images included) plus the shared files they reference.
+        view_bytes: shared.glb_bytes + shared.texture_bytes - plain.texture_bytes,
+        view_requests: shared.tiles + files,
+        total_bytes: tiles.iter().sum::<u64>() + textures.iter().sum::<u64>(),
+        total_requests: tiles.len() + textures.len(),
+    }
+}
+
+/// Per-tile atlas (`--texture-atlas`) on vs off: first-view and whole-tileset bytes and
+/// requests. Besides the textured inputs, the models `tests/textures.rs` writes to
+/// `target/test-out/atlas-model*/` (walls of 16 posters of 48-128 and 192-512 texels; the sample
+/// with a second facade image) when that test has run: the sample and LoD3_Railway have nothing
+/// to pack.
+fn atlas(
+    bin: &Path,
+    work: &Path,
+    repo: &Path,
+    scenes: &[(PathBuf, bimtiles::scene::Scene)],
+    budget: &str,
+) {
+    let mut inputs: Vec<PathBuf> = scenes.iter().map(|(p, _)| p.clone()).collect();
+    for extra in [
+        "atlas-model/poster_wall.glb",
+        "atlas-model/poster_wall_large.glb",
+        "atlas-model-facades/sample_two_facades.glb",
+    ] {
+        let p = repo.join("target/test-out").join(extra);
+        if p.is_file() {
+            inputs.push(p);
+        } else {
+            eprintln!(
+                "{} not found (run `cargo test --release --test textures atlas`)",
+                p.display()
+            );
+        }
+    }
+    println!("\nPer-tile texture atlas, --max-tile-triangles {budget}: bytes and requests (first view SSE 16 px, 1920x1080; all: every tile and texture file)");
+    println!(
+        "{:<22} {:>5} {:>9} {:>5} {:>9} {:>5} {:>10} {:>5} {:>10} {:>5} {:>7} {:>6} {:>10}",
+        "model",
+        "",
+        "view B",
+        "req",
+        "view B",
+        "req",
+        "all B",
+        "req",
+        "all B",
+        "req",
+        "atlases",
+        "packed",
+        "B before>after"
+    );
+    println!(
+        "{:<22} {:>5} {:>15} {:>15} {:>16} {:>16}",
+        "", "", "atlas off", "atlas on", "atlas off", "atlas on"
+    );
+    for input in &inputs {
+        let name = input.file_stem().unwrap().to_string_lossy().to_string();
+        let dirs: Vec<PathBuf> = ["off", "on"]
+            .iter()
+            .map(|s| work.join(format!("atlas-{name}-{s}")))
+            .collect();
+        let ok = ["off", "on"].iter().zip(&dirs).all(|(s, d)| {
+            convert(
+                bin,
+                input,
+                d,
+                &["--max-tile-triangles", budget, "--texture-atlas", s],
+            )
+        });
+        if !ok {
+            eprintln!("conversion of {name} failed");
+            continue;
+        }
+        let (off, on) = (load(&dirs[0]), load(&dirs[1]));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dirs[1].join("report.json")).unwrap()).unwrap();
+        let a = &report["textures"]["atlas"];
+        println!(
+            "{:<22} {:>5} {:>9} {:>5} {:>9} {:>5} {:>10} {:>5} {:>10} {:>5} {:>7} {:>6} {:>10}",
+            name,
+            "",
+            off.view_bytes,
+            off.view_requests,
+            on.view_bytes,
+            on.view_requests,
+            off.total_bytes,
+            off.total_requests,
+            on.total_bytes,
+            on.total_requests,
+            a["atlases"].as_u64().unwrap_or(0),
+            a["images_packed"].as_u64().unwrap_or(0),
+            format!("{}>{}", a["bytes_before"], a["bytes_after"]),
+        );
+        for d in &dirs {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
 }
 
 /// The UV box the crop pass keeps: the middle half in each direction (a quarter of the texels).

@@ -1044,9 +1044,13 @@ impl<'a> TileWriter<'a> {
         let merged = self.appearance.merge(scene, content);
         let content = merged.as_ref().unwrap_or(content);
         let chosen = textures.for_tile(content, texture_error);
-        let image = |id: crate::scene::ImageId| {
-            textures.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0))
-        };
+        // Small non-repeating images packed into an atlas: UVs remapped in a copy of the content.
+        let atlas = textures
+            .atlas_for_tile(content, &chosen)
+            .map_err(|e| Error::output(&path, e))?;
+        let content = atlas.as_ref().map_or(content, |a| &a.content);
+        let image = |id| textures.image_for(id, &chosen, atlas.as_ref());
+        let sampled_px = atlas.as_ref().map(|a| a.texels_px()).unwrap_or_default();
         let scope = match (st.simplified_from_triangles, opts.coarse_tile_properties) {
             (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
             _ => TableScope::All,
@@ -1068,8 +1072,15 @@ impl<'a> TileWriter<'a> {
             }
             _ => &self.encoding,
         };
-        let enc = encode_content_with_images(scene, content, encoding, Some(&make_table), &image)
-            .map_err(|e| Error::output(&path, e))?;
+        let enc = encode_content_with_images(
+            scene,
+            content,
+            encoding,
+            Some(&make_table),
+            &image,
+            &sampled_px,
+        )
+        .map_err(|e| Error::output(&path, e))?;
         write_renamed(&path, &enc.glb)?;
         self.pb.inc(1);
         st.uri = Some(uri);

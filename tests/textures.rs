@@ -436,3 +436,537 @@ fn sample_texture_classes_and_crop_are_reported() {
     assert!(t["written_bytes"].as_u64().unwrap() > 0);
     assert!(t["original_bytes"].as_u64().unwrap() > 0);
 }
+
+/// The bundled sample with a second facade image: the planters' material (`Stone cladding dark`)
+/// gets its own darker, warmer copy of the facade photo. The bundled sample has one
+/// non-repeating image (the photo, bound by both materials; the floor tiles repeat), so none of
+/// its tiles has two images to pack; here the tiles holding the west cladding and a planter do.
+fn sample_with_two_facades(out: &Path) {
+    let glb = std::fs::read(sample()).unwrap();
+    let n = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let mut json: Value = serde_json::from_slice(&glb[20..20 + n]).unwrap();
+    let mut bin = glb[20 + n + 8..].to_vec();
+    let photo = json["images"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .position(|i| i["name"] == "facade_photo.png")
+        .unwrap();
+    let view = &json["bufferViews"][json["images"][photo]["bufferView"].as_u64().unwrap() as usize];
+    let (off, len) = (
+        view["byteOffset"].as_u64().unwrap() as usize,
+        view["byteLength"].as_u64().unwrap() as usize,
+    );
+    let mut px = image::load_from_memory(&bin[off..off + len])
+        .unwrap()
+        .to_rgba8();
+    for p in px.pixels_mut() {
+        let [r, g, b, a] = p.0;
+        p.0 = [
+            (r as u32 * 7 / 10) as u8,
+            (g as u32 * 6 / 10) as u8,
+            b / 2,
+            a,
+        ];
+    }
+    let mut png = Vec::new();
+    px.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let views = json["bufferViews"].as_array_mut().unwrap();
+    views.push(serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": png.len()}));
+    let view = views.len() - 1;
+    bin.extend_from_slice(&png);
+    json["buffers"][0]["byteLength"] = bin.len().into();
+    let images = json["images"].as_array_mut().unwrap();
+    images.push(
+        serde_json::json!({"name": "facade_dark.png", "bufferView": view, "mimeType": "image/png"}),
+    );
+    let image = images.len() - 1;
+    let sampler = json["textures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["source"] == photo)
+        .unwrap()["sampler"]
+        .clone();
+    let textures = json["textures"].as_array_mut().unwrap();
+    textures.push(serde_json::json!({"name": "Facade dark", "sampler": sampler, "source": image}));
+    let texture = textures.len() - 1;
+    let dark = json["materials"]
+        .as_array_mut()
+        .unwrap()
+        .iter_mut()
+        .find(|m| m["name"] == "Stone cladding dark")
+        .unwrap();
+    dark["pbrMetallicRoughness"]["baseColorTexture"]["index"] = texture.into();
+    std::fs::write(out, glb_of(&serde_json::to_vec(&json).unwrap(), &bin)).unwrap();
+}
+
+/// A GLB of a JSON and a BIN chunk.
+fn glb_of(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let pad = |b: &[u8], fill: u8| {
+        let mut v = b.to_vec();
+        v.resize(b.len().div_ceil(4) * 4, fill);
+        v
+    };
+    let (j, b) = (pad(json, b' '), pad(bin, 0));
+    let mut out = b"glTF".to_vec();
+    out.extend(2u32.to_le_bytes());
+    out.extend(((28 + j.len() + b.len()) as u32).to_le_bytes());
+    out.extend((j.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(&j);
+    out.extend((b.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(&b);
+    out
+}
+
+/// Every textured primitive of every tile (internal ones too) of two runs of the same model
+/// shows the same texel colour at points by each vertex and at each triangle's centroid
+/// (nearest texel, read back with the `gltf` and `image` crates); returns the samples taken and
+/// the primitives whose image differs between the runs (an atlas in one of them).
+fn same_colours_everywhere(a: &Run, b: &Run) -> (usize, usize) {
+    let (mut samples, mut differ) = (0, 0);
+    for (ta, tb) in a.tiles.iter().zip(&b.tiles) {
+        let (Some(ua), Some(ub)) = (&ta.uri, &tb.uri) else {
+            continue;
+        };
+        assert_eq!(ua, ub);
+        let (pa, pb) = (
+            read_textured(&a.dir.join(ua)),
+            read_textured(&b.dir.join(ub)),
+        );
+        assert_eq!(pa.len(), pb.len(), "{ua}: textured primitives");
+        for (x, y) in pa.iter().zip(&pb) {
+            assert_eq!(x.positions, y.positions, "{ua}: same geometry");
+            assert_eq!(x.indices, y.indices, "{ua}: same triangles");
+            differ += (x.image != y.image) as usize;
+            let ix = image::load_from_memory(&x.image).unwrap().to_rgba8();
+            let iy = image::load_from_memory(&y.image).unwrap().to_rgba8();
+            for (u, v) in sample_uvs(x).iter().zip(sample_uvs(y)) {
+                // A point on a texel border (a centroid at 2/3 of a 3-texel level) may round
+                // to either texel.
+                if on_texel_border(&ix, *u) || on_texel_border(&iy, v) {
+                    continue;
+                }
+                assert_eq!(texel(&ix, *u), texel(&iy, v), "{ua}: uv {u:?} vs {v:?}");
+                samples += 1;
+            }
+        }
+    }
+    (samples, differ)
+}
+
+/// Whether `uv` lies within 1/1000 texel of a texel border of `img`.
+fn on_texel_border(img: &image::RgbaImage, uv: [f32; 2]) -> bool {
+    let (w, h) = img.dimensions();
+    [(uv[0], w), (uv[1], h)].iter().any(|&(t, n)| {
+        let x = t as f64 * n as f64;
+        (x - x.round()).abs() < 1e-3
+    })
+}
+
+#[test]
+fn atlas_declines_the_two_facades_where_it_does_not_save() {
+    // At 3000 triangles a tile, only the root holds both facades, at 7x7 and 1x1 texels (199 and
+    // 72 bytes, both embedded): an atlas with its borders is larger, so the root keeps them.
+    let model = tmpdir("atlas-model-facades").join("sample_two_facades.glb");
+    sample_with_two_facades(&model);
+    let budget = ["--max-tile-triangles", "3000"];
+    let off = run(
+        &model,
+        "atlas-two-off",
+        &[&budget[..], &["--texture-atlas", "off"]].concat(),
+    );
+    let on = run(
+        &model,
+        "atlas-two-on",
+        &[&budget[..], &["--texture-atlas", "on"]].concat(),
+    );
+    let a = &on.report["textures"]["atlas"];
+    eprintln!("two facades: atlas {a}");
+    assert_eq!(on.report["textures"]["classes"]["repeated"], 1);
+    assert!(
+        a["declined"].as_u64().unwrap() >= 1,
+        "the root's two facades were candidates"
+    );
+    assert_eq!(a["atlases"], 0);
+    assert_same_tiles(&off, &on);
+}
+
+/// The bundled sample has one non-repeating image, so nothing to pack: the atlas changes no
+/// byte of its tiles.
+#[test]
+fn atlas_leaves_the_bundled_sample_unchanged() {
+    let budget = ["--max-tile-triangles", "2000"];
+    let off = run(
+        &sample(),
+        "atlas-sample-off",
+        &[&budget[..], &["--texture-atlas", "off"]].concat(),
+    );
+    let on = run(
+        &sample(),
+        "atlas-sample-on",
+        &[&budget[..], &["--texture-atlas", "on"]].concat(),
+    );
+    assert_eq!(on.report["textures"]["atlas"]["atlases"], 0);
+    assert_eq!(on.report["textures"]["atlas"]["images_packed"], 0);
+    assert_same_tiles(&off, &on);
+}
+
+/// Every tile GLB and shared texture file of two runs is byte-identical.
+fn assert_same_tiles(a: &Run, b: &Run) {
+    assert_eq!(a.tiles.len(), b.tiles.len());
+    for (ta, tb) in a.tiles.iter().zip(&b.tiles) {
+        assert_eq!(ta.uri, tb.uri);
+        if let Some(u) = &ta.uri {
+            assert!(
+                std::fs::read(a.dir.join(u)).unwrap() == std::fs::read(b.dir.join(u)).unwrap(),
+                "{u} differs"
+            );
+        }
+    }
+    let files = |d: &Path| {
+        let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(d.join("textures"))
+            .into_iter()
+            .flatten()
+            .map(|e| {
+                let e = e.unwrap();
+                (
+                    e.file_name().to_string_lossy().to_string(),
+                    std::fs::read(e.path()).unwrap(),
+                )
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    assert!(files(&a.dir) == files(&b.dir), "texture files differ");
+}
+
+/// LoD3_Railway's 28 textures all repeat: with the atlas on, none is packed and the tiles are
+/// those of the atlas off.
+#[test]
+fn lod3_railway_repeated_textures_are_never_packed() {
+    let Some(sh) = shared() else {
+        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb not tested)");
+        return;
+    };
+    let model = sh.join("data/LoD3_Railway.glb");
+    if !model.is_file() {
+        eprintln!("SKIPPED: {} not found", model.display());
+        return;
+    }
+    let budget = ["--max-tile-triangles", "3000"];
+    let off = run(
+        &model,
+        "atlas-railway-off",
+        &[&budget[..], &["--texture-atlas", "off"]].concat(),
+    );
+    let on = run(
+        &model,
+        "atlas-railway-on",
+        &[&budget[..], &["--texture-atlas", "on"]].concat(),
+    );
+    let t = &on.report["textures"];
+    assert_eq!(t["classes"]["repeated"], 28);
+    assert_eq!(
+        t["atlas"]["images_packed"], 0,
+        "repeated textures are never packed"
+    );
+    assert_eq!(t["atlas"]["atlases"], 0);
+    assert_same_tiles(&off, &on);
+}
+
+/// A wall of `n` posters (1 m quads, each with its own small PNG, UVs inside [0, 1], CLAMP) in
+/// rows of 4, and a floor in front with a tiling texture (UVs 0..6, REPEAT). Each poster and the
+/// floor is its own node and mesh. Poster images are smooth patterns of 48-128 texels a side,
+/// each different, named `Poster <k>`; the floor's material is `Floor`.
+/// The JSON arrays and BIN chunk of a GLB being written.
+#[derive(Default)]
+struct GlbBuilder {
+    bin: Vec<u8>,
+    views: Vec<Value>,
+    accessors: Vec<Value>,
+}
+
+impl GlbBuilder {
+    fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+        while self.bin.len() % 4 != 0 {
+            self.bin.push(0);
+        }
+        let mut v = serde_json::json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+        if let Some(t) = target {
+            v["target"] = t.into();
+        }
+        self.bin.extend_from_slice(bytes);
+        self.views.push(v);
+        self.views.len() - 1
+    }
+
+    /// A quad primitive (two triangles) with one normal and the given UVs; its JSON.
+    fn quad(
+        &mut self,
+        corners: [[f32; 3]; 4],
+        uvs: [[f32; 2]; 4],
+        normal: [f32; 3],
+        material: usize,
+    ) -> Value {
+        let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        let lo: Vec<f32> = (0..3)
+            .map(|k| corners.iter().map(|c| c[k]).fold(f32::MAX, f32::min))
+            .collect();
+        let hi: Vec<f32> = (0..3)
+            .map(|k| corners.iter().map(|c| c[k]).fold(f32::MIN, f32::max))
+            .collect();
+        let p = self.view(&floats(corners.as_flattened()), Some(34962));
+        let n = self.view(&floats([normal; 4].as_flattened()), Some(34962));
+        let t = self.view(&floats(uvs.as_flattened()), Some(34962));
+        let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3]
+            .iter()
+            .flat_map(|i| i.to_le_bytes())
+            .collect();
+        let i = self.view(&idx, Some(34963));
+        let a = self.accessors.len();
+        self.accessors.extend([
+            serde_json::json!({"bufferView": p, "componentType": 5126, "count": 4, "type": "VEC3", "min": lo, "max": hi}),
+            serde_json::json!({"bufferView": n, "componentType": 5126, "count": 4, "type": "VEC3"}),
+            serde_json::json!({"bufferView": t, "componentType": 5126, "count": 4, "type": "VEC2"}),
+            serde_json::json!({"bufferView": i, "componentType": 5123, "count": 6, "type": "SCALAR"}),
+        ]);
+        serde_json::json!({"attributes": {"POSITION": a, "NORMAL": a + 1, "TEXCOORD_0": a + 2},
+            "indices": a + 3, "material": material})
+    }
+}
+
+fn png_of(img: &image::RgbaImage) -> Vec<u8> {
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    png
+}
+
+/// A wall of `n` posters (1 m quads, each with its own small PNG, UVs inside [0, 1], CLAMP) in
+/// rows of 4, and a floor in front with a tiling texture (UVs 0..6, REPEAT). Each poster and the
+/// floor is its own node and mesh. Poster images are smooth patterns of 48-128 texels a side
+/// times `scale`, each different; their materials are `Poster <k>`, the floor's `Floor`.
+fn poster_wall(n: usize, scale: u32) -> Vec<u8> {
+    use serde_json::json;
+    let mut b = GlbBuilder::default();
+    let (mut meshes, mut nodes, mut materials, mut textures, mut images) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    for k in 0..n {
+        let (w, h) = (
+            (48 + (k as u32 * 37) % 81) * scale,
+            (48 + (k as u32 * 53) % 81) * scale,
+        );
+        let px = image::RgbaImage::from_fn(w, h, |x, y| {
+            let stripe = ((x / 6 + y / 9 + k as u32) % 3) as u8;
+            image::Rgba([
+                (x * 255 / w) as u8 ^ (k as u8 * 29),
+                (y * 255 / h) as u8,
+                60 + stripe * 50,
+                255,
+            ])
+        });
+        let v = b.view(&png_of(&px), None);
+        images.push(
+            json!({"name": format!("poster_{k}.png"), "bufferView": v, "mimeType": "image/png"}),
+        );
+        textures.push(json!({"sampler": 0, "source": images.len() - 1}));
+        materials.push(
+            json!({"name": format!("Poster {k}"), "pbrMetallicRoughness": {
+            "baseColorTexture": {"index": textures.len() - 1}, "metallicFactor": 0.0}}),
+        );
+        let (x, y) = ((k % 4) as f32 * 1.25, (k / 4) as f32 * 1.25);
+        let c = [
+            [x, y, 0.0],
+            [x + 1.0, y, 0.0],
+            [x + 1.0, y + 1.0, 0.0],
+            [x, y + 1.0, 0.0],
+        ];
+        // v runs down the image: the poster's top edge samples row 0.
+        let uv = [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]];
+        meshes.push(json!({"primitives": [b.quad(c, uv, [0.0, 0.0, 1.0], materials.len() - 1)]}));
+        nodes.push(json!({"name": format!("Poster-{k:02}"), "mesh": meshes.len() - 1}));
+    }
+    let tile = image::RgbaImage::from_fn(32, 32, |x, y| {
+        image::Rgba([((x / 8 + y / 8) % 2 * 120 + 60) as u8, 90, 70, 255])
+    });
+    let v = b.view(&png_of(&tile), None);
+    images.push(json!({"name": "floor.png", "bufferView": v, "mimeType": "image/png"}));
+    textures.push(json!({"sampler": 1, "source": images.len() - 1}));
+    materials.push(json!({"name": "Floor", "pbrMetallicRoughness": {
+        "baseColorTexture": {"index": textures.len() - 1}, "metallicFactor": 0.0}}));
+    let c = [
+        [0.0, 0.0, 3.0],
+        [5.0, 0.0, 3.0],
+        [5.0, 0.0, 0.5],
+        [0.0, 0.0, 0.5],
+    ];
+    let uv = [[0.0, 6.0], [6.0, 6.0], [6.0, 0.0], [0.0, 0.0]];
+    meshes.push(json!({"primitives": [b.quad(c, uv, [0.0, 1.0, 0.0], materials.len() - 1)]}));
+    nodes.push(json!({"name": "Floor", "mesh": meshes.len() - 1}));
+    let json = json!({
+        "asset": {"version": "2.0", "generator": "bimtiles tests/textures.rs poster_wall"},
+        "scene": 0, "scenes": [{"nodes": (0..nodes.len()).collect::<Vec<_>>()}],
+        "nodes": nodes, "meshes": meshes, "materials": materials, "textures": textures,
+        "images": images, "accessors": b.accessors, "bufferViews": b.views,
+        "samplers": [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071},
+                     {"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}],
+        "buffers": [{"byteLength": b.bin.len()}],
+    });
+    glb_of(&serde_json::to_vec(&json).unwrap(), &b.bin)
+}
+
+/// Tiles whose GLB binds one image to two or more materials named `prefix…`: an atlas.
+fn tiles_sharing_an_image(run: &Run, prefix: &str) -> usize {
+    let mut n = 0;
+    for t in &run.tiles {
+        let Some(uri) = &t.uri else { continue };
+        let json = glb_json(&std::fs::read(run.dir.join(uri)).unwrap());
+        let mut per_image: BTreeMap<u64, usize> = BTreeMap::new();
+        for m in json["materials"].as_array().into_iter().flatten() {
+            let Some(tex) = m["pbrMetallicRoughness"]["baseColorTexture"]["index"].as_u64() else {
+                continue;
+            };
+            if m["name"].as_str().is_some_and(|s| s.starts_with(prefix)) {
+                *per_image
+                    .entry(json["textures"][tex as usize]["source"].as_u64().unwrap())
+                    .or_default() += 1;
+            }
+        }
+        n += per_image.values().any(|&k| k >= 2) as usize;
+    }
+    n
+}
+
+#[test]
+fn atlas_packs_a_poster_wall_and_keeps_its_colours() {
+    let model = tmpdir("atlas-model").join("poster_wall.glb");
+    std::fs::write(&model, poster_wall(16, 1)).unwrap();
+    // For `make bench` (examples/bench_textures.rs): posters of 192-512 texels.
+    std::fs::write(
+        model.with_file_name("poster_wall_large.glb"),
+        poster_wall(16, 4),
+    )
+    .unwrap();
+    let budget = ["--max-tile-triangles", "8"];
+    let off = run(
+        &model,
+        "atlas-posters-off",
+        &[&budget[..], &["--texture-atlas", "off"]].concat(),
+    );
+    let on = run(
+        &model,
+        "atlas-posters-on",
+        &[&budget[..], &["--texture-atlas", "on"]].concat(),
+    );
+    let a = &on.report["textures"]["atlas"];
+    eprintln!("poster wall: atlas {a}");
+    let atlases = a["atlases"].as_u64().unwrap();
+    assert!(atlases > 0, "tiles pack their posters");
+    assert!(a["images_packed"].as_u64().unwrap() >= 2 * atlases);
+    let saved = atlases * bimtiles::texture::atlas::ATLAS_BYTES_PER_SAVED_REQUEST;
+    assert!(a["bytes_after"].as_u64().unwrap() <= a["bytes_before"].as_u64().unwrap() + saved);
+    assert_eq!(off.report["textures"]["atlas"]["atlases"], 0);
+    // Used where it should: every atlas binds two or more posters' materials to one image...
+    assert_eq!(tiles_sharing_an_image(&on, "Poster") as u64, atlases);
+    assert_eq!(tiles_sharing_an_image(&off, "Poster"), 0);
+    // ...and never the tiling floor.
+    for t in &on.tiles {
+        let Some(uri) = &t.uri else { continue };
+        let json = glb_json(&std::fs::read(on.dir.join(uri)).unwrap());
+        let source = |m: &Value| {
+            let tex = m["pbrMetallicRoughness"]["baseColorTexture"]["index"].as_u64()?;
+            json["textures"][tex as usize]["source"].as_u64()
+        };
+        let mats = json["materials"].as_array().cloned().unwrap_or_default();
+        if let Some(floor) = mats.iter().find(|m| m["name"] == "Floor") {
+            for m in mats.iter().filter(|m| m["name"] != "Floor") {
+                assert_ne!(
+                    source(m),
+                    source(floor),
+                    "{uri}: the repeated floor texture is packed"
+                );
+            }
+        }
+    }
+    let (samples, differ) = same_colours_everywhere(&off, &on);
+    eprintln!("poster wall: {samples} UV samples show the same colour with and without the atlas ({differ} primitives sample an atlas)");
+    assert!(differ >= 2 * atlases as usize && samples > 0);
+    check_shared_files(&on);
+    gltf_validator(&on.dir);
+    // Embedded, and Draco-compressed (UV bits follow the atlas): valid too.
+    for (name, extra) in [
+        ("embed", &["--embed-textures"][..]),
+        ("draco", &["--compression", "draco"][..]),
+    ] {
+        let dir = tmpdir(&format!("atlas-posters-{name}")).join("tiles");
+        let mut args = budget.to_vec();
+        args.extend(["--texture-atlas", "on"]);
+        args.extend(extra);
+        let r = convert(&model, &dir, &args);
+        assert_eq!(r["textures"]["atlas"]["atlases"], atlases, "{name}");
+        gltf_validator(&dir);
+    }
+}
+
+/// A sharded build (plan / build-job in reverse order / merge) of the poster wall with the atlas
+/// writes the tiles, texture files and tileset.json of `convert`, byte for byte: atlases depend
+/// on the tile's content only, not on which process or thread wrote it.
+#[test]
+fn atlas_sharded_build_is_byte_identical() {
+    let model = tmpdir("atlas-shard-model").join("poster_wall.glb");
+    std::fs::write(&model, poster_wall(16, 1)).unwrap();
+    let extra = ["--max-tile-triangles", "8", "--texture-atlas", "on"];
+    let whole = run(&model, "atlas-shard-convert", &extra);
+    assert!(
+        whole.report["textures"]["atlas"]["atlases"]
+            .as_u64()
+            .unwrap()
+            > 0
+    );
+    let dir = tmpdir("atlas-shard-jobs").join("tiles");
+    let d = dir.to_str().unwrap();
+    let ok = |args: &[&str]| {
+        let o = common::run(args);
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    let mut plan = vec![
+        "plan",
+        model.to_str().unwrap(),
+        "--out",
+        d,
+        "--jobs",
+        "3",
+        "--quiet",
+    ];
+    plan.extend_from_slice(&extra);
+    plan.extend_from_slice(&["--compression", "none"]);
+    ok(&plan);
+    for k in ["2", "1", "0"] {
+        ok(&["build-job", d, "--job", k, "--quiet"]);
+    }
+    ok(&["merge", d, "--quiet"]);
+    let (_, tiles) = decode_tileset(&dir);
+    let sharded = Run {
+        dir: dir.clone(),
+        report: Value::Null,
+        has_child: vec![false; tiles.len()],
+        tiles,
+    };
+    assert_same_tiles(&whole, &sharded);
+    assert!(
+        std::fs::read(whole.dir.join("tileset.json")).unwrap()
+            == std::fs::read(dir.join("tileset.json")).unwrap()
+    );
+}

@@ -205,6 +205,10 @@ struct ConvertArgs {
     /// Embed the texture levels smaller than this many bytes even when sharing texture files.
     #[arg(long, default_value_t = bimtiles::texture::DEFAULT_EMBED_BELOW_BYTES)]
     embed_textures_below: usize,
+    /// Pack each tile's small non-repeating textures into one atlas image when that saves
+    /// requests and bytes (UVs remapped): on or off.
+    #[arg(long, value_enum, default_value = "off")]
+    texture_atlas: OnOff,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -572,6 +576,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
                 TextureFormatArg::Jpeg => TextureFormat::Jpeg,
             },
             jpeg_quality: a.jpeg_quality,
+            atlas: a.texture_atlas == OnOff::On,
         },
     };
     if opts.lod == LodMode::None && opts.error_metric == ErrorMetric::PaperSse {

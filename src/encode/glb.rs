@@ -117,12 +117,22 @@ fn uv_bits(uvs: &[[f32; 2]], texels: u32) -> u8 {
     ((range * 2.0 * texels.max(1) as f64).log2().ceil() as u8).clamp(6, 20)
 }
 
-/// Texels along the longer side of the base colour image of `material` at full resolution.
-fn texture_texels(scene: &Scene, material: Option<MaterialId>) -> u32 {
-    material
-        .and_then(|m| scene.materials[m.index()].base_color_texture.as_ref())
+/// Texels along the longer side of the base colour image of `material` at full resolution, or
+/// of the atlas the tile samples it from (`sampled_px`) when that is larger.
+fn texture_texels(
+    scene: &Scene,
+    material: Option<MaterialId>,
+    sampled_px: &BTreeMap<ImageId, u32>,
+) -> u32 {
+    let t = material.and_then(|m| scene.materials[m.index()].base_color_texture.as_ref());
+    let own = t
         .and_then(|t| crate::texture::codec::dimensions(&scene.images[t.image.index()].bytes).ok())
-        .map_or(DEFAULT_UV_TEXELS, |(w, h)| w.max(h))
+        .map_or(DEFAULT_UV_TEXELS, |(w, h)| w.max(h));
+    own.max(
+        t.and_then(|t| sampled_px.get(&t.image))
+            .copied()
+            .unwrap_or(0),
+    )
 }
 
 /// Makes the property table of a tile's features (in feature-ID order).
@@ -152,7 +162,7 @@ pub fn encode_content(
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
 ) -> Result<EncodedTile> {
-    encode_content_from(scene, content, enc, metadata, None)
+    encode_content_from(scene, content, enc, metadata, None, &BTreeMap::new())
 }
 
 /// How one tile carries an image (e.g. the texture pyramid level matched to the tile:
@@ -172,15 +182,18 @@ pub enum TileImage {
 /// Gives the image of one tile, or why it cannot.
 pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, String> + Sync);
 
-/// [`encode_content`], with the images taken from `images` instead of the scene.
+/// [`encode_content`], with the images taken from `images` instead of the scene;
+/// `sampled_px`: the longer side of the image the tile samples instead of a scene image (a
+/// texture atlas, `crate::texture::atlas`), which Draco's UV precision must resolve.
 pub fn encode_content_with_images(
     scene: &Scene,
     content: &TileContent,
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
     images: ImageSource,
+    sampled_px: &BTreeMap<ImageId, u32>,
 ) -> Result<EncodedTile> {
-    encode_content_from(scene, content, enc, metadata, Some(images))
+    encode_content_from(scene, content, enc, metadata, Some(images), sampled_px)
 }
 
 fn encode_content_from(
@@ -189,11 +202,13 @@ fn encode_content_from(
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
     images: Option<ImageSource>,
+    sampled_px: &BTreeMap<ImageId, u32>,
 ) -> Result<EncodedTile> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
     let mats = MaterialTable {
         image_source: images,
+        sampled_px: sampled_px.clone(),
         ..MaterialTable::default()
     };
     let (glb, metadata_bytes) =
@@ -358,6 +373,12 @@ struct MaterialTable<'a> {
     material_map: BTreeMap<u32, usize>,
     images: Vec<Value>,
     image_map: BTreeMap<u32, usize>,
+    /// Shared files written, by URI, and embedded atlases, by their bytes' address: two scene
+    /// images packed into one atlas are one glTF image.
+    uri_map: BTreeMap<String, usize>,
+    embedded: Vec<(std::sync::Arc<Vec<u8>>, usize)>,
+    /// See [`encode_content_with_images`].
+    sampled_px: BTreeMap<ImageId, u32>,
     samplers: Vec<Sampler>,
     textures: Vec<(usize, usize)>,
 }
@@ -387,14 +408,9 @@ impl MaterialTable<'_> {
                             mime: im.mime_type.clone(),
                         },
                     };
-                    self.images.push(match image {
-                        TileImage::Embedded { bytes, mime } => {
-                            json!({"bufferView": b.view(&bytes, None), "mimeType": mime})
-                        }
-                        TileImage::External { uri, mime } => json!({"uri": uri, "mimeType": mime}),
-                    });
-                    self.image_map.insert(t.image.0, self.images.len() - 1);
-                    self.images.len() - 1
+                    let k = self.push_image(b, image);
+                    self.image_map.insert(t.image.0, k);
+                    k
                 }
             };
             let sampler = self
@@ -418,6 +434,34 @@ impl MaterialTable<'_> {
         self.materials.push(material_json(mat, tex));
         self.material_map.insert(mid.0, self.materials.len() - 1);
         Ok(self.materials.len() - 1)
+    }
+
+    /// The glTF index of `image`, written unless the same shared file or the same embedded
+    /// bytes (one `Arc`: an atlas) already are.
+    fn push_image(&mut self, b: &mut GltfBuilder, image: TileImage) -> usize {
+        let n = self.images.len();
+        match image {
+            TileImage::Embedded { bytes, mime } => {
+                if let Some(&(_, k)) = self
+                    .embedded
+                    .iter()
+                    .find(|(a, _)| std::sync::Arc::ptr_eq(a, &bytes))
+                {
+                    return k;
+                }
+                self.images
+                    .push(json!({"bufferView": b.view(&bytes, None), "mimeType": mime}));
+                self.embedded.push((bytes, n));
+            }
+            TileImage::External { uri, mime } => {
+                if let Some(&k) = self.uri_map.get(&uri) {
+                    return k;
+                }
+                self.images.push(json!({"uri": uri, "mimeType": mime}));
+                self.uri_map.insert(uri, n);
+            }
+        }
+        n
     }
 
     fn write_into(self, root: &mut Value) {
@@ -457,7 +501,7 @@ fn write_primitive(
             (p, frame.map(|f| f.decoded_positions(&m.positions)))
         }
         Compression::Draco => {
-            let texels = texture_texels(scene, m.material);
+            let texels = texture_texels(scene, m.material, &mats.sampled_px);
             let (p, bx) = draco_primitive(b, m, feature_count, enc, texels)?;
             (p, Some(bx))
         }

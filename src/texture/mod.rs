@@ -14,8 +14,11 @@
 //! (JPEG and WebP, which have no row decoder, are decoded whole in their own colour type). Level
 //! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
 //! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
-//! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. [`view`] measures what a client loads for a first whole-model view.
+//! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. With `atlas`, a tile's
+//! small non-repeating images are packed into one image when that saves requests and bytes
+//! ([`atlas`]). [`view`] measures what a client loads for a first whole-model view.
 
+pub mod atlas;
 pub mod classify;
 pub mod codec;
 pub mod crop;
@@ -50,6 +53,8 @@ pub struct TextureOptions {
     /// Image levels smaller than this are embedded even when sharing (a request costs more than
     /// repeating a few hundred bytes).
     pub embed_below_bytes: usize,
+    /// Pack each tile's small non-repeating images into one atlas when that saves ([`atlas`]).
+    pub atlas: bool,
 }
 
 /// Default of [`TextureOptions::embed_below_bytes`], by measurement (`make bench`, first view of
@@ -57,6 +62,9 @@ pub struct TextureOptions {
 /// each) and cuts the requests from 57 to 36 for 1 % more texture bytes; 4 KiB saves 5 more
 /// requests for 15 % more bytes.
 pub const DEFAULT_EMBED_BELOW_BYTES: usize = 1024;
+
+/// Default of [`TextureOptions::atlas`], by measurement (README, Textures).
+pub const DEFAULT_ATLAS: bool = false;
 
 impl Default for TextureOptions {
     fn default() -> Self {
@@ -67,6 +75,7 @@ impl Default for TextureOptions {
             jpeg_quality: DEFAULT_JPEG_QUALITY,
             embed: false,
             embed_below_bytes: DEFAULT_EMBED_BELOW_BYTES,
+            atlas: DEFAULT_ATLAS,
         }
     }
 }
@@ -214,6 +223,8 @@ pub struct TextureReport {
     pub written_bytes: u64,
     /// Shared texture files under `textures/` (0 when embedded).
     pub external_files: usize,
+    /// Per-tile atlases: how many, images packed, bytes before and after.
+    pub atlas: atlas::AtlasReport,
     pub images: Vec<ImageReport>,
 }
 
@@ -227,6 +238,9 @@ pub struct TextureLevels<'a> {
     written: Mutex<BTreeMap<usize, LevelWritten>>,
     /// Where shared files go; `None`: images are embedded.
     external: Option<external::ExternalTextures>,
+    /// Per image: classified *repeated* (never packed into an atlas); empty without `atlas`.
+    repeated: Vec<bool>,
+    atlas_tally: Mutex<atlas::AtlasReport>,
 }
 
 /// The level chosen for each image of one tile.
@@ -250,6 +264,14 @@ impl<'a> TextureLevels<'a> {
             pyramids: (0..scene.images.len()).map(|_| OnceLock::new()).collect(),
             written: Mutex::new(BTreeMap::new()),
             external: None,
+            repeated: match opts.atlas {
+                true => classify::classify(scene)
+                    .iter()
+                    .map(|u| u.class == classify::TextureClass::Repeated)
+                    .collect(),
+                false => Vec::new(),
+            },
+            atlas_tally: Mutex::new(atlas::AtlasReport::default()),
         }
     }
 
@@ -326,6 +348,19 @@ impl<'a> TextureLevels<'a> {
         let (uri, _) = ext.store(&bytes, &mime, level)?;
         self.tally(level, 0);
         Ok(TileImage::External { uri, mime })
+    }
+
+    /// How one tile carries `id`: the atlas that packed it, or its level as [`Self::tile_image`].
+    pub fn image_for(
+        &self,
+        id: ImageId,
+        chosen: &TileTextures,
+        atlas: Option<&atlas::TileAtlas>,
+    ) -> Result<TileImage, String> {
+        match atlas.and_then(|a| a.image(id)) {
+            Some(im) => Ok(im.clone()),
+            None => self.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0)),
+        }
     }
 
     /// One more reference at `level`, of `embedded_bytes` in the tile.
@@ -420,6 +455,7 @@ impl<'a> TextureLevels<'a> {
         let written_per_level: Vec<LevelWritten> = written.into_values().collect();
         TextureReport {
             external_files: self.external.as_ref().map_or(0, |e| e.file_count()),
+            atlas: self.atlas_tally.into_inner().expect("atlas tally"),
             options: self.opts,
             stored_bytes: images.iter().map(|i| i.bytes).sum(),
             undecodable,
