@@ -141,6 +141,15 @@ fn run(model: &Path, name: &str, extra: &[&str]) -> Run {
     }
 }
 
+/// `model` converted with the atlas off, then on (outputs `{name}-off` and `{name}-on`).
+fn run_atlas_off_on(model: &Path, name: &str, extra: &[&str]) -> (Run, Run) {
+    let with = |state: &str| {
+        let args = [extra, &["--texture-atlas", state]].concat();
+        run(model, &format!("{name}-{state}"), &args)
+    };
+    (with("off"), with("on"))
+}
+
 /// The checks of one model; returns (internal tiles with a coarser image, textured tiles).
 fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usize) {
     let tex = &run.report["textures"];
@@ -577,16 +586,7 @@ fn atlas_declines_the_two_facades_where_it_does_not_save() {
     let model = tmpdir("atlas-model-facades").join("sample_two_facades.glb");
     sample_with_two_facades(&model);
     let budget = ["--max-tile-triangles", "3000"];
-    let off = run(
-        &model,
-        "atlas-two-off",
-        &[&budget[..], &["--texture-atlas", "off"]].concat(),
-    );
-    let on = run(
-        &model,
-        "atlas-two-on",
-        &[&budget[..], &["--texture-atlas", "on"]].concat(),
-    );
+    let (off, on) = run_atlas_off_on(&model, "atlas-two", &budget);
     let a = &on.report["textures"]["atlas"];
     eprintln!("two facades: atlas {a}");
     assert_eq!(on.report["textures"]["classes"]["repeated"], 1);
@@ -603,16 +603,7 @@ fn atlas_declines_the_two_facades_where_it_does_not_save() {
 #[test]
 fn atlas_leaves_the_bundled_sample_unchanged() {
     let budget = ["--max-tile-triangles", "2000"];
-    let off = run(
-        &sample(),
-        "atlas-sample-off",
-        &[&budget[..], &["--texture-atlas", "off"]].concat(),
-    );
-    let on = run(
-        &sample(),
-        "atlas-sample-on",
-        &[&budget[..], &["--texture-atlas", "on"]].concat(),
-    );
+    let (off, on) = run_atlas_off_on(&sample(), "atlas-sample", &budget);
     assert_eq!(on.report["textures"]["atlas"]["atlases"], 0);
     assert_eq!(on.report["textures"]["atlas"]["images_packed"], 0);
     assert_same_tiles(&off, &on);
@@ -662,16 +653,7 @@ fn lod3_railway_repeated_textures_are_never_packed() {
         return;
     }
     let budget = ["--max-tile-triangles", "3000"];
-    let off = run(
-        &model,
-        "atlas-railway-off",
-        &[&budget[..], &["--texture-atlas", "off"]].concat(),
-    );
-    let on = run(
-        &model,
-        "atlas-railway-on",
-        &[&budget[..], &["--texture-atlas", "on"]].concat(),
-    );
+    let (off, on) = run_atlas_off_on(&model, "atlas-railway", &budget);
     let t = &on.report["textures"];
     assert_eq!(t["classes"]["repeated"], 28);
     assert_eq!(
@@ -856,16 +838,7 @@ fn atlas_packs_a_poster_wall_and_keeps_its_colours() {
     )
     .unwrap();
     let budget = ["--max-tile-triangles", "8"];
-    let off = run(
-        &model,
-        "atlas-posters-off",
-        &[&budget[..], &["--texture-atlas", "off"]].concat(),
-    );
-    let on = run(
-        &model,
-        "atlas-posters-on",
-        &[&budget[..], &["--texture-atlas", "on"]].concat(),
-    );
+    let (off, on) = run_atlas_off_on(&model, "atlas-posters", &budget);
     let a = &on.report["textures"]["atlas"];
     eprintln!("poster wall: atlas {a}");
     let atlases = a["atlases"].as_u64().unwrap();
