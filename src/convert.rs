@@ -604,7 +604,9 @@ pub fn convert_scene(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
     }
-    let texture_levels = crate::texture::TextureLevels::new(scene, &opts.texture).shared_in(&tmp);
+    let uses = &prep.textures_prepared.uses;
+    let texture_levels =
+        crate::texture::TextureLevels::new(scene, &opts.texture, uses).shared_in(&tmp);
     let result = (|| {
         let t = Instant::now();
         let writer = TileWriter::new(

@@ -408,6 +408,20 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
     gltf_validator(&draco);
 }
 
+/// ../shared/data/LoD3_Railway.glb, or `None` after saying why it is not tested.
+fn railway() -> Option<std::path::PathBuf> {
+    let Some(sh) = shared() else {
+        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb not tested)");
+        return None;
+    };
+    let model = sh.join("data/LoD3_Railway.glb");
+    if !model.is_file() {
+        eprintln!("SKIPPED: {} not found", model.display());
+        return None;
+    }
+    Some(model)
+}
+
 #[test]
 fn sample_textures_follow_the_tile_error() {
     check_model(&sample(), "sample", "2000");
@@ -415,15 +429,7 @@ fn sample_textures_follow_the_tile_error() {
 
 #[test]
 fn lod3_railway_textures_follow_the_tile_error() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb not tested)");
-        return;
-    };
-    let model = sh.join("data/LoD3_Railway.glb");
-    if !model.is_file() {
-        eprintln!("SKIPPED: {} not found", model.display());
-        return;
-    }
+    let Some(model) = railway() else { return };
     check_model(&model, "railway", "3000");
 }
 
@@ -643,15 +649,7 @@ fn assert_same_tiles(a: &Run, b: &Run) {
 /// those of the atlas off.
 #[test]
 fn lod3_railway_repeated_textures_are_never_packed() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb not tested)");
-        return;
-    };
-    let model = sh.join("data/LoD3_Railway.glb");
-    if !model.is_file() {
-        eprintln!("SKIPPED: {} not found", model.display());
-        return;
-    }
+    let Some(model) = railway() else { return };
     let budget = ["--max-tile-triangles", "3000"];
     let (off, on) = run_atlas_off_on(&model, "atlas-railway", &budget);
     let t = &on.report["textures"];

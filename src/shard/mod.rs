@@ -324,7 +324,8 @@ pub fn build_job(
         std::fs::remove_file(&result).map_err(|e| Error::output(&result, e))?;
     }
     let plan = &l.prep.plan;
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture).shared_in(dir);
+    let uses = &l.prep.textures_prepared.uses;
+    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
     let count = roots.iter().map(|&r| subtree_tiles(plan, r)).sum();
     let writer = TileWriter::new(
         &l.scene,
@@ -433,7 +434,8 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
     }
     let plan = &l.prep.plan;
     let all_roots: Vec<usize> = l.roots.iter().flatten().copied().collect();
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture).shared_in(dir);
+    let uses = &l.prep.textures_prepared.uses;
+    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
     let t = Instant::now();
     let writer = TileWriter::new(
         &l.scene,

@@ -686,7 +686,8 @@ mod tests {
             embed: true,
             ..Default::default()
         };
-        let levels = TextureLevels::new(&s, &opts);
+        let uses = crate::texture::classify::classify(&s);
+        let levels = TextureLevels::new(&s, &opts, &uses);
         let chosen = levels.for_tile(&content, 0.0);
         let atlas = levels.atlas_for_tile(&content, &chosen).unwrap().unwrap();
         assert_eq!(atlas.packed().collect::<Vec<_>>(), [ImageId(0), ImageId(1)]);
@@ -732,7 +733,7 @@ mod tests {
         assert_eq!((t.atlases, t.images_packed), (1, 2));
         assert_eq!(t.bytes_after, bytes.len() as u64);
         // Off: nothing.
-        let off = TextureLevels::new(&s, &TextureOptions::default());
+        let off = TextureLevels::new(&s, &TextureOptions::default(), &uses);
         assert!(off.atlas_for_tile(&content, &chosen).unwrap().is_none());
     }
 

@@ -248,7 +248,13 @@ pub struct TextureLevels<'a> {
 pub struct TileTextures(pub BTreeMap<ImageId, usize>);
 
 impl<'a> TextureLevels<'a> {
-    pub fn new(scene: &'a Scene, opts: &TextureOptions) -> TextureLevels<'a> {
+    /// `uses`: the classification [`prepare`] made (`Prepared::uses`), which tells the atlas
+    /// which images repeat (classifying again would read all the geometry once more).
+    pub fn new(
+        scene: &'a Scene,
+        opts: &TextureOptions,
+        uses: &[classify::ImageUse],
+    ) -> TextureLevels<'a> {
         let bound = classify::bound_images(scene);
         let sizes = (0..scene.images.len())
             .map(|i| {
@@ -265,7 +271,7 @@ impl<'a> TextureLevels<'a> {
             written: Mutex::new(BTreeMap::new()),
             external: None,
             repeated: match opts.atlas {
-                true => classify::classify(scene)
+                true => uses
                     .iter()
                     .map(|u| u.class == classify::TextureClass::Repeated)
                     .collect(),
@@ -529,7 +535,8 @@ mod tests {
             }],
             glam::DVec3::ZERO,
         );
-        let levels = TextureLevels::new(&s, &TextureOptions::default());
+        let uses = classify::classify(&s);
+        let levels = TextureLevels::new(&s, &TextureOptions::default(), &uses);
         assert_eq!(levels.for_tile(&content, 0.0).0[&ImageId(0)], 0);
         // sqrt(1 / (256 * 192)) = 4.5 mm per texel at level 0, 9 mm at 1, 18 mm at 2.
         assert_eq!(levels.for_tile(&content, 0.01).0[&ImageId(0)], 1);
@@ -544,6 +551,7 @@ mod tests {
                 lod: false,
                 ..Default::default()
             },
+            &uses,
         );
         assert_eq!(off.for_tile(&content, 0.02).0[&ImageId(0)], 0);
         let prepared = prepare(&mut s.clone(), &TextureOptions::default());
