@@ -64,19 +64,16 @@ test: deps
 
 # Real CesiumJS in headless Chromium (software WebGL) loads each tileset the suite wrote: every
 # tile loads, none fails, no console error, no request leaves loopback, the model is drawn.
-# A run that only timed out waiting for the last tiles is run once more, saying so: once in many
-# runs (2026-11-25, the sample) two tile requests stayed pending for 120 s while the same tiles
-# loaded in 7 runs after it; any other failure fails at once.
+# The server logs every connection and request (BIMTILES_SERVE_LOG=1); a failing run prints that
+# log and the requests still open. (Tile requests that stayed pending for 120 s, seen once on
+# 2026-11-25, were tiny_http leaving a new connection unread: fixed in src/serve/, no retry.)
 BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
 test-browser: deps build
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || continue; \
 	  echo "browser test: $$s"; pick=""; [ $$s = sample ] && pick=--require-pick; \
 	  log=target/test-out/$$s.browser.log; \
-	  run() { node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" --out target/test-out/$$s.png $$pick > $$log 2>&1; }; \
-	  if ! run; then cat $$log; \
-	    tail -n 1 $$log | grep -q 'FAILED (1): not all tiles loaded after' || exit 1; \
-	    echo "browser test: $$s timed out waiting for its last tiles; running it once more"; \
-	    run || { cat $$log; exit 1; }; fi; tail -n 1 $$log; done
+	  BIMTILES_SERVE_LOG=1 node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" \
+	    --out target/test-out/$$s.png $$pick > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log; done
 
 # Raw model (one-tile tileset) vs our tileset in real CesiumJS, cold and warm (tile cache) loads:
 # load time, bytes, memory, frame cost -> target/bench/browser.json, then the charts

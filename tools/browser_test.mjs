@@ -20,6 +20,9 @@
 // Checks: the page reaches "all tiles loaded" (browser.md's condition), no tile failed, no console
 // error, no request to anything but the loopback host, the view is not blank (more than 1% of
 // the pixels change when the tileset is hidden). Prints a JSON summary; exits 1 on failure.
+// On a failure it also prints the requests still open (how long, how far they got) and, with
+// --server-cmd, the server's stderr (`bimtiles serve` logs each connection and request there
+// when BIMTILES_SERVE_LOG=1).
 // Without /usr/bin/chromium: prints SKIPPED and exits 0 only if BIMTILES_ALLOW_SKIP=1.
 
 import { spawn } from "node:child_process";
@@ -57,12 +60,14 @@ function parseArgs(argv) {
   return o;
 }
 
-/** Starts `bash -c cmd` in its own process group; resolves with {proc, url}. */
+/** Starts `bash -c cmd` in its own process group; resolves with {proc, url, stderr()} (all it
+ * wrote to stderr so far). */
 export function startServer(cmd, timeoutMs = 60000) {
   return new Promise((resolve, reject) => {
     const proc = spawn("bash", ["-c", cmd], { detached: true, stdio: ["ignore", "pipe", "pipe"] });
     let out = "";
     let err = "";
+    const stderr = () => err;
     const timer = setTimeout(() => {
       stopServer(proc);
       reject(new Error(`server printed no URL within ${timeoutMs / 1000} s\nstdout: ${out}\nstderr: ${err}`));
@@ -72,7 +77,7 @@ export function startServer(cmd, timeoutMs = 60000) {
       const m = out.match(/https?:\/\/[^\s"')]+/);
       if (m) {
         clearTimeout(timer);
-        resolve({ proc, url: m[0] });
+        resolve({ proc, url: m[0], stderr });
       }
     });
     proc.stderr.on("data", (d) => (err += d));
@@ -137,6 +142,109 @@ export function watch(context) {
   context.pages().forEach(onPage);
   context.on("page", onPage);
   return w;
+}
+
+/**
+ * Follows every request of the context (page and service worker) to say, at a timeout, which
+ * ones are still open and how far each got. Playwright's events give issued / headers received /
+ * finished; the page's CDP Network events add whether the network stack really sent it (a request
+ * queued for a socket, e.g. behind Chromium's 6 connections per host, is not), the connection it
+ * went on and the body bytes received. Requests a service worker answers are followed by
+ * Playwright only (CDP here sees the page's side).
+ */
+export async function trackRequests(context, page) {
+  const t0 = Date.now();
+  const open = new Map(); // Playwright Request -> entry
+  const byUrl = new Map(); // url -> entries still open, for matching CDP events
+  context.on("request", (r) => {
+    if (!/^https?:/.test(r.url())) return; // blob: and data: never touch the server
+    const sw = typeof r.serviceWorker === "function" && r.serviceWorker() ? "service worker" : "page";
+    const e = { url: r.url(), method: r.method(), from: sw, startMs: Date.now() - t0, state: "issued" };
+    open.set(r, e);
+    if (!byUrl.has(e.url)) byUrl.set(e.url, []);
+    byUrl.get(e.url).push(e);
+  });
+  const close = (r) => {
+    const e = open.get(r);
+    if (!e) return;
+    open.delete(r);
+    const l = byUrl.get(e.url) || [];
+    l.splice(l.indexOf(e), 1);
+  };
+  context.on("response", (r) => {
+    const e = open.get(r.request());
+    if (e) Object.assign(e, { state: "headers received", status: r.status(), headersMs: Date.now() - t0 });
+  });
+  context.on("requestfinished", close);
+  context.on("requestfailed", close);
+
+  const net = new Map(); // CDP requestId -> {url, sent, connectionId, remotePort, bytes, fromServiceWorker}
+  try {
+    const cdp = await context.newCDPSession(page);
+    await cdp.send("Network.enable");
+    cdp.on("Network.requestWillBeSent", (ev) => net.set(ev.requestId, { url: ev.request.url, sent: false, bytes: 0 }));
+    // Fired when the network stack puts the request on a connection (not for a queued one).
+    cdp.on("Network.requestWillBeSentExtraInfo", (ev) => {
+      const n = net.get(ev.requestId);
+      if (n) n.sent = true;
+    });
+    cdp.on("Network.responseReceived", (ev) => {
+      const n = net.get(ev.requestId);
+      if (n)
+        Object.assign(n, {
+          connectionId: ev.response.connectionId,
+          remotePort: ev.response.remotePort,
+          fromServiceWorker: ev.response.fromServiceWorker,
+        });
+    });
+    cdp.on("Network.dataReceived", (ev) => {
+      const n = net.get(ev.requestId);
+      if (n) n.bytes += ev.dataLength;
+    });
+    const done = (ev) => net.delete(ev.requestId);
+    cdp.on("Network.loadingFinished", done);
+    cdp.on("Network.loadingFailed", done);
+  } catch (e) {
+    /* no CDP: Playwright's view only */
+  }
+
+  return {
+    /** The requests still open, oldest first. */
+    pending() {
+      const now = Date.now() - t0;
+      const nets = [...net.values()];
+      return [...open.values()]
+        .sort((a, b) => a.startMs - b.startMs)
+        .map((e) => {
+          const n = e.from === "page" ? nets.find((x) => x.url === e.url) : null;
+          const p = { ...e, pendingMs: now - e.startMs };
+          if (n)
+            Object.assign(p, {
+              sentOnNetwork: n.sent,
+              connectionId: n.connectionId,
+              remotePort: n.remotePort,
+              fromServiceWorker: n.fromServiceWorker,
+              bodyBytes: n.bytes,
+            });
+          return p;
+        });
+    },
+  };
+}
+
+/** One line per open request, for the log. */
+function describePending(list) {
+  return list
+    .map((p) => {
+      const bits = [`${(p.pendingMs / 1000).toFixed(1)} s`, p.from, p.state];
+      if (p.status) bits.push(`status ${p.status}`);
+      if (p.sentOnNetwork !== undefined)
+        bits.push(p.sentOnNetwork ? "sent on a connection" : "not on a connection (queued for a socket, or with the service worker)");
+      if (p.connectionId) bits.push(`connection ${p.connectionId}`);
+      if (p.bodyBytes) bits.push(`${p.bodyBytes} body bytes`);
+      return `  ${p.method} ${p.url}  (${bits.join(", ")}; issued at ${(p.startMs / 1000).toFixed(1)} s)`;
+    })
+    .join("\n");
 }
 
 /** Waits until the viewer reports all tiles loaded (or an error / timeout). */
@@ -285,13 +393,18 @@ async function main() {
     browser = await launch(playwright, opts.width, opts.height);
     const w = watch(browser.context);
     const page = browser.context.pages()[0] || (await browser.context.newPage());
+    const tracker = await trackRequests(browser.context, page);
     const url = withQuery(summary.url, opts.query);
     const t = Date.now();
     await page.goto(url, { waitUntil: "load" });
     const wait = await waitLoaded(page, opts.timeout * 1000);
     summary.load = await collect(page);
     summary.load.wallMs = Date.now() - t;
-    if (!wait.ok) failures.push(wait.reason);
+    if (!wait.ok) {
+      failures.push(wait.reason);
+      summary.pendingRequests = tracker.pending();
+      console.error(`${summary.pendingRequests.length} request(s) still open at the failure:\n${describePending(summary.pendingRequests)}`);
+    }
 
     if (summary.load.ready) {
       const share = await notBlank(page);
@@ -314,7 +427,11 @@ async function main() {
       const wait2 = await waitLoaded(page, opts.timeout * 1000);
       summary.secondLoad = await collect(page);
       summary.secondLoad.wallMs = Date.now() - t2;
-      if (!wait2.ok) failures.push("second load: " + wait2.reason);
+      if (!wait2.ok) {
+        failures.push("second load: " + wait2.reason);
+        summary.pendingRequests = tracker.pending();
+        console.error(`${summary.pendingRequests.length} request(s) still open at the failure:\n${describePending(summary.pendingRequests)}`);
+      }
     }
 
     const loads = [summary.load, summary.secondLoad].filter(Boolean);
@@ -339,6 +456,11 @@ async function main() {
     stopServer(server && server.proc);
   }
   summary.ok = failures.length === 0;
+  if (!summary.ok && server && server.stderr().trim()) {
+    // The end of the server's log: with BIMTILES_SERVE_LOG=1, every connection and request.
+    const lines = server.stderr().trimEnd().split("\n");
+    console.error(`server stderr (last ${Math.min(lines.length, 400)} of ${lines.length} lines):\n` + lines.slice(-400).join("\n"));
+  }
   const text = JSON.stringify(summary, null, 2);
   console.log(text);
   if (opts.json) writeFileSync(opts.json, text + "\n");

@@ -79,7 +79,7 @@ pub struct Reply {
 }
 
 impl Reply {
-    fn text(status: u16, msg: &str) -> Reply {
+    pub(crate) fn text(status: u16, msg: &str) -> Reply {
         let bytes = format!("{status} {msg}\n").into_bytes();
         Reply {
             status,
