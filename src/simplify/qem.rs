@@ -4,7 +4,7 @@
 //!
 //! Data layout: *position vertices* carry position, quadric, curvature and
 //! lock flag; *wedges* (attribute vertices) point to a position vertex;
-//! triangles are wedge triples. Vertex -> corner adjacency (`3 * tri + k`) is
+//! triangles are wedge triples. Vertex -> corner adjacency (`4 * tri + k`) is
 //! a CSR array rebuilt at the start of every pass.
 //!
 //! Driver (as meshoptimizer's): each pass ranks the live edges (in parallel;
@@ -84,6 +84,8 @@ use super::hausdorff::closest_point_on_triangle;
 use super::quadric::Quadric;
 
 const NONE: u32 = u32::MAX;
+/// `NEXT[k]`, `NEXT[k + 1]`: the corners after corner `k` of a triangle.
+const NEXT: [usize; 4] = [1, 2, 0, 1];
 const MAX_OF_ENDPOINTS: bool = true;
 const SQRT_AREA: bool = true;
 const BORDER_SCALE: f64 = 1.0;
@@ -283,7 +285,8 @@ struct State<'a> {
     attr: Vec<f32>,
     stride: usize,
     normal_offset: Option<usize>,
-    /// CSR vertex -> corners (`3 * tri + k`), rebuilt at the start of every
+    /// CSR vertex -> corners (`4 * tri + k`: decoded by shift and mask, where
+    /// `3 * tri + k` took a division), rebuilt at the start of every
     /// pass; dead triangles are filtered when reading.
     off: Vec<u32>,
     corners: Vec<u32>,
@@ -381,17 +384,17 @@ impl<'s> EdgeCost<'s> {
 impl State<'_> {
     #[inline]
     fn corner_wedge(&self, c: u32) -> u32 {
-        self.tris[(c / 3) as usize][(c % 3) as usize]
+        self.tris[(c >> 2) as usize][(c & 3) as usize]
     }
 
     /// Other two vertices of the triangle of corner `c`.
     #[inline]
     fn corner_others(&self, c: u32) -> (u32, u32) {
-        let t = &self.tris[(c / 3) as usize];
-        let k = (c % 3) as usize;
+        let t = &self.tris[(c >> 2) as usize];
+        let k = (c & 3) as usize;
         (
-            self.wedge_pos[t[(k + 1) % 3] as usize],
-            self.wedge_pos[t[(k + 2) % 3] as usize],
+            self.wedge_pos[t[NEXT[k]] as usize],
+            self.wedge_pos[t[NEXT[k + 1]] as usize],
         )
     }
 
@@ -423,25 +426,29 @@ impl State<'_> {
                         continue;
                     }
                     for &c in &self.corners[a..b] {
-                        let t = (c / 3) as usize;
+                        let t = (c >> 2) as usize;
                         match stage {
                             2 => {
                                 prefetch(&self.tris[t]);
                                 prefetch(&self.tri_alive[t]);
                             }
                             3 => {
-                                for &w in &self.tris[t] {
-                                    prefetch(&self.wedge_pos[w as usize]);
-                                }
+                                // The other two corners' wedges (the own one
+                                // maps to `x`, whose entries stage 0 fetched).
+                                let tr = &self.tris[t];
+                                let k = (c & 3) as usize;
+                                prefetch(&self.wedge_pos[tr[NEXT[k]] as usize]);
+                                prefetch(&self.wedge_pos[tr[NEXT[k + 1]] as usize]);
                                 // The vertex's own wedge: its attributes
                                 // are interpolated by `apply`.
-                                let w = self.tris[t][(c % 3) as usize] as usize;
-                                if let Some(a) = self.attr.get(w * self.stride) {
+                                if let Some(a) = self.attr.get(tr[k] as usize * self.stride) {
                                     prefetch(a);
                                 }
                             }
                             _ => {
-                                for &w in &self.tris[t] {
+                                let tr = &self.tris[t];
+                                let k = (c & 3) as usize;
+                                for w in [tr[NEXT[k]], tr[NEXT[k + 1]]] {
                                     let y = self.wedge_pos[w as usize] as usize;
                                     prefetch(&self.pos[y]);
                                     prefetch(&self.mark[y]);
@@ -465,7 +472,7 @@ impl State<'_> {
             self.off[x as usize + 1] as usize,
         );
         for &c in &self.corners[a..b] {
-            if self.tri_alive[(c / 3) as usize] {
+            if self.tri_alive[(c >> 2) as usize] {
                 let (a, b) = self.corner_others(c);
                 out.push(StarTri { c, a, b });
             }
@@ -502,7 +509,7 @@ impl State<'_> {
             if alive {
                 for (k, &w) in t.iter().enumerate() {
                     let x = self.wedge_pos[w as usize] as usize;
-                    self.corners[fill[x] as usize] = 3 * ti as u32 + k as u32;
+                    self.corners[fill[x] as usize] = 4 * ti as u32 + k as u32;
                     fill[x] += 1;
                 }
             }
@@ -558,9 +565,9 @@ impl State<'_> {
             if s.a != v && s.b != v {
                 continue;
             }
-            let t = &self.tris[(s.c / 3) as usize];
-            let k = (s.c % 3) as usize;
-            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+            let t = &self.tris[(s.c >> 2) as usize];
+            let k = (s.c & 3) as usize;
+            let (w1, w2) = (t[NEXT[k]], t[NEXT[k + 1]]);
             if s.a == v {
                 e.push(t[k], w1, s.b);
             } else {
@@ -586,9 +593,9 @@ impl State<'_> {
     ) {
         out.clear();
         for &c in star {
-            let t = &self.tris[(c / 3) as usize];
-            let k = (c % 3) as usize;
-            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+            let t = &self.tris[(c >> 2) as usize];
+            let k = (c & 3) as usize;
+            let (w1, w2) = (t[NEXT[k]], t[NEXT[k + 1]]);
             let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
             // As `edge_info`: a corner counts once, for `x1` first.
             for (b, wb, o) in [(x1, w1, x2), (x2, w2, x1)] {
@@ -823,14 +830,15 @@ impl State<'_> {
         let mut dv = if at_v { 0.0 } else { f64::INFINITY };
         let mut dp = if need_p { f64::INFINITY } else { 0.0 };
         let mut survives = false;
-        for (star, px) in [(su, pu), (sv, pv)] {
+        for (star, px, other) in [(su, pu, NONE), (sv, pv, u)] {
             for &StarTri { a, b, .. } in star {
                 if survives && du <= t && dv <= t && dp <= t {
                     // Each minimum is below the threshold: the result is too.
                     return du.max(dv).max(dp);
                 }
                 let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-                if dp > t {
+                // (The edge's own triangles are in both stars: measured from `u`'s.)
+                if dp > t && a != other && b != other {
                     dp = tri_dist2_min(p, px, pa, pb, dp);
                 }
                 if a == u || a == v || b == u || b == v {
@@ -905,7 +913,12 @@ impl State<'_> {
         let mut worst: f64 = t.max(0.0);
         old.clear();
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
-        let stars = su.iter().map(|s| (s, pu)).chain(sv.iter().map(|s| (s, pv)));
+        // The edge's own triangles are in both stars: kept once, from `u`'s.
+        let stars = su.iter().map(|s| (s, pu)).chain(
+            sv.iter()
+                .filter(|s| s.a != u && s.b != u)
+                .map(|s| (s, pv)),
+        );
         for (&StarTri { a, b, .. }, px) in stars {
             let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
             let n = (pa - px).cross(pb - px);
@@ -1002,7 +1015,7 @@ impl State<'_> {
             }
         }
         for &StarTri { c, a, b } in su {
-            let ti = (c / 3) as usize;
+            let ti = (c >> 2) as usize;
             if !self.tri_alive[ti] {
                 continue;
             }
@@ -1011,7 +1024,7 @@ impl State<'_> {
                 self.live -= 1;
                 continue;
             }
-            let k = (c % 3) as usize;
+            let k = (c & 3) as usize;
             let w = self.tris[ti][k];
             if let Some(&(_, wv)) = merged[..nm].iter().find(|x| x.0 == w) {
                 self.tris[ti][k] = wv;
@@ -1579,6 +1592,11 @@ pub(crate) fn run(
                     break;
                 }
                 if !*link.get_or_insert_with(|| st.link_ok(u, v, &su, &sv, &e)) {
+                    // No placement passes the link condition. Without an error target the other
+                    // placements cannot even set `over_target`: not worth evaluating them.
+                    if params.target_error2 == f64::INFINITY {
+                        break;
+                    }
                     continue;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
