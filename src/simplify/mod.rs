@@ -261,10 +261,16 @@ pub enum SimplifyError {
     /// More vertices than fit in `u32`.
     #[error("too many vertices ({0})")]
     TooManyVertices(usize),
+    /// More triangles than one simplification takes ([`MAX_TRIANGLES`]).
+    #[error("too many triangles ({0}; at most 1,073,741,823 in one mesh)")]
+    TooManyTriangles(usize),
     /// An option is out of range.
     #[error("invalid option: {0}")]
     InvalidOption(&'static str),
 }
+
+/// Most triangles in one mesh given to [`simplify`].
+pub const MAX_TRIANGLES: usize = (1 << 30) - 1;
 
 fn validate(m: &MeshInput, o: &SimplifyOptions) -> Result<(), SimplifyError> {
     let n = m.positions.len();
@@ -273,6 +279,10 @@ fn validate(m: &MeshInput, o: &SimplifyOptions) -> Result<(), SimplifyError> {
     }
     if m.indices.len() % 3 != 0 {
         return Err(SimplifyError::IndexCount(m.indices.len()));
+    }
+    // Corners are numbered `4 * triangle + k` in a u32.
+    if m.indices.len() / 3 > MAX_TRIANGLES {
+        return Err(SimplifyError::TooManyTriangles(m.indices.len() / 3));
     }
     let lens = [
         ("normals", m.normals.map(|a| a.len())),

@@ -4,7 +4,7 @@
 //!
 //! Data layout: *position vertices* carry position, quadric, curvature and
 //! lock flag; *wedges* (attribute vertices) point to a position vertex;
-//! triangles are wedge triples. Vertex -> corner adjacency (`3 * tri + k`) is
+//! triangles are wedge triples. Vertex -> corner adjacency (`4 * tri + k`) is
 //! a CSR array rebuilt at the start of every pass.
 //!
 //! Driver (as meshoptimizer's): each pass ranks the live edges (in parallel;
@@ -84,6 +84,8 @@ use super::hausdorff::closest_point_on_triangle;
 use super::quadric::Quadric;
 
 const NONE: u32 = u32::MAX;
+/// `NEXT[k]`, `NEXT[k + 1]`: the corners after corner `k` of a triangle.
+const NEXT: [usize; 4] = [1, 2, 0, 1];
 const MAX_OF_ENDPOINTS: bool = true;
 const SQRT_AREA: bool = true;
 const BORDER_SCALE: f64 = 1.0;
@@ -259,6 +261,18 @@ struct Eval {
     n: usize,
 }
 
+/// A live triangle of a vertex's star, resolved once per edge visit
+/// ([`State::gather`]): its corner at the star's centre and its two other
+/// vertices, in the triangle's winding order. Each check of a visit reads
+/// the star several times; resolving corners through triangles and wedges
+/// each time was a good part of the walk.
+#[derive(Clone, Copy)]
+struct StarTri {
+    c: u32,
+    a: u32,
+    b: u32,
+}
+
 struct State<'a> {
     pos: Vec<DVec3>,
     quad: Vec<Quadric>,
@@ -271,7 +285,8 @@ struct State<'a> {
     attr: Vec<f32>,
     stride: usize,
     normal_offset: Option<usize>,
-    /// CSR vertex -> corners (`3 * tri + k`), rebuilt at the start of every
+    /// CSR vertex -> corners (`4 * tri + k`: decoded by shift and mask, where
+    /// `3 * tri + k` took a division), rebuilt at the start of every
     /// pass; dead triangles are filtered when reading.
     off: Vec<u32>,
     corners: Vec<u32>,
@@ -368,23 +383,18 @@ impl<'s> EdgeCost<'s> {
 
 impl State<'_> {
     #[inline]
-    fn corner_vertex(&self, c: u32) -> u32 {
-        self.wedge_pos[self.tris[(c / 3) as usize][(c % 3) as usize] as usize]
-    }
-
-    #[inline]
     fn corner_wedge(&self, c: u32) -> u32 {
-        self.tris[(c / 3) as usize][(c % 3) as usize]
+        self.tris[(c >> 2) as usize][(c & 3) as usize]
     }
 
     /// Other two vertices of the triangle of corner `c`.
     #[inline]
     fn corner_others(&self, c: u32) -> (u32, u32) {
-        let t = &self.tris[(c / 3) as usize];
-        let k = (c % 3) as usize;
+        let t = &self.tris[(c >> 2) as usize];
+        let k = (c & 3) as usize;
         (
-            self.wedge_pos[t[(k + 1) % 3] as usize],
-            self.wedge_pos[t[(k + 2) % 3] as usize],
+            self.wedge_pos[t[NEXT[k]] as usize],
+            self.wedge_pos[t[NEXT[k + 1]] as usize],
         )
     }
 
@@ -416,25 +426,29 @@ impl State<'_> {
                         continue;
                     }
                     for &c in &self.corners[a..b] {
-                        let t = (c / 3) as usize;
+                        let t = (c >> 2) as usize;
                         match stage {
                             2 => {
                                 prefetch(&self.tris[t]);
                                 prefetch(&self.tri_alive[t]);
                             }
                             3 => {
-                                for &w in &self.tris[t] {
-                                    prefetch(&self.wedge_pos[w as usize]);
-                                }
+                                // The other two corners' wedges (the own one
+                                // maps to `x`, whose entries stage 0 fetched).
+                                let tr = &self.tris[t];
+                                let k = (c & 3) as usize;
+                                prefetch(&self.wedge_pos[tr[NEXT[k]] as usize]);
+                                prefetch(&self.wedge_pos[tr[NEXT[k + 1]] as usize]);
                                 // The vertex's own wedge: its attributes
                                 // are interpolated by `apply`.
-                                let w = self.tris[t][(c % 3) as usize] as usize;
-                                if let Some(a) = self.attr.get(w * self.stride) {
+                                if let Some(a) = self.attr.get(tr[k] as usize * self.stride) {
                                     prefetch(a);
                                 }
                             }
                             _ => {
-                                for &w in &self.tris[t] {
+                                let tr = &self.tris[t];
+                                let k = (c & 3) as usize;
+                                for w in [tr[NEXT[k]], tr[NEXT[k + 1]]] {
                                     let y = self.wedge_pos[w as usize] as usize;
                                     prefetch(&self.pos[y]);
                                     prefetch(&self.mark[y]);
@@ -447,20 +461,22 @@ impl State<'_> {
         }
     }
 
-    /// Live corners of `x` into `out` (from the per-pass CSR).
+    /// Live triangles of `x`'s star into `out` (from the per-pass CSR).
+    /// The centre of every one is `x` itself while `x` is untouched in the
+    /// pass (a collapse rewrites only the dead endpoint's corners).
     #[inline]
-    fn gather(&self, x: u32, out: &mut Vec<u32>) {
+    fn gather(&self, x: u32, out: &mut Vec<StarTri>) {
         out.clear();
         let (a, b) = (
             self.off[x as usize] as usize,
             self.off[x as usize + 1] as usize,
         );
-        out.extend(
-            self.corners[a..b]
-                .iter()
-                .copied()
-                .filter(|&c| self.tri_alive[(c / 3) as usize]),
-        );
+        for &c in &self.corners[a..b] {
+            if self.tri_alive[(c >> 2) as usize] {
+                let (a, b) = self.corner_others(c);
+                out.push(StarTri { c, a, b });
+            }
+        }
     }
 
     /// Corners of `x` straight from the CSR: all live between
@@ -493,7 +509,7 @@ impl State<'_> {
             if alive {
                 for (k, &w) in t.iter().enumerate() {
                     let x = self.wedge_pos[w as usize] as usize;
-                    self.corners[fill[x] as usize] = 3 * ti as u32 + k as u32;
+                    self.corners[fill[x] as usize] = 4 * ti as u32 + k as u32;
                     fill[x] += 1;
                 }
             }
@@ -543,17 +559,19 @@ impl State<'_> {
     }
 
     /// The triangles of edge `(u, v)` seen from `u`'s star `star_u`.
-    fn edge_info(&self, v: u32, star_u: &[u32]) -> EdgeInfo {
+    fn edge_info(&self, v: u32, star_u: &[StarTri]) -> EdgeInfo {
         let mut e = EdgeInfo::default();
-        for &c in star_u {
-            let t = &self.tris[(c / 3) as usize];
-            let k = (c % 3) as usize;
-            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
-            let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
-            if x1 == v {
-                e.push(t[k], w1, x2);
-            } else if x2 == v {
-                e.push(t[k], w2, x1);
+        for s in star_u {
+            if s.a != v && s.b != v {
+                continue;
+            }
+            let t = &self.tris[(s.c >> 2) as usize];
+            let k = (s.c & 3) as usize;
+            let (w1, w2) = (t[NEXT[k]], t[NEXT[k + 1]]);
+            if s.a == v {
+                e.push(t[k], w1, s.b);
+            } else {
+                e.push(t[k], w2, s.a);
             }
         }
         e.finish();
@@ -575,9 +593,9 @@ impl State<'_> {
     ) {
         out.clear();
         for &c in star {
-            let t = &self.tris[(c / 3) as usize];
-            let k = (c % 3) as usize;
-            let (w1, w2) = (t[(k + 1) % 3], t[(k + 2) % 3]);
+            let t = &self.tris[(c >> 2) as usize];
+            let k = (c & 3) as usize;
+            let (w1, w2) = (t[NEXT[k]], t[NEXT[k + 1]]);
             let (x1, x2) = (self.wedge_pos[w1 as usize], self.wedge_pos[w2 as usize]);
             // As `edge_info`: a corner counts once, for `x1` first.
             for (b, wb, o) in [(x1, w1, x2), (x2, w2, x1)] {
@@ -703,17 +721,15 @@ impl State<'_> {
     /// Topology check of collapsing (u, v), whatever the placement: the
     /// link condition (common neighbours must be the edge's opposite
     /// vertices). Checked once per edge, not per candidate placement.
-    fn link_ok(&mut self, u: u32, v: u32, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
+    fn link_ok(&mut self, u: u32, v: u32, su: &[StarTri], sv: &[StarTri], e: &EdgeInfo) -> bool {
         let g = self.next_gen();
-        for &c in su {
-            let (a, b) = self.corner_others(c);
-            self.mark[a as usize] = g;
-            self.mark[b as usize] = g;
+        for s in su {
+            self.mark[s.a as usize] = g;
+            self.mark[s.b as usize] = g;
         }
         let mut common = 0;
-        for &c in sv {
-            let (a, b) = self.corner_others(c);
-            for x in [a, b] {
+        for s in sv {
+            for x in [s.a, s.b] {
                 if x != u && x != v && self.mark[x as usize] == g {
                     self.mark[x as usize] = g + 1;
                     common += 1;
@@ -731,7 +747,15 @@ impl State<'_> {
 
     /// Wedge / flip / angle checks for collapsing (u, v) to `p` (after
     /// [`State::link_ok`]).
-    fn valid(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], e: &EdgeInfo) -> bool {
+    fn valid(
+        &self,
+        u: u32,
+        v: u32,
+        p: DVec3,
+        su: &[StarTri],
+        sv: &[StarTri],
+        e: &EdgeInfo,
+    ) -> bool {
         if self.p.strict_wedges {
             // With UVs/colours, a vertex may only move if each of its wedges
             // is merged with a wedge across the edge (else the texture seam
@@ -741,8 +765,8 @@ impl State<'_> {
                 if self.pos[x as usize] == p {
                     continue;
                 }
-                for &c in star {
-                    let w = self.corner_wedge(c);
+                for s in star {
+                    let w = self.corner_wedge(s.c);
                     let found =
                         merged[..nm]
                             .iter()
@@ -754,14 +778,13 @@ impl State<'_> {
             }
         }
         let cos_lim = self.p.cos_max_angle.max(0.0);
-        for star in [su, sv] {
-            for &c in star {
-                let (a, b) = self.corner_others(c);
+        for (star, x) in [(su, u), (sv, v)] {
+            let px = self.pos[x as usize];
+            for &StarTri { a, b, .. } in star {
                 if a == u || a == v || b == u || b == v {
                     continue; // a triangle on the collapsed edge
                 }
                 let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-                let px = self.pos[self.corner_vertex(c) as usize];
                 let n0 = (pa - px).cross(pb - px);
                 let n1 = (pa - p).cross(pb - p);
                 let l0 = n0.length_squared();
@@ -789,7 +812,15 @@ impl State<'_> {
     /// surviving triangles around `p`) and of `p` to the old star; the squared
     /// radius of the part if nothing survives. Only values above `t` are
     /// exact: a result `<= t` means the error is `<= t`.
-    fn coverage2(&self, u: u32, v: u32, p: DVec3, su: &[u32], sv: &[u32], t: f64) -> f64 {
+    fn coverage2(
+        &self,
+        u: u32,
+        v: u32,
+        p: DVec3,
+        su: &[StarTri],
+        sv: &[StarTri],
+        t: f64,
+    ) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         // Exact shortcuts: `p` at an endpoint is a vertex of the old star
         // (dp = 0) and of every new triangle (distance of that endpoint 0).
@@ -799,20 +830,15 @@ impl State<'_> {
         let mut dv = if at_v { 0.0 } else { f64::INFINITY };
         let mut dp = if need_p { f64::INFINITY } else { 0.0 };
         let mut survives = false;
-        for star in [su, sv] {
-            for &c in star {
+        for (star, px, other) in [(su, pu, NONE), (sv, pv, u)] {
+            for &StarTri { a, b, .. } in star {
                 if survives && du <= t && dv <= t && dp <= t {
                     // Each minimum is below the threshold: the result is too.
                     return du.max(dv).max(dp);
                 }
-                let tr = &self.tris[(c / 3) as usize];
-                let k = (c % 3) as usize;
-                let x = self.wedge_pos[tr[k] as usize];
-                let a = self.wedge_pos[tr[(k + 1) % 3] as usize];
-                let b = self.wedge_pos[tr[(k + 2) % 3] as usize];
                 let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-                if dp > t {
-                    let px = self.pos[x as usize];
+                // (The edge's own triangles are in both stars: measured from `u`'s.)
+                if dp > t && a != other && b != other {
                     dp = tri_dist2_min(p, px, pa, pb, dp);
                 }
                 if a == u || a == v || b == u || b == v {
@@ -879,21 +905,22 @@ impl State<'_> {
         u: u32,
         v: u32,
         p: DVec3,
-        su: &[u32],
-        sv: &[u32],
+        su: &[StarTri],
+        sv: &[StarTri],
         t: f64,
         old: &mut Vec<OldTri>,
     ) -> f64 {
         let mut worst: f64 = t.max(0.0);
         old.clear();
-        for &c in su.iter().chain(sv) {
-            let (a, b) = self.corner_others(c);
-            let x = self.corner_vertex(c);
-            let (px, pa, pb) = (
-                self.pos[x as usize],
-                self.pos[a as usize],
-                self.pos[b as usize],
-            );
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        // The edge's own triangles are in both stars: kept once, from `u`'s.
+        let stars = su.iter().map(|s| (s, pu)).chain(
+            sv.iter()
+                .filter(|s| s.a != u && s.b != u)
+                .map(|s| (s, pv)),
+        );
+        for (&StarTri { a, b, .. }, px) in stars {
+            let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
             let n = (pa - px).cross(pb - px);
             old.push(OldTri {
                 px,
@@ -955,7 +982,15 @@ impl State<'_> {
         worst
     }
 
-    fn apply(&mut self, u: u32, v: u32, p: DVec3, dist2: f64, su: &[u32], e: &EdgeInfo) -> f64 {
+    fn apply(
+        &mut self,
+        u: u32,
+        v: u32,
+        p: DVec3,
+        dist2: f64,
+        su: &[StarTri],
+        e: &EdgeInfo,
+    ) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         let d = pv - pu;
         let t = if d.length_squared() > 0.0 {
@@ -979,18 +1014,17 @@ impl State<'_> {
                 }
             }
         }
-        for &c in su {
-            let ti = (c / 3) as usize;
+        for &StarTri { c, a, b } in su {
+            let ti = (c >> 2) as usize;
             if !self.tri_alive[ti] {
                 continue;
             }
-            let (a, b) = self.corner_others(c);
             if a == v || b == v {
                 self.tri_alive[ti] = false;
                 self.live -= 1;
                 continue;
             }
-            let k = (c % 3) as usize;
+            let k = (c & 3) as usize;
             let w = self.tris[ti][k];
             if let Some(&(_, wv)) = merged[..nm].iter().find(|x| x.0 == w) {
                 self.tris[ti][k] = wv;
@@ -1204,13 +1238,11 @@ pub(crate) fn run(
     let mut at = vec![0u32; nv];
     for a in 0..nv as u32 {
         st.gather(a, &mut su);
-        for &c in &su {
-            let (n1, n2) = st.corner_others(c);
-            at[n1 as usize] += 1;
-            at[n2 as usize] += 1;
+        for s in &su {
+            at[s.a as usize] += 1;
+            at[s.b as usize] += 1;
         }
-        for &c in &su {
-            let (n1, n2) = st.corner_others(c);
+        for &StarTri { a: n1, b: n2, .. } in &su {
             for (b, other) in [(n1, n2), (n2, n1)] {
                 if b < a || at[b as usize] != 1 {
                     continue;
@@ -1235,10 +1267,9 @@ pub(crate) fn run(
                 }
             }
         }
-        for &c in &su {
-            let (n1, n2) = st.corner_others(c);
-            at[n1 as usize] = 0;
-            at[n2 as usize] = 0;
+        for s in &su {
+            at[s.a as usize] = 0;
+            at[s.b as usize] = 0;
         }
     }
     st.locked = locked;
@@ -1541,12 +1572,9 @@ pub(crate) fn run(
             // The known coverage of the first placement holds if it was just
             // computed, or if nothing around the edge changed in this pass.
             let unchanged = fresh.is_some()
-                || [&su, &sv].iter().all(|star| {
-                    star.iter().all(|&c| {
-                        let (a, b) = st.corner_others(c);
-                        !touched[a as usize] && !touched[b as usize]
-                    })
-                });
+                || [&su, &sv]
+                    .iter()
+                    .all(|star| star.iter().all(|s| !touched[s.a as usize] && !touched[s.b as usize]));
             let mut link = None;
             for ci in 0..4 {
                 let cand = if ci == 0 {
@@ -1564,6 +1592,11 @@ pub(crate) fn run(
                     break;
                 }
                 if !*link.get_or_insert_with(|| st.link_ok(u, v, &su, &sv, &e)) {
+                    // No placement passes the link condition. Without an error target the other
+                    // placements cannot even set `over_target`: not worth evaluating them.
+                    if params.target_error2 == f64::INFINITY {
+                        break;
+                    }
                     continue;
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
@@ -1634,10 +1667,9 @@ pub(crate) fn run(
                 }
                 continue;
             };
-            for &c in su.iter().chain(&sv) {
-                let (a, b) = st.corner_others(c);
-                dirty[a as usize] = true;
-                dirty[b as usize] = true;
+            for s in su.iter().chain(&sv) {
+                dirty[s.a as usize] = true;
+                dirty[s.b as usize] = true;
             }
             dirty[u as usize] = true;
             dirty[v as usize] = true;
