@@ -812,15 +812,7 @@ impl State<'_> {
     /// surviving triangles around `p`) and of `p` to the old star; the squared
     /// radius of the part if nothing survives. Only values above `t` are
     /// exact: a result `<= t` means the error is `<= t`.
-    fn coverage2(
-        &self,
-        u: u32,
-        v: u32,
-        p: DVec3,
-        su: &[StarTri],
-        sv: &[StarTri],
-        t: f64,
-    ) -> f64 {
+    fn coverage2(&self, u: u32, v: u32, p: DVec3, su: &[StarTri], sv: &[StarTri], t: f64) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         // Exact shortcuts: `p` at an endpoint is a vertex of the old star
         // (dp = 0) and of every new triangle (distance of that endpoint 0).
@@ -914,11 +906,10 @@ impl State<'_> {
         old.clear();
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         // The edge's own triangles are in both stars: kept once, from `u`'s.
-        let stars = su.iter().map(|s| (s, pu)).chain(
-            sv.iter()
-                .filter(|s| s.a != u && s.b != u)
-                .map(|s| (s, pv)),
-        );
+        let stars = su
+            .iter()
+            .map(|s| (s, pu))
+            .chain(sv.iter().filter(|s| s.a != u && s.b != u).map(|s| (s, pv)));
         for (&StarTri { a, b, .. }, px) in stars {
             let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
             let n = (pa - px).cross(pb - px);
@@ -982,15 +973,7 @@ impl State<'_> {
         worst
     }
 
-    fn apply(
-        &mut self,
-        u: u32,
-        v: u32,
-        p: DVec3,
-        dist2: f64,
-        su: &[StarTri],
-        e: &EdgeInfo,
-    ) -> f64 {
+    fn apply(&mut self, u: u32, v: u32, p: DVec3, dist2: f64, su: &[StarTri], e: &EdgeInfo) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         let d = pv - pu;
         let t = if d.length_squared() > 0.0 {
@@ -1572,9 +1555,10 @@ pub(crate) fn run(
             // The known coverage of the first placement holds if it was just
             // computed, or if nothing around the edge changed in this pass.
             let unchanged = fresh.is_some()
-                || [&su, &sv]
-                    .iter()
-                    .all(|star| star.iter().all(|s| !touched[s.a as usize] && !touched[s.b as usize]));
+                || [&su, &sv].iter().all(|star| {
+                    star.iter()
+                        .all(|s| !touched[s.a as usize] && !touched[s.b as usize])
+                });
             let mut link = None;
             for ci in 0..4 {
                 let cand = if ci == 0 {
