@@ -1310,8 +1310,12 @@ pub(crate) fn run(
     let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
     let mut rank_bufs: Vec<RankBuf> = (0..n_rank_bufs).map(|_| Default::default()).collect();
     let mut cflag_scratch = Vec::new();
+    // The CSR built for the border planes above is the first pass's too.
+    let mut csr_fresh = true;
     while st.live > params.target_tris {
-        st.rebuild_csr();
+        if !std::mem::take(&mut csr_fresh) {
+            st.rebuild_csr();
+        }
         // Constraint flags of the dirty vertices (the others' stars did not
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
