@@ -42,7 +42,10 @@
 //!   the ranking reads each vertex's star once for all its edges
 //!   (`star_edges`, straight from the CSR) and keeps only the cheapest
 //!   placement (a placement one endpoint's term already rules out skips the
-//!   other's); the interior check resolves the old star once.
+//!   other's); the interior check resolves the old star once;
+//! * a visited edge resolves its two stars once (`StarTri`: corner and the
+//!   other two vertices) for all its checks, and the edge's own triangles,
+//!   in both stars, are measured once.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
