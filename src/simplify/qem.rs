@@ -42,7 +42,10 @@
 //!   the ranking reads each vertex's star once for all its edges
 //!   (`star_edges`, straight from the CSR) and keeps only the cheapest
 //!   placement (a placement one endpoint's term already rules out skips the
-//!   other's); the interior check resolves the old star once.
+//!   other's); the interior check resolves the old star once;
+//! * a visited edge resolves its two stars once (`StarTri`: corner and the
+//!   other two vertices) for all its checks, and the edge's own triangles,
+//!   in both stars, are measured once.
 //!
 //! Cost: face quadrics weighted by sqrt(area) (border planes by edge length),
 //! and the error of a collapse is the larger of
@@ -812,15 +815,7 @@ impl State<'_> {
     /// surviving triangles around `p`) and of `p` to the old star; the squared
     /// radius of the part if nothing survives. Only values above `t` are
     /// exact: a result `<= t` means the error is `<= t`.
-    fn coverage2(
-        &self,
-        u: u32,
-        v: u32,
-        p: DVec3,
-        su: &[StarTri],
-        sv: &[StarTri],
-        t: f64,
-    ) -> f64 {
+    fn coverage2(&self, u: u32, v: u32, p: DVec3, su: &[StarTri], sv: &[StarTri], t: f64) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         // Exact shortcuts: `p` at an endpoint is a vertex of the old star
         // (dp = 0) and of every new triangle (distance of that endpoint 0).
@@ -914,11 +909,10 @@ impl State<'_> {
         old.clear();
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         // The edge's own triangles are in both stars: kept once, from `u`'s.
-        let stars = su.iter().map(|s| (s, pu)).chain(
-            sv.iter()
-                .filter(|s| s.a != u && s.b != u)
-                .map(|s| (s, pv)),
-        );
+        let stars = su
+            .iter()
+            .map(|s| (s, pu))
+            .chain(sv.iter().filter(|s| s.a != u && s.b != u).map(|s| (s, pv)));
         for (&StarTri { a, b, .. }, px) in stars {
             let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
             let n = (pa - px).cross(pb - px);
@@ -982,15 +976,7 @@ impl State<'_> {
         worst
     }
 
-    fn apply(
-        &mut self,
-        u: u32,
-        v: u32,
-        p: DVec3,
-        dist2: f64,
-        su: &[StarTri],
-        e: &EdgeInfo,
-    ) -> f64 {
+    fn apply(&mut self, u: u32, v: u32, p: DVec3, dist2: f64, su: &[StarTri], e: &EdgeInfo) -> f64 {
         let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
         let d = pv - pu;
         let t = if d.length_squared() > 0.0 {
@@ -1327,8 +1313,12 @@ pub(crate) fn run(
     let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
     let mut rank_bufs: Vec<RankBuf> = (0..n_rank_bufs).map(|_| Default::default()).collect();
     let mut cflag_scratch = Vec::new();
+    // The CSR built for the border planes above is the first pass's too.
+    let mut csr_fresh = true;
     while st.live > params.target_tris {
-        st.rebuild_csr();
+        if !std::mem::take(&mut csr_fresh) {
+            st.rebuild_csr();
+        }
         // Constraint flags of the dirty vertices (the others' stars did not
         // change).
         let mut cflag = std::mem::take(&mut st.cflag);
@@ -1572,9 +1562,10 @@ pub(crate) fn run(
             // The known coverage of the first placement holds if it was just
             // computed, or if nothing around the edge changed in this pass.
             let unchanged = fresh.is_some()
-                || [&su, &sv]
-                    .iter()
-                    .all(|star| star.iter().all(|s| !touched[s.a as usize] && !touched[s.b as usize]));
+                || [&su, &sv].iter().all(|star| {
+                    star.iter()
+                        .all(|s| !touched[s.a as usize] && !touched[s.b as usize])
+                });
             let mut link = None;
             for ci in 0..4 {
                 let cand = if ci == 0 {
