@@ -90,11 +90,13 @@ pub(crate) fn weld(
     let mut plocked = Vec::new();
     let mut rep_src: Vec<u32> = Vec::new(); // position vertex -> input vertex
     if tolerance > 0.0 {
-        // Cells of twice the tolerance: per axis only the cell and its
-        // nearer neighbour can hold a point within the tolerance (8 probes
-        // instead of 27 with cells of the tolerance; the result, the first
-        // representative within the tolerance, does not depend on the cells).
-        let inv = 0.5 / tolerance;
+        // Cells of four times the tolerance: per axis a point within the
+        // tolerance is in the point's own cell, or in the neighbour on the
+        // side where the point is within the tolerance of the cell's edge
+        // (a quarter of the cell). Most points need one probe (cells of twice
+        // the tolerance took 8, of the tolerance 27); the result, the first
+        // representative within the tolerance, does not depend on the cells.
+        let inv = 0.25 / tolerance;
         let cell = |p: DVec3| {
             (
                 (p.x * inv).floor() as i64,
@@ -102,15 +104,15 @@ pub(crate) fn weld(
                 (p.z * inv).floor() as i64,
             )
         };
-        // Neighbour cells to probe along one axis: the lower one, the upper
-        // one, or both when the point is (up to rounding) halfway.
+        // Cells to probe along one axis: the own one, and a neighbour when
+        // the point is within the tolerance of that side (with a margin for
+        // rounding).
         let span = |x: f64, c: i64| -> (i64, i64) {
             let f = x * inv - c as f64;
-            match f {
-                f if f < 0.5 - 1e-6 => (-1, 0),
-                f if f > 0.5 + 1e-6 => (0, 1),
-                _ => (-1, 1),
-            }
+            (
+                if f < 0.25 + 1e-6 { -1 } else { 0 },
+                if f > 0.75 - 1e-6 { 1 } else { 0 },
+            )
         };
         let n_used = used.iter().filter(|&&u| u).count();
         // Compact cell table: a bucket per hash of (group, cell) holding
