@@ -305,6 +305,42 @@ mod tests {
         assert_eq!(w.tris.len(), 3);
     }
 
+    /// Points crowded around cell edges (multiples of the tolerance, jittered by less than it)
+    /// weld exactly as a brute-force search would: each takes the first earlier position vertex
+    /// of its group within the tolerance, else becomes one.
+    #[test]
+    fn cells_find_every_point_within_tolerance() {
+        let tol = 1e-3;
+        let mut seed = 12345u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pos = Vec::new();
+        let mut groups = Vec::new();
+        for _ in 0..3000 {
+            let mut axis = || ((rnd() * 6.0).floor() - 3.0) * tol + (rnd() - 0.5) * 1.5 * tol;
+            pos.push([axis() as f32, axis() as f32, axis() as f32]);
+            groups.push((rnd() * 2.0) as u32);
+        }
+        let idx: Vec<u32> = (0..pos.len() as u32).collect();
+        let w = run(&pos, &groups, &idx, tol);
+        let mut expect: Vec<(DVec3, u32)> = Vec::new();
+        for (p, &g) in pos.iter().zip(&groups) {
+            let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let near = expect
+                .iter()
+                .any(|&(q, h)| h == g && (q - p).length_squared() <= tol * tol);
+            if !near {
+                expect.push((p, g));
+            }
+        }
+        let got: Vec<DVec3> = w.pos.clone();
+        assert_eq!(got, expect.iter().map(|e| e.0).collect::<Vec<_>>());
+    }
+
     #[test]
     fn drops_degenerate() {
         let pos = [
