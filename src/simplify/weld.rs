@@ -90,11 +90,13 @@ pub(crate) fn weld(
     let mut plocked = Vec::new();
     let mut rep_src: Vec<u32> = Vec::new(); // position vertex -> input vertex
     if tolerance > 0.0 {
-        // Cells of twice the tolerance: per axis only the cell and its
-        // nearer neighbour can hold a point within the tolerance (8 probes
-        // instead of 27 with cells of the tolerance; the result, the first
-        // representative within the tolerance, does not depend on the cells).
-        let inv = 0.5 / tolerance;
+        // Cells of four times the tolerance: per axis a point within the
+        // tolerance is in the point's own cell, or in the neighbour on the
+        // side where the point is within the tolerance of the cell's edge
+        // (a quarter of the cell). Most points need one probe (cells of twice
+        // the tolerance took 8, of the tolerance 27); the result, the first
+        // representative within the tolerance, does not depend on the cells.
+        let inv = 0.25 / tolerance;
         let cell = |p: DVec3| {
             (
                 (p.x * inv).floor() as i64,
@@ -102,15 +104,15 @@ pub(crate) fn weld(
                 (p.z * inv).floor() as i64,
             )
         };
-        // Neighbour cells to probe along one axis: the lower one, the upper
-        // one, or both when the point is (up to rounding) halfway.
+        // Cells to probe along one axis: the own one, and a neighbour when
+        // the point is within the tolerance of that side (with a margin for
+        // rounding).
         let span = |x: f64, c: i64| -> (i64, i64) {
             let f = x * inv - c as f64;
-            match f {
-                f if f < 0.5 - 1e-6 => (-1, 0),
-                f if f > 0.5 + 1e-6 => (0, 1),
-                _ => (-1, 1),
-            }
+            (
+                if f < 0.25 + 1e-6 { -1 } else { 0 },
+                if f > 0.75 - 1e-6 { 1 } else { 0 },
+            )
         };
         let n_used = used.iter().filter(|&&u| u).count();
         // Compact cell table: a bucket per hash of (group, cell) holding
@@ -301,6 +303,42 @@ mod tests {
         assert_eq!(w.wedge_pos[0], w.wedge_pos[3]);
         assert_ne!(w.wedge_pos[0], w.wedge_pos[6]);
         assert_eq!(w.tris.len(), 3);
+    }
+
+    /// Points crowded around cell edges (multiples of the tolerance, jittered by less than it)
+    /// weld exactly as a brute-force search would: each takes the first earlier position vertex
+    /// of its group within the tolerance, else becomes one.
+    #[test]
+    fn cells_find_every_point_within_tolerance() {
+        let tol = 1e-3;
+        let mut seed = 12345u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pos = Vec::new();
+        let mut groups = Vec::new();
+        for _ in 0..3000 {
+            let mut axis = || ((rnd() * 6.0).floor() - 3.0) * tol + (rnd() - 0.5) * 1.5 * tol;
+            pos.push([axis() as f32, axis() as f32, axis() as f32]);
+            groups.push((rnd() * 2.0) as u32);
+        }
+        let idx: Vec<u32> = (0..pos.len() as u32).collect();
+        let w = run(&pos, &groups, &idx, tol);
+        let mut expect: Vec<(DVec3, u32)> = Vec::new();
+        for (p, &g) in pos.iter().zip(&groups) {
+            let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let near = expect
+                .iter()
+                .any(|&(q, h)| h == g && (q - p).length_squared() <= tol * tol);
+            if !near {
+                expect.push((p, g));
+            }
+        }
+        let got: Vec<DVec3> = w.pos.clone();
+        assert_eq!(got, expect.iter().map(|e| e.0).collect::<Vec<_>>());
     }
 
     #[test]
