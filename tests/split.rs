@@ -238,12 +238,7 @@ fn merge_by_material(input: &Path) -> Vec<u8> {
                 .flat_map(|x| x.to_le_bytes())
                 .collect::<Vec<u8>>()
         };
-        let lo: Vec<f32> = (0..3)
-            .map(|k| pos.iter().map(|p| p[k]).fold(f32::MAX, f32::min))
-            .collect();
-        let hi: Vec<f32> = (0..3)
-            .map(|k| pos.iter().map(|p| p[k]).fold(f32::MIN, f32::max))
-            .collect();
+        let (lo, hi) = common::bounds(pos);
         let pa = add(
             &f(pos),
             serde_json::json!({"componentType": 5126, "count": pos.len(), "type": "VEC3", "min": lo, "max": hi}),

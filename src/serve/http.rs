@@ -81,76 +81,73 @@ fn is_timeout(e: &io::Error) -> bool {
     )
 }
 
-/// Reads and parses one request head. Leading empty lines are skipped (RFC 9112 2.2).
+/// Reads and parses one request head (`httparse`). The head is read line by line, so that
+/// limits and timeouts apply before anything is parsed. Leading empty lines are skipped
+/// (RFC 9112 2.2).
 pub fn read_request<R: BufRead>(r: &mut R) -> Result<Request, HeadError> {
-    let mut lines: Vec<String> = Vec::new();
-    let mut total = 0usize;
+    let mut head: Vec<u8> = Vec::new();
+    let mut lines = 0usize;
     loop {
-        let mut line = Vec::new();
-        let limit = (MAX_HEAD + 1 - total) as u64;
-        let n = match r.by_ref().take(limit).read_until(b'\n', &mut line) {
+        let limit = (MAX_HEAD + 1 - head.len()) as u64;
+        let start = head.len();
+        let n = match r.by_ref().take(limit).read_until(b'\n', &mut head) {
             Ok(n) => n,
-            Err(e) if is_timeout(&e) && total == 0 => return Err(HeadError::Idle),
+            Err(e) if is_timeout(&e) && head.is_empty() => return Err(HeadError::Idle),
             Err(e) if is_timeout(&e) => return Err(HeadError::Bad(408)),
             Err(e) => return Err(HeadError::Io(e)),
         };
-        total += n;
-        if total > MAX_HEAD {
+        if head.len() > MAX_HEAD {
             return Err(HeadError::Bad(431));
         }
-        if n == 0 || !line.ends_with(b"\n") {
+        if n == 0 || !head.ends_with(b"\n") {
             // End of stream: between requests a normal close, within one a cut request.
-            return Err(if total == 0 {
+            return Err(if head.is_empty() {
                 HeadError::Closed
             } else {
                 HeadError::Bad(400)
             });
         }
-        line.pop();
-        if line.ends_with(b"\r") {
-            line.pop();
-        }
-        if line.is_empty() {
-            if lines.is_empty() {
+        let line = head[start..].strip_suffix(b"\n").unwrap_or_default();
+        if line.strip_suffix(b"\r").unwrap_or(line).is_empty() {
+            if lines == 0 {
+                head.clear();
                 continue;
             }
-            return parse_head(&lines);
+            return parse_head(&head);
         }
-        if lines.len() > MAX_HEADERS {
+        lines += 1;
+        if lines > MAX_HEADERS + 1 {
             return Err(HeadError::Bad(431));
         }
-        // Header values may be Latin-1; nothing here needs them exact.
-        lines.push(String::from_utf8_lossy(&line).into_owned());
     }
 }
 
-fn parse_head(lines: &[String]) -> Result<Request, HeadError> {
-    let mut parts = lines[0].split(' ');
-    let (Some(method), Some(target), Some(version), None) =
-        (parts.next(), parts.next(), parts.next(), parts.next())
-    else {
-        return Err(HeadError::Bad(400));
-    };
-    let minor = match version {
-        "HTTP/1.1" => 1,
-        "HTTP/1.0" => 0,
-        v if v.starts_with("HTTP/") => return Err(HeadError::Bad(505)),
-        _ => return Err(HeadError::Bad(400)),
-    };
-    if method.is_empty() || !method.bytes().all(|c| c.is_ascii_alphabetic()) || target.is_empty() {
-        return Err(HeadError::Bad(400));
-    }
-    let mut headers = Vec::with_capacity(lines.len() - 1);
-    for l in &lines[1..] {
-        // No obsolete line folding, no space before the colon (RFC 9112 5.1, 5.2).
-        let Some((k, v)) = l.split_once(':') else {
-            return Err(HeadError::Bad(400));
-        };
-        if k.is_empty() || k.bytes().any(|c| c <= b' ' || c == 0x7f) {
-            return Err(HeadError::Bad(400));
+fn parse_head(head: &[u8]) -> Result<Request, HeadError> {
+    let mut slots = [httparse::EMPTY_HEADER; MAX_HEADERS];
+    let mut rq = httparse::Request::new(&mut slots);
+    match rq.parse(head) {
+        Ok(httparse::Status::Complete(_)) => {}
+        // An HTTP version other than 1.x.
+        Err(httparse::Error::Version) if head.windows(5).any(|w| w == b"HTTP/") => {
+            return Err(HeadError::Bad(505))
         }
-        headers.push((k.to_string(), v.trim().to_string()));
+        Err(httparse::Error::TooManyHeaders) => return Err(HeadError::Bad(431)),
+        _ => return Err(HeadError::Bad(400)),
     }
+    let (Some(method), Some(target), Some(minor)) = (rq.method, rq.path, rq.version) else {
+        return Err(HeadError::Bad(400));
+    };
+    // Header values may be Latin-1; nothing here needs them exact.
+    let headers = rq
+        .headers
+        .iter()
+        .map(|h| {
+            (
+                h.name.to_string(),
+                String::from_utf8_lossy(h.value).trim().to_string(),
+            )
+        })
+        .collect();
     Ok(Request {
         method: method.to_string(),
         target: target.to_string(),

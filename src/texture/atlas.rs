@@ -542,17 +542,24 @@ mod tests {
         px
     }
 
-    #[test]
-    fn borders_copy_the_edge_texels() {
-        let s = sizes(9, 7);
+    /// `n` pictures of random sizes (`seed`; their texels from `picture_seed` on), packed and
+    /// composed: the packing, the pictures and the atlas.
+    fn packed_pictures(n: usize, seed: u64, picture_seed: u64) -> (Packing, Vec<Vec<u8>>, Vec<u8>) {
+        let s = sizes(n, seed);
         let p = shelf_pack(&s, ATLAS_BORDER_PX);
         let imgs: Vec<Vec<u8>> = s
             .iter()
             .enumerate()
-            .map(|(i, &(w, h))| picture(w, h, i as u64))
+            .map(|(i, &(w, h))| picture(w, h, picture_seed + i as u64))
             .collect();
         let raw: Vec<&[u8]> = imgs.iter().map(|v| v.as_slice()).collect();
         let atlas = compose(&p, &raw, ATLAS_BORDER_PX);
+        (p, imgs, atlas)
+    }
+
+    #[test]
+    fn borders_copy_the_edge_texels() {
+        let (p, imgs, atlas) = packed_pictures(9, 7, 0);
         let at = |x: u32, y: u32| {
             let i = ((y * p.width_px + x) * 4) as usize;
             &atlas[i..i + 4]
@@ -580,18 +587,10 @@ mod tests {
 
     #[test]
     fn remapped_uvs_show_the_same_texels() {
-        let s = sizes(12, 9);
-        let p = shelf_pack(&s, ATLAS_BORDER_PX);
-        let imgs: Vec<Vec<u8>> = s
-            .iter()
-            .enumerate()
-            .map(|(i, &(w, h))| picture(w, h, 100 + i as u64))
-            .collect();
-        let raw: Vec<&[u8]> = imgs.iter().map(|v| v.as_slice()).collect();
-        let atlas = compose(&p, &raw, ATLAS_BORDER_PX);
+        let (p, imgs, atlas) = packed_pictures(12, 9, 100);
         let uvs = noise(2000, 3);
         for (k, (sl, img)) in p.slots.iter().zip(&imgs).enumerate() {
-            let (w, h) = s[k];
+            let (w, h) = (sl.width_px, sl.height_px);
             // Random UVs, texel centres, and the image's corners and edges (the border answers
             // past the edge as clamping would).
             let mut pts: Vec<[f32; 2]> = uvs

@@ -585,6 +585,13 @@ pub fn check_tileset(dir: &Path, input_triangles: usize) -> Vec<DecodedTile> {
     tiles
 }
 
+/// Per-axis minimum and maximum of `points`: a glTF POSITION accessor's `min` and `max`.
+pub fn bounds(points: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
+    let lo = std::array::from_fn(|k| points.iter().map(|p| p[k]).fold(f32::MAX, f32::min));
+    let hi = std::array::from_fn(|k| points.iter().map(|p| p[k]).fold(f32::MIN, f32::max));
+    (lo, hi)
+}
+
 /// A one-triangle GLB with vertices given in glTF (y-up) coordinates and an optional node translation.
 pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<u8> {
     let mut bin = Vec::new();
@@ -597,12 +604,7 @@ pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<
     if let Some(t) = translation {
         node["translation"] = serde_json::json!(t);
     }
-    let lo: Vec<f32> = (0..3)
-        .map(|k| verts.iter().map(|v| v[k]).fold(f32::MAX, f32::min))
-        .collect();
-    let hi: Vec<f32> = (0..3)
-        .map(|k| verts.iter().map(|v| v[k]).fold(f32::MIN, f32::max))
-        .collect();
+    let (lo, hi) = bounds(&verts);
     let json = serde_json::json!({
         "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
