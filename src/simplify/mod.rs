@@ -25,7 +25,9 @@
 //!    connected, so never merged). The cost is the larger of the quadric
 //!    (plane) error and a local *coverage* error (old vertices to the new
 //!    surface and back), and a whole connected part may be dropped for its
-//!    radius; see `qem.rs` for why plane distances alone let parts vanish;
+//!    radius; see `qem.rs` for why plane distances alone let parts vanish.
+//!    A large mesh of many connected parts runs as a few groups of parts in
+//!    parallel, each to its share of the goal (`parts.rs`);
 //! 4. take the output's normals from its faces ([`normals`]: interpolated ones
 //!    drift from the coarsened surface);
 //! 5. measure the symmetric Hausdorff distance between input and output and
@@ -66,14 +68,16 @@
 //! runs stay within the 25 % limit against meshoptimizer.
 //!
 //! Deterministic: same input and options give bit-identical output whatever
-//! the rayon thread count (the collapse loop is sequential; parallel parts
-//! only compute order-independent maxima).
+//! the rayon thread count (the collapse loop of a group is sequential; the
+//! groups of parts depend on the mesh only; other parallel parts only
+//! compute order-independent maxima).
 
 mod curvature;
 pub mod hausdorff;
 pub mod hlod;
 pub mod lod_chain;
 pub mod normals;
+mod parts;
 mod qem;
 pub mod quadric;
 mod weld;
@@ -438,7 +442,7 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
         boundary_weight: opts.border_weight as f64,
         strict_wedges: mesh.uvs.is_some() || mesh.colors.is_some(),
     };
-    let out = qem::run(
+    let out = parts::run(
         w.pos,
         w.locked,
         curv,

@@ -1112,7 +1112,11 @@ fn extend_order(ranked: &mut [Ranked], m: &mut usize, want: usize) {
 }
 
 /// Connected components of the position vertices and their squared radii.
-fn components(pos: &[DVec3], wedge_pos: &[u32], tris: &[[u32; 3]]) -> (Vec<u32>, Vec<f64>) {
+pub(crate) fn components(
+    pos: &[DVec3],
+    wedge_pos: &[u32],
+    tris: &[[u32; 3]],
+) -> (Vec<u32>, Vec<f64>) {
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
             p[x as usize] = p[p[x as usize] as usize];
