@@ -443,14 +443,16 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
         strict_wedges: mesh.uvs.is_some() || mesh.colors.is_some(),
     };
     let out = parts::run(
-        w.pos,
-        w.locked,
-        curv,
-        w.wedge_pos,
-        w.tris,
-        attr,
-        stride,
-        normal_offset,
+        qem::QemInput {
+            pos: w.pos,
+            locked: w.locked,
+            curv,
+            wedge_pos: w.wedge_pos,
+            tris: w.tris,
+            attr,
+            stride,
+            normal_offset,
+        },
         &params,
     );
 

@@ -19,7 +19,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::qem::{self, QemOutput, QemParams};
+use super::qem::{self, QemInput, QemOutput, QemParams};
 
 /// Triangles per group: below twice this a mesh runs as one group (small
 /// meshes come by the thousand from the tiler, already in parallel).
@@ -31,82 +31,40 @@ const MAX_GROUPS: usize = 8;
 const PARTS_PER_GROUP: usize = 32;
 
 /// [`qem::run`] over groups of connected parts, in parallel (see the module
-/// documentation); same arguments and the same output numbering.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn run(
-    pos: Vec<DVec3>,
-    locked: Vec<bool>,
-    curv: Vec<f32>,
-    wedge_pos: Vec<u32>,
-    tris: Vec<[u32; 3]>,
-    attr: Vec<f32>,
-    stride: usize,
-    normal_offset: Option<usize>,
-    params: &QemParams,
-) -> QemOutput {
-    run_in_groups(
-        GROUP_TRIANGLES,
-        pos,
-        locked,
-        curv,
-        wedge_pos,
-        tris,
-        attr,
-        stride,
-        normal_offset,
-        params,
-    )
+/// documentation); the output is numbered as the input.
+pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
+    run_in_groups(GROUP_TRIANGLES, input, params)
 }
 
 /// [`run`] with groups of about `group_triangles` triangles.
-#[allow(clippy::too_many_arguments)]
-fn run_in_groups(
-    group_triangles: usize,
-    pos: Vec<DVec3>,
-    locked: Vec<bool>,
-    curv: Vec<f32>,
-    wedge_pos: Vec<u32>,
-    tris: Vec<[u32; 3]>,
-    attr: Vec<f32>,
-    stride: usize,
-    normal_offset: Option<usize>,
-    params: &QemParams,
-) -> QemOutput {
-    let Some((part, group_of_part)) = deal_parts(group_triangles, &pos, &wedge_pos, &tris) else {
-        return qem::run(
-            pos,
-            locked,
-            curv,
-            wedge_pos,
-            tris,
-            attr,
-            stride,
-            normal_offset,
-            params,
-        );
+fn run_in_groups(group_triangles: usize, input: QemInput, params: &QemParams) -> QemOutput {
+    let Some((part, group_of_part)) =
+        deal_parts(group_triangles, &input.pos, &input.wedge_pos, &input.tris)
+    else {
+        return qem::run(input, params);
     };
     let group_of_vertex = |x: u32| group_of_part[part[x as usize] as usize];
     let n_groups = group_of_part.iter().max().map_or(0, |&g| g as usize + 1);
 
     // Each group's vertices, wedges and triangles, renumbered in input
     // order (`local`: input index -> index in its group).
-    let mut local_vertex = vec![0u32; pos.len()];
+    let mut local_vertex = vec![0u32; input.pos.len()];
     let mut vertices: Vec<Vec<u32>> = vec![Vec::new(); n_groups];
-    for x in 0..pos.len() as u32 {
+    for x in 0..input.pos.len() as u32 {
         let g = group_of_vertex(x) as usize;
         local_vertex[x as usize] = vertices[g].len() as u32;
         vertices[g].push(x);
     }
-    let mut local_wedge = vec![0u32; wedge_pos.len()];
+    let mut local_wedge = vec![0u32; input.wedge_pos.len()];
     let mut wedges: Vec<Vec<u32>> = vec![Vec::new(); n_groups];
-    for (w, &x) in wedge_pos.iter().enumerate() {
+    for (w, &x) in input.wedge_pos.iter().enumerate() {
         let g = group_of_vertex(x) as usize;
         local_wedge[w] = wedges[g].len() as u32;
         wedges[g].push(w as u32);
     }
     let mut group_tris: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_groups];
-    for t in &tris {
-        let g = group_of_vertex(wedge_pos[t[0] as usize]) as usize;
+    for t in &input.tris {
+        let g = group_of_vertex(input.wedge_pos[t[0] as usize]) as usize;
         group_tris[g].push(t.map(|w| local_wedge[w as usize]));
     }
     let targets = share(
@@ -125,26 +83,33 @@ fn run_in_groups(
                 ..params.clone()
             };
             qem::run(
-                vs.iter().map(|&x| pos[x as usize]).collect(),
-                vs.iter().map(|&x| locked[x as usize]).collect(),
-                vs.iter().map(|&x| curv[x as usize]).collect(),
-                ws.iter()
-                    .map(|&w| local_vertex[wedge_pos[w as usize] as usize])
-                    .collect(),
-                gt,
-                ws.iter()
-                    .flat_map(|&w| &attr[w as usize * stride..(w as usize + 1) * stride])
-                    .copied()
-                    .collect(),
-                stride,
-                normal_offset,
+                QemInput {
+                    pos: vs.iter().map(|&x| input.pos[x as usize]).collect(),
+                    locked: vs.iter().map(|&x| input.locked[x as usize]).collect(),
+                    curv: vs.iter().map(|&x| input.curv[x as usize]).collect(),
+                    wedge_pos: ws
+                        .iter()
+                        .map(|&w| local_vertex[input.wedge_pos[w as usize] as usize])
+                        .collect(),
+                    tris: gt,
+                    attr: ws
+                        .iter()
+                        .flat_map(|&w| {
+                            &input.attr[w as usize * input.stride..(w as usize + 1) * input.stride]
+                        })
+                        .copied()
+                        .collect(),
+                    stride: input.stride,
+                    normal_offset: input.normal_offset,
+                },
                 &group_params,
             )
         })
         .collect();
 
     // Back to the input's numbering.
-    let (mut pos, mut wedge_pos, mut attr) = (pos, wedge_pos, attr);
+    let stride = input.stride;
+    let (mut pos, mut wedge_pos, mut attr) = (input.pos, input.wedge_pos, input.attr);
     let mut out_tris = Vec::new();
     let (mut max_qem_distance, mut max_collapsed_edge) = (0.0f64, 0.0f64);
     for (g, o) in outputs.into_iter().enumerate() {
@@ -287,18 +252,17 @@ mod tests {
         target: usize,
     ) -> QemOutput {
         let nv = pos.len();
-        run_in_groups(
-            group_triangles,
-            pos.to_vec(),
-            vec![false; nv],
-            vec![0.0; nv],
-            (0..nv as u32).collect(),
-            tris.to_vec(),
-            Vec::new(),
-            0,
-            None,
-            &params(target),
-        )
+        let input = QemInput {
+            pos: pos.to_vec(),
+            locked: vec![false; nv],
+            curv: vec![0.0; nv],
+            wedge_pos: (0..nv as u32).collect(),
+            tris: tris.to_vec(),
+            attr: Vec::new(),
+            stride: 0,
+            normal_offset: None,
+        };
+        run_in_groups(group_triangles, input, &params(target))
     }
 
     #[test]

@@ -1159,20 +1159,32 @@ pub(crate) fn components(
     (comp, r2)
 }
 
-/// Runs the simplification on welded data. `tris` are wedge triples;
-/// `curv` is the per-position-vertex curvature.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn run(
-    pos: Vec<DVec3>,
-    mut locked: Vec<bool>,
-    curv: Vec<f32>,
-    wedge_pos: Vec<u32>,
-    tris: Vec<[u32; 3]>,
-    attr: Vec<f32>,
-    stride: usize,
-    normal_offset: Option<usize>,
-    params: &QemParams,
-) -> QemOutput {
+/// Welded input of a run: position vertices (position, lock flag,
+/// curvature), wedges (position vertex, `stride` attributes each, normals at
+/// `normal_offset`) and triangles (wedge triples).
+pub(crate) struct QemInput {
+    pub pos: Vec<DVec3>,
+    pub locked: Vec<bool>,
+    pub curv: Vec<f32>,
+    pub wedge_pos: Vec<u32>,
+    pub tris: Vec<[u32; 3]>,
+    pub attr: Vec<f32>,
+    pub stride: usize,
+    pub normal_offset: Option<usize>,
+}
+
+/// Runs the simplification on welded data.
+pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
+    let QemInput {
+        pos,
+        mut locked,
+        curv,
+        wedge_pos,
+        tris,
+        attr,
+        stride,
+        normal_offset,
+    } = input;
     let nv = pos.len();
     let nt = tris.len();
     // Quadrics: face planes plus border planes.
