@@ -9,8 +9,8 @@
 //! `BENCH_ERROR=1` also times the measured error (`error_m`) separately.
 //! Each line ends with a hash of the output (positions, indices, error_m),
 //! to check that a pure speed change leaves the result bit-identical.
-//! `cpu` is the process CPU time of ours / meshoptimizer's: a mesh of many
-//! parts is simplified as groups of parts in parallel (`src/simplify/parts.rs`),
+//! `cpu` is the process CPU time of ours / meshoptimizer's: a large mesh is
+//! simplified in parallel (groups of parts or cells: `src/simplify/parts.rs`),
 //! meshoptimizer on one thread. Paper-scale inputs: a folder with `data/` made
 //! by `make_campus.py --bake` (e.g. 34 copies of Mini_Project: 8.2M triangles)
 //! as `BIMTILES_SHARED`.

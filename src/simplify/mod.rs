@@ -26,8 +26,8 @@
 //!    (plane) error and a local *coverage* error (old vertices to the new
 //!    surface and back), and a whole connected part may be dropped for its
 //!    radius; see `qem.rs` for why plane distances alone let parts vanish.
-//!    A large mesh of many connected parts runs as a few groups of parts in
-//!    parallel, each to its share of the goal (`parts.rs`);
+//!    A large mesh runs in parallel: groups of its connected parts, or cells
+//!    of one large surface finished by one run over the whole (`parts.rs`);
 //! 4. take the output's normals from its faces ([`normals`]: interpolated ones
 //!    drift from the coarsened surface);
 //! 5. measure the symmetric Hausdorff distance between input and output and
@@ -69,7 +69,7 @@
 //!
 //! Deterministic: same input and options give bit-identical output whatever
 //! the rayon thread count (the collapse loop of a group is sequential; the
-//! groups of parts depend on the mesh only; other parallel parts only
+//! groups and cells depend on the mesh only; other parallel parts only
 //! compute order-independent maxima).
 
 mod curvature;
@@ -452,6 +452,7 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
             attr,
             stride,
             normal_offset,
+            quadrics: None,
         },
         &params,
     );

@@ -1,25 +1,35 @@
-//! Parallel simplification of a large mesh made of many connected parts
-//! (a BIM model: thousands of separate members): the parts are dealt into a
-//! few groups of about equal size, each group is simplified on its own
-//! ([`qem::run`], in parallel with rayon) to its share of the triangle
-//! goal, and the results are put back in the input's numbering: "parallel
-//! over independent meshes" (issue 3) inside one mesh. Collapses never
-//! cross parts, so a group's result depends on its own parts only.
+//! Parallel simplification of one large mesh (rayon): "parallel over
+//! independent meshes" (issue 3) inside one mesh.
 //!
-//! What changes against one run over everything: the goal is shared in
-//! proportion to each group's triangles instead of by one global cost
-//! order. With many parts dealt by size, every group is a similar mix of
-//! the model, so the groups end at similar costs (checked by the quality
-//! test: `tests/simplify_quality.rs`). Meshes with few or very unequal parts
-//! (a terrain, one big shell), and small meshes, run as one group.
+//! * **Many connected parts** (a BIM model: thousands of separate members):
+//!   the parts are dealt by size into a few groups of about equal size, each
+//!   group is simplified on its own ([`qem::run`]) to its share of the
+//!   triangle goal, and the results are put back in the input's numbering.
+//!   Collapses never cross parts, so a group depends on its own parts only.
+//!   The goal is shared in proportion to each group's triangles instead of by
+//!   one global cost order; with many parts dealt by size every group is a
+//!   similar mix of the model (BIM models repeat their members), and on
+//!   ISSUE_021_Mini_Project the measured error is the same as one run's.
+//! * **One large surface** (a terrain, a scanned building), or parts too
+//!   unequal to deal: the surface is cut into cells (median cuts). The
+//!   quadrics of the whole are computed first (a cell alone would take its
+//!   cut for a border) and carried through. The cells are simplified in
+//!   parallel, with the vertices of the triangles across a cut pinned
+//!   (locked and numbered so that no collapse removes them: no crack), to
+//!   10 % of the removal short of the goal; then one run over the whole
+//!   surface takes the cuts and the last collapses, in one cost order (cells
+//!   are not alike: one may be flat, another curved).
 //!
-//! The grouping depends on the input only (not on the thread count), so the
-//! output is the same on every machine.
+//! Small meshes (under twice [`GROUP_TRIANGLES`]; they come by the thousand
+//! from the tiler, already in parallel) run as one. The grouping depends on
+//! the mesh only (not on the thread count), so the output is the same on
+//! every machine.
 
 use glam::DVec3;
 use rayon::prelude::*;
 
 use super::qem::{self, QemInput, QemOutput, QemParams};
+use super::quadric::Quadric;
 
 /// Triangles per group: below twice this a mesh runs as one group (small
 /// meshes come by the thousand from the tiler, already in parallel).
@@ -30,111 +40,361 @@ const MAX_GROUPS: usize = 8;
 /// a fair sample of the model, and its share of the goal would be off.
 const PARTS_PER_GROUP: usize = 32;
 
-/// [`qem::run`] over groups of connected parts, in parallel (see the module
-/// documentation); the output is numbered as the input.
+/// [`qem::run`] over groups of connected parts, or cells of one large
+/// surface, in parallel (see the module documentation); the output is
+/// numbered as the input.
 pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     run_in_groups(GROUP_TRIANGLES, input, params)
 }
 
+/// Cells of one surface stop this far from the goal (a fraction of the
+/// triangles to remove); one run over the whole surface does the rest.
+const CELL_SLACK: f64 = 0.1;
+/// A vertex in no piece.
+const NO_PIECE: u32 = u32::MAX;
+
 /// [`run`] with groups of about `group_triangles` triangles.
 fn run_in_groups(group_triangles: usize, input: QemInput, params: &QemParams) -> QemOutput {
-    let Some((part, group_of_part)) =
+    if let Some((part, group_of_part)) =
         deal_parts(group_triangles, &input.pos, &input.wedge_pos, &input.tris)
-    else {
+    {
+        let group: Vec<u32> = part.iter().map(|&c| group_of_part[c as usize]).collect();
+        let (mut whole, tris) = Whole::new(input);
+        let c = whole.run_groups(&group, tris, params.target_tris, params);
+        return whole.output(c);
+    }
+    let Some(cell) = cut_cells(group_triangles, &input.pos, &input.wedge_pos, &input.tris) else {
         return qem::run(input, params);
     };
-    let group_of_vertex = |x: u32| group_of_part[part[x as usize] as usize];
-    let n_groups = group_of_part.iter().max().map_or(0, |&g| g as usize + 1);
+    // One surface. Its quadrics first, as one run has them (a cell alone
+    // would take its cut for a border), carried through both steps: the
+    // cells (the cut pinned) to near the goal, then the whole to the goal,
+    // so that the last collapses, which set the error, are taken in one
+    // cost order (cells of a surface are not alike: one may be flat,
+    // another curved).
+    let (stride, normal_offset) = (input.stride, input.normal_offset);
+    let start = qem::run(input, &params.with_target(usize::MAX));
+    let (mut whole, tris) = Whole::carry(start, stride, normal_offset);
+    let to_remove = tris.len().saturating_sub(params.target_tris);
+    let cells_goal = params.target_tris + (CELL_SLACK * to_remove as f64) as usize;
+    let cells = whole.run_groups(&cell, tris, cells_goal, params);
+    let mut in_use = vec![NO_PIECE; whole.pos.len()];
+    for t in &cells.tris {
+        for &w in t {
+            in_use[whole.wedge_pos[w as usize] as usize] = 0;
+        }
+    }
+    let mut last = whole.run_groups(&in_use, cells.tris, params.target_tris, params);
+    last.max_qem_distance = last.max_qem_distance.max(cells.max_qem_distance);
+    last.max_collapsed_edge = last.max_collapsed_edge.max(cells.max_collapsed_edge);
+    whole.output(last)
+}
 
-    // Each group's vertices, wedges and triangles, renumbered in input
-    // order (`local`: input index -> index in its group).
-    let mut local_vertex = vec![0u32; input.pos.len()];
-    let mut vertices: Vec<Vec<u32>> = vec![Vec::new(); n_groups];
-    for x in 0..input.pos.len() as u32 {
-        let g = group_of_vertex(x) as usize;
-        local_vertex[x as usize] = vertices[g].len() as u32;
-        vertices[g].push(x);
-    }
-    let mut local_wedge = vec![0u32; input.wedge_pos.len()];
-    let mut wedges: Vec<Vec<u32>> = vec![Vec::new(); n_groups];
-    for (w, &x) in input.wedge_pos.iter().enumerate() {
-        let g = group_of_vertex(x) as usize;
-        local_wedge[w] = wedges[g].len() as u32;
-        wedges[g].push(w as u32);
-    }
-    let mut group_tris: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_groups];
-    for t in &input.tris {
-        let g = group_of_vertex(input.wedge_pos[t[0] as usize]) as usize;
-        group_tris[g].push(t.map(|w| local_wedge[w as usize]));
-    }
-    let targets = share(
-        params.target_tris,
-        &group_tris.iter().map(Vec::len).collect::<Vec<_>>(),
-    );
+/// Triangles after a step (input wedge numbers) and its largest errors.
+struct Collapsed {
+    tris: Vec<[u32; 3]>,
+    max_qem_distance: f64,
+    max_collapsed_edge: f64,
+}
 
-    let outputs: Vec<QemOutput> = (0..n_groups)
-        .into_par_iter()
-        .zip(group_tris.into_par_iter())
-        .map(|(g, gt)| {
-            let vs = &vertices[g];
-            let ws = &wedges[g];
-            let group_params = QemParams {
-                target_tris: targets[g],
-                ..params.clone()
-            };
-            qem::run(
-                QemInput {
-                    pos: vs.iter().map(|&x| input.pos[x as usize]).collect(),
-                    locked: vs.iter().map(|&x| input.locked[x as usize]).collect(),
-                    curv: vs.iter().map(|&x| input.curv[x as usize]).collect(),
+/// The mesh in the input's numbering: what the pieces are cut from and
+/// written back to.
+struct Whole {
+    pos: Vec<DVec3>,
+    locked: Vec<bool>,
+    curv: Vec<f32>,
+    wedge_pos: Vec<u32>,
+    attr: Vec<f32>,
+    stride: usize,
+    normal_offset: Option<usize>,
+    /// Carried quadrics (else each piece computes its own).
+    quad: Option<Vec<Quadric>>,
+}
+
+/// A piece of the mesh: its vertices (input numbers; the pinned ones last),
+/// the wedges of those vertices, and its triangle goal.
+struct Piece {
+    vertices: Vec<u32>,
+    wedges: Vec<u32>,
+    target: usize,
+}
+
+impl Whole {
+    fn new(input: QemInput) -> (Whole, Vec<[u32; 3]>) {
+        let whole = Whole {
+            pos: input.pos,
+            locked: input.locked,
+            curv: input.curv,
+            wedge_pos: input.wedge_pos,
+            attr: input.attr,
+            stride: input.stride,
+            normal_offset: input.normal_offset,
+            quad: input.quadrics,
+        };
+        (whole, input.tris)
+    }
+
+    /// The state after a run, its quadrics carried.
+    fn carry(
+        out: QemOutput,
+        stride: usize,
+        normal_offset: Option<usize>,
+    ) -> (Whole, Vec<[u32; 3]>) {
+        let whole = Whole {
+            pos: out.pos,
+            locked: out.locked,
+            curv: out.curv,
+            wedge_pos: out.wedge_pos,
+            attr: out.attr,
+            stride,
+            normal_offset,
+            quad: Some(out.quad),
+        };
+        (whole, out.tris)
+    }
+
+    /// Runs every group (`group` of each position vertex, or [`NO_PIECE`])
+    /// on its own triangles, in parallel, to its share of `goal`, and takes
+    /// the results back. Triangles across groups are kept as they are, and
+    /// their vertices pinned.
+    fn run_groups(
+        &mut self,
+        group: &[u32],
+        tris: Vec<[u32; 3]>,
+        goal: usize,
+        params: &QemParams,
+    ) -> Collapsed {
+        let n_groups = group
+            .iter()
+            .filter(|&&g| g != NO_PIECE)
+            .max()
+            .map_or(0, |&g| g as usize + 1);
+        let group_of = |t: &[u32; 3]| {
+            let g = group[self.wedge_pos[t[0] as usize] as usize];
+            t.iter()
+                .all(|&w| group[self.wedge_pos[w as usize] as usize] == g)
+                .then_some(g as usize)
+        };
+        let mut group_tris: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_groups];
+        let mut across = Vec::new();
+        for t in tris {
+            match group_of(&t) {
+                Some(g) => group_tris[g].push(t),
+                None => across.push(t),
+            }
+        }
+        let mut pinned = vec![false; self.pos.len()];
+        for t in &across {
+            for &w in t {
+                pinned[self.wedge_pos[w as usize] as usize] = true;
+            }
+        }
+        let sizes: Vec<usize> = group_tris.iter().map(Vec::len).collect();
+        let goal = goal.saturating_sub(across.len());
+        let targets = share(goal, &sizes);
+        let pieces = self.pieces(group, &pinned, group_tris, &targets);
+        let outputs: Vec<(Piece, QemOutput)> = pieces
+            .into_par_iter()
+            .map(|(piece, input)| {
+                let out = qem::run(input, &params.with_target(piece.target));
+                (piece, out)
+            })
+            .collect();
+        let mut tris = Vec::new();
+        let (mut max_qem_distance, mut max_collapsed_edge) = (0.0f64, 0.0f64);
+        for (piece, out) in outputs {
+            max_qem_distance = max_qem_distance.max(out.max_qem_distance);
+            max_collapsed_edge = max_collapsed_edge.max(out.max_collapsed_edge);
+            tris.extend(self.absorb(&piece, &pinned, out));
+        }
+        tris.extend(across);
+        Collapsed {
+            tris,
+            max_qem_distance,
+            max_collapsed_edge,
+        }
+    }
+
+    /// The whole as a run's output, with the triangles and errors of `c`.
+    fn output(self, c: Collapsed) -> QemOutput {
+        QemOutput {
+            pos: self.pos,
+            locked: self.locked,
+            wedge_pos: self.wedge_pos,
+            attr: self.attr,
+            tris: c.tris,
+            max_qem_distance: c.max_qem_distance,
+            max_collapsed_edge: c.max_collapsed_edge,
+            quad: self.quad.unwrap_or_default(),
+            curv: self.curv,
+        }
+    }
+
+    /// The pieces (`piece_of` each vertex, or [`NO_PIECE`]; `tris[i]`: piece
+    /// `i`'s triangles, input wedge numbers) as inputs of their own. Pinned
+    /// vertices are locked and numbered last: a collapse removes the lower
+    /// numbered of its two vertices (the other takes the new position), so
+    /// a pinned vertex, and the wedges that triangles outside the piece
+    /// use, are never removed.
+    fn pieces(
+        &self,
+        piece_of: &[u32],
+        pinned: &[bool],
+        tris: Vec<Vec<[u32; 3]>>,
+        targets: &[usize],
+    ) -> Vec<(Piece, QemInput)> {
+        let n = tris.len();
+        let mut local = vec![0u32; self.pos.len()];
+        let mut vertices: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for last in [false, true] {
+            for (x, &g) in piece_of.iter().enumerate() {
+                if g != NO_PIECE && pinned[x] == last {
+                    local[x] = vertices[g as usize].len() as u32;
+                    vertices[g as usize].push(x as u32);
+                }
+            }
+        }
+        let mut local_wedge = vec![0u32; self.wedge_pos.len()];
+        let mut wedges: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for (w, &x) in self.wedge_pos.iter().enumerate() {
+            let g = piece_of[x as usize];
+            if g != NO_PIECE {
+                local_wedge[w] = wedges[g as usize].len() as u32;
+                wedges[g as usize].push(w as u32);
+            }
+        }
+        let s = self.stride;
+        tris.into_iter()
+            .zip(vertices.into_iter().zip(wedges))
+            .zip(targets)
+            .map(|((t, (vs, ws)), &target)| {
+                let input = QemInput {
+                    pos: vs.iter().map(|&x| self.pos[x as usize]).collect(),
+                    locked: vs
+                        .iter()
+                        .map(|&x| self.locked[x as usize] || pinned[x as usize])
+                        .collect(),
+                    curv: vs.iter().map(|&x| self.curv[x as usize]).collect(),
                     wedge_pos: ws
                         .iter()
-                        .map(|&w| local_vertex[input.wedge_pos[w as usize] as usize])
+                        .map(|&w| local[self.wedge_pos[w as usize] as usize])
                         .collect(),
-                    tris: gt,
+                    tris: t
+                        .iter()
+                        .map(|t| t.map(|w| local_wedge[w as usize]))
+                        .collect(),
                     attr: ws
                         .iter()
-                        .flat_map(|&w| {
-                            &input.attr[w as usize * input.stride..(w as usize + 1) * input.stride]
-                        })
+                        .flat_map(|&w| &self.attr[w as usize * s..(w as usize + 1) * s])
                         .copied()
                         .collect(),
-                    stride: input.stride,
-                    normal_offset: input.normal_offset,
-                },
-                &group_params,
-            )
-        })
-        .collect();
+                    stride: s,
+                    normal_offset: self.normal_offset,
+                    quadrics: self
+                        .quad
+                        .as_ref()
+                        .map(|q| vs.iter().map(|&x| q[x as usize]).collect()),
+                };
+                let piece = Piece {
+                    vertices: vs,
+                    wedges: ws,
+                    target,
+                };
+                (piece, input)
+            })
+            .collect()
+    }
 
-    // Back to the input's numbering.
-    let stride = input.stride;
-    let (mut pos, mut wedge_pos, mut attr) = (input.pos, input.wedge_pos, input.attr);
-    let mut out_tris = Vec::new();
-    let (mut max_qem_distance, mut max_collapsed_edge) = (0.0f64, 0.0f64);
-    for (g, o) in outputs.into_iter().enumerate() {
-        let (vs, ws) = (&vertices[g], &wedges[g]);
+    /// Writes a piece's result back; its triangles in input wedge numbers.
+    /// (A pinned vertex keeps its own lock flag: pinning was for the piece.)
+    fn absorb(&mut self, piece: &Piece, pinned: &[bool], out: QemOutput) -> Vec<[u32; 3]> {
+        let (vs, ws, s) = (&piece.vertices, &piece.wedges, self.stride);
         for (l, &x) in vs.iter().enumerate() {
-            pos[x as usize] = o.pos[l];
+            let x = x as usize;
+            self.pos[x] = out.pos[l];
+            self.curv[x] = out.curv[l];
+            if let Some(q) = self.quad.as_mut() {
+                q[x] = out.quad[l];
+            }
+            if !pinned[x] {
+                self.locked[x] = out.locked[l];
+            }
         }
         for (l, &w) in ws.iter().enumerate() {
             let w = w as usize;
-            wedge_pos[w] = vs[o.wedge_pos[l] as usize];
-            attr[w * stride..(w + 1) * stride]
-                .copy_from_slice(&o.attr[l * stride..(l + 1) * stride]);
+            self.wedge_pos[w] = vs[out.wedge_pos[l] as usize];
+            self.attr[w * s..(w + 1) * s].copy_from_slice(&out.attr[l * s..(l + 1) * s]);
         }
-        out_tris.extend(o.tris.iter().map(|t| t.map(|l| ws[l as usize])));
-        max_qem_distance = max_qem_distance.max(o.max_qem_distance);
-        max_collapsed_edge = max_collapsed_edge.max(o.max_collapsed_edge);
+        out.tris.iter().map(|t| t.map(|l| ws[l as usize])).collect()
     }
-    QemOutput {
-        pos,
-        wedge_pos,
-        attr,
-        tris: out_tris,
-        max_qem_distance,
-        max_collapsed_edge,
+}
+
+/// One large surface (or a mesh whose parts cannot be dealt evenly) cut
+/// into cells of about equal vertex count: each time the cell with most
+/// vertices is halved at the median along its longest side. The cell of
+/// every position vertex, or `None` when too small or when more than 5 % of
+/// the triangles would cross cells.
+fn cut_cells(
+    group_triangles: usize,
+    pos: &[DVec3],
+    wedge_pos: &[u32],
+    tris: &[[u32; 3]],
+) -> Option<Vec<u32>> {
+    let n_cells = (tris.len() / group_triangles).min(MAX_GROUPS);
+    if n_cells < 2 {
+        return None;
     }
+    let mut used = vec![false; pos.len()];
+    for t in tris {
+        for &w in t {
+            used[wedge_pos[w as usize] as usize] = true;
+        }
+    }
+    let mut order: Vec<u32> = (0..pos.len() as u32)
+        .filter(|&x| used[x as usize])
+        .collect();
+    let mut cells = vec![(0, order.len())];
+    while cells.len() < n_cells {
+        let (i, &(a, b)) = cells
+            .iter()
+            .enumerate()
+            .max_by_key(|(i, (a, b))| (b - a, std::cmp::Reverse(*i)))?;
+        let slice = &mut order[a..b];
+        let (lo, hi) = slice.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), &x| (lo.min(pos[x as usize]), hi.max(pos[x as usize])),
+        );
+        let size = hi - lo;
+        let axis = if size.x >= size.y && size.x >= size.z {
+            0
+        } else if size.y >= size.z {
+            1
+        } else {
+            2
+        };
+        let mid = slice.len() / 2;
+        slice.select_nth_unstable_by(mid, |&x, &y| {
+            pos[x as usize][axis]
+                .total_cmp(&pos[y as usize][axis])
+                .then(x.cmp(&y))
+        });
+        cells[i] = (a, a + mid);
+        cells.push((a + mid, b));
+    }
+    let mut cell = vec![0u32; pos.len()];
+    for (c, &(a, b)) in cells.iter().enumerate() {
+        for &x in &order[a..b] {
+            cell[x as usize] = c as u32;
+        }
+    }
+    let crossing = tris
+        .iter()
+        .filter(|t| {
+            let c = cell[wedge_pos[t[0] as usize] as usize];
+            t.iter().any(|&w| cell[wedge_pos[w as usize] as usize] != c)
+        })
+        .count();
+    (crossing * 20 <= tris.len()).then_some(cell)
 }
 
 /// The connected part of every position vertex and the group of every
@@ -261,6 +521,7 @@ mod tests {
             attr: Vec::new(),
             stride: 0,
             normal_offset: None,
+            quadrics: None,
         };
         run_in_groups(group_triangles, input, &params(target))
     }
@@ -325,20 +586,70 @@ mod tests {
         }
         assert!(kept.iter().all(|&k| k > 0), "{kept:?}");
         // Every group is a similar mix: the error stays near one run's.
+        close_to_one_run_and_same_on_one_thread(&grouped, &whole, || {
+            run_with(2400, &pos, &tris, target)
+        });
+    }
+
+    /// `out`'s error is within 1.5x of one run's (`whole`), and `again` on
+    /// one thread gives the same output.
+    fn close_to_one_run_and_same_on_one_thread(
+        out: &QemOutput,
+        whole: &QemOutput,
+        again: impl Fn() -> QemOutput + Send + Sync,
+    ) {
         assert!(
-            grouped.max_qem_distance <= 1.5 * whole.max_qem_distance,
-            "grouped {} vs whole {}",
-            grouped.max_qem_distance,
+            out.max_qem_distance <= 1.5 * whole.max_qem_distance,
+            "{} vs one run's {}",
+            out.max_qem_distance,
             whole.max_qem_distance
         );
-        // The same on any thread count.
         let one = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .unwrap()
-            .install(|| run_with(2400, &pos, &tris, target));
-        assert_eq!(one.tris, grouped.tris);
-        assert_eq!(one.pos, grouped.pos);
+            .install(again);
+        assert_eq!(one.tris, out.tris);
+        assert_eq!(one.pos, out.pos);
+    }
+
+    #[test]
+    fn one_surface_is_cut_into_cells_without_cracks() {
+        // One wavy 120 x 120 surface, no parts to deal: cut into 5 cells.
+        let (pos, tris) = patches(1, 120, |_| 0.2);
+        let target = tris.len() / 10;
+        let ids: Vec<u32> = (0..pos.len() as u32).collect();
+        assert!(deal_parts(5000, &pos, &ids, &tris).is_none());
+        let cell = cut_cells(5000, &pos, &ids, &tris).expect("cut");
+        assert_eq!(cell.iter().max(), Some(&4));
+        let whole = run_with(usize::MAX, &pos, &tris, target);
+        let cells = run_with(5000, &pos, &tris, target);
+        assert!(cells.tris.len() <= target && cells.tris.len() + 2 >= target);
+        // No crack along a cut: every open edge of the output is on the
+        // surface's own border.
+        let mut edges = std::collections::HashMap::new();
+        for t in &cells.tris {
+            let v = t.map(|w| cells.wedge_pos[w as usize]);
+            for k in 0..3 {
+                let e = (v[k].min(v[(k + 1) % 3]), v[k].max(v[(k + 1) % 3]));
+                *edges.entry(e).or_insert(0) += 1;
+            }
+        }
+        let on_border = |x: u32| {
+            let p = cells.pos[x as usize];
+            [p.x, p.y]
+                .iter()
+                .any(|&c| c.abs() < 1e-3 || (c - 1.0).abs() < 1e-3)
+        };
+        for (&(a, b), &n) in &edges {
+            assert!(
+                n == 2 || (n == 1 && on_border(a) && on_border(b)),
+                "edge {a}-{b} x{n}: a crack"
+            );
+        }
+        close_to_one_run_and_same_on_one_thread(&cells, &whole, || {
+            run_with(5000, &pos, &tris, target)
+        });
     }
 
     #[test]

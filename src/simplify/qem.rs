@@ -125,9 +125,22 @@ pub(crate) struct QemParams {
     pub strict_wedges: bool,
 }
 
+impl QemParams {
+    /// The same parameters with another triangle goal.
+    pub fn with_target(&self, target_tris: usize) -> QemParams {
+        QemParams {
+            target_tris,
+            ..self.clone()
+        }
+    }
+}
+
 /// Result of a run (state after the collapses).
 pub(crate) struct QemOutput {
     pub pos: Vec<DVec3>,
+    /// Lock flags after the run (a vertex that took a locked one's place is
+    /// locked).
+    pub locked: Vec<bool>,
     pub wedge_pos: Vec<u32>,
     pub attr: Vec<f32>,
     pub tris: Vec<[u32; 3]>,
@@ -137,6 +150,9 @@ pub(crate) struct QemOutput {
     /// Longest edge actually collapsed (the paper's maximum folding edge length, III.C(3)),
     /// metres; a connected part dropped whole counts as its diameter.
     pub max_collapsed_edge: f64,
+    /// Quadrics and curvature after the run (to carry them over).
+    pub quad: Vec<Quadric>,
+    pub curv: Vec<f32>,
 }
 
 /// An edge of `ranked` (index) whose full key is known, waiting in the
@@ -1171,6 +1187,10 @@ pub(crate) struct QemInput {
     pub attr: Vec<f32>,
     pub stride: usize,
     pub normal_offset: Option<usize>,
+    /// The quadrics of the position vertices, when carried over from an
+    /// earlier run (see `parts.rs`); else computed from the triangles (face
+    /// and border planes).
+    pub quadrics: Option<Vec<Quadric>>,
 }
 
 /// Runs the simplification on welded data.
@@ -1184,12 +1204,15 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
         attr,
         stride,
         normal_offset,
+        quadrics,
     } = input;
     let nv = pos.len();
     let nt = tris.len();
-    // Quadrics: face planes plus border planes.
-    let mut quad = vec![Quadric::default(); nv];
-    for t in &tris {
+    // Quadrics: face planes plus border planes (carried ones have both).
+    let carried = quadrics.is_some();
+    let mut quad = quadrics.unwrap_or_else(|| vec![Quadric::default(); nv]);
+    let face_tris = if carried { &tris[..0] } else { &tris[..] };
+    for t in face_tris {
         let v = t.map(|w| wedge_pos[w as usize] as usize);
         if let Some(mut q) = Quadric::from_triangle(pos[v[0]], pos[v[1]], pos[v[2]]) {
             if SQRT_AREA {
@@ -1238,7 +1261,8 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     // Triangles of `a`'s star at each neighbour (a count per neighbour, not
     // a scan of the star per neighbour), reset after each star.
     let mut at = vec![0u32; nv];
-    for a in 0..nv as u32 {
+    let border_vertices = if carried { 0 } else { nv as u32 };
+    for a in 0..border_vertices {
         st.gather(a, &mut su);
         for s in &su {
             at[s.a as usize] += 1;
@@ -1711,10 +1735,13 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
         .collect();
     QemOutput {
         pos: st.pos,
+        locked: st.locked,
         wedge_pos: st.wedge_pos,
         attr: st.attr,
         tris,
         max_qem_distance: max_d2.sqrt(),
         max_collapsed_edge: max_edge2.sqrt(),
+        quad: st.quad,
+        curv: st.curv,
     }
 }
