@@ -16,7 +16,7 @@
 //!   cut for a border) and carried through. The cells are simplified in
 //!   parallel, with the vertices of the triangles across a cut pinned
 //!   (locked and numbered so that no collapse removes them: no crack), to
-//!   10 % of the removal short of the goal; then one run over the whole
+//!   a quarter of the removal short of the goal; then one run over the whole
 //!   surface takes the cuts and the last collapses, in one cost order (cells
 //!   are not alike: one may be flat, another curved).
 //!
@@ -49,7 +49,9 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
 
 /// Cells of one surface stop this far from the goal (a fraction of the
 /// triangles to remove); one run over the whole surface does the rest.
-const CELL_SLACK: f64 = 0.1;
+/// Measured: 0.1 left 4-9 % more Hausdorff error than one run on the
+/// synthetic surfaces, 0.25 the same error, in about 70 % of the time.
+const CELL_SLACK: f64 = 0.25;
 /// A vertex in no piece.
 const NO_PIECE: u32 = u32::MAX;
 
