@@ -1175,6 +1175,76 @@ pub(crate) fn components(
     (comp, r2)
 }
 
+/// Face quadrics of the position vertices: each triangle's plane, weighted
+/// by sqrt(area), added to its three vertices.
+fn face_quadrics(pos: &[DVec3], wedge_pos: &[u32], tris: &[[u32; 3]]) -> Vec<Quadric> {
+    let mut quad = vec![Quadric::default(); pos.len()];
+    for t in tris {
+        let v = t.map(|w| wedge_pos[w as usize] as usize);
+        if let Some(mut q) = Quadric::from_triangle(pos[v[0]], pos[v[1]], pos[v[2]]) {
+            if SQRT_AREA {
+                // Weight sqrt(area) instead of area (as meshoptimizer): small
+                // faces (thin plates, small parts) keep more say in the mean.
+                let s = 1.0 / q.weight.sqrt();
+                q.a.iter_mut().for_each(|x| *x *= s);
+                q.b.iter_mut().for_each(|x| *x *= s);
+                q.c *= s;
+                q.weight *= s;
+            }
+            for &x in &v {
+                quad[x].add(&q);
+            }
+        }
+    }
+    quad
+}
+
+/// Border edges (one triangle): a plane through the edge, perpendicular to
+/// its triangle, added to both vertices' quadrics (weighted by the edge's
+/// length), and the vertices locked if `lock_borders`. `su`: scratch.
+fn add_border_planes(st: &mut State, locked: &mut [bool], su: &mut Vec<StarTri>) {
+    let nv = st.pos.len();
+    // Triangles of `a`'s star at each neighbour (a count per neighbour, not
+    // a scan of the star per neighbour), reset after each star.
+    let mut at = vec![0u32; nv];
+    for a in 0..nv as u32 {
+        st.gather(a, su);
+        for s in su.iter() {
+            at[s.a as usize] += 1;
+            at[s.b as usize] += 1;
+        }
+        for &StarTri { a: n1, b: n2, .. } in su.iter() {
+            for (b, other) in [(n1, n2), (n2, n1)] {
+                if b < a || at[b as usize] != 1 {
+                    continue;
+                }
+                if st.p.lock_borders {
+                    locked[a as usize] = true;
+                    locked[b as usize] = true;
+                }
+                let (pa, pb) = (st.pos[a as usize], st.pos[b as usize]);
+                let pc = st.pos[other as usize];
+                let e = pb - pa;
+                let n = e.cross(e.cross(pc - pa)).normalize_or_zero();
+                if n != DVec3::ZERO {
+                    let w = if SQRT_AREA {
+                        e.length() * st.p.boundary_weight * BORDER_SCALE
+                    } else {
+                        e.length_squared() * st.p.boundary_weight
+                    };
+                    let q = Quadric::from_plane(n, -n.dot(pa), w);
+                    st.quad[a as usize].add(&q);
+                    st.quad[b as usize].add(&q);
+                }
+            }
+        }
+        for s in su.iter() {
+            at[s.a as usize] = 0;
+            at[s.b as usize] = 0;
+        }
+    }
+}
+
 /// Welded input of a run: position vertices (position, lock flag,
 /// curvature), wedges (position vertex, `stride` attributes each, normals at
 /// `normal_offset`) and triangles (wedge triples).
@@ -1210,25 +1280,7 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     let nt = tris.len();
     // Quadrics: face planes plus border planes (carried ones have both).
     let carried = quadrics.is_some();
-    let mut quad = quadrics.unwrap_or_else(|| vec![Quadric::default(); nv]);
-    let face_tris = if carried { &tris[..0] } else { &tris[..] };
-    for t in face_tris {
-        let v = t.map(|w| wedge_pos[w as usize] as usize);
-        if let Some(mut q) = Quadric::from_triangle(pos[v[0]], pos[v[1]], pos[v[2]]) {
-            if SQRT_AREA {
-                // Weight sqrt(area) instead of area (as meshoptimizer): small
-                // faces (thin plates, small parts) keep more say in the mean.
-                let s = 1.0 / q.weight.sqrt();
-                q.a.iter_mut().for_each(|x| *x *= s);
-                q.b.iter_mut().for_each(|x| *x *= s);
-                q.c *= s;
-                q.weight *= s;
-            }
-            for &x in &v {
-                quad[x].add(&q);
-            }
-        }
-    }
+    let quad = quadrics.unwrap_or_else(|| face_quadrics(&pos, &wedge_pos, &tris));
     let (comp, comp_r2) = components(&pos, &wedge_pos, &tris);
     let mut st = State {
         pos,
@@ -1258,45 +1310,8 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     let mut sv = Vec::new();
     let mut old = Vec::new();
     st.rebuild_csr();
-    // Triangles of `a`'s star at each neighbour (a count per neighbour, not
-    // a scan of the star per neighbour), reset after each star.
-    let mut at = vec![0u32; nv];
-    let border_vertices = if carried { 0 } else { nv as u32 };
-    for a in 0..border_vertices {
-        st.gather(a, &mut su);
-        for s in &su {
-            at[s.a as usize] += 1;
-            at[s.b as usize] += 1;
-        }
-        for &StarTri { a: n1, b: n2, .. } in &su {
-            for (b, other) in [(n1, n2), (n2, n1)] {
-                if b < a || at[b as usize] != 1 {
-                    continue;
-                }
-                if params.lock_borders {
-                    locked[a as usize] = true;
-                    locked[b as usize] = true;
-                }
-                let (pa, pb) = (st.pos[a as usize], st.pos[b as usize]);
-                let pc = st.pos[other as usize];
-                let e = pb - pa;
-                let n = e.cross(e.cross(pc - pa)).normalize_or_zero();
-                if n != DVec3::ZERO {
-                    let w = if SQRT_AREA {
-                        e.length() * params.boundary_weight * BORDER_SCALE
-                    } else {
-                        e.length_squared() * params.boundary_weight
-                    };
-                    let q = Quadric::from_plane(n, -n.dot(pa), w);
-                    st.quad[a as usize].add(&q);
-                    st.quad[b as usize].add(&q);
-                }
-            }
-        }
-        for s in &su {
-            at[s.a as usize] = 0;
-            at[s.b as usize] = 0;
-        }
+    if !carried {
+        add_border_planes(&mut st, &mut locked, &mut su);
     }
     st.locked = locked;
 
