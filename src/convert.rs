@@ -198,6 +198,8 @@ pub struct InputReport {
     pub materials: usize,
     pub images: usize,
     pub skipped_primitives: usize,
+    /// Elements whose id was numbered or prefixed because it repeated (README, "Element ids").
+    pub renamed_ids: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -497,6 +499,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         materials: scene.materials.len(),
         images: scene.images.len(),
         skipped_primitives: scene.skipped_primitives,
+        renamed_ids: scene.renamed_ids,
     };
 
     // Place: the anchor goes to the scene frame's origin, in f64, before anything is rounded. An

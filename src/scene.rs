@@ -17,6 +17,7 @@ use serde_json::Value;
 use std::sync::Arc;
 
 mod elements;
+pub mod ids;
 mod store;
 pub use elements::{ElementStats, ElementTable};
 pub use store::{
@@ -252,6 +253,9 @@ pub struct Image {
 pub struct Node {
     pub name: Option<String>,
     pub parent: Option<NodeId>,
+    /// 0, or n for the n-th repeat of its name among its siblings: its path segment is then
+    /// `name#n` ([`ids`]).
+    pub name_repeat: u32,
     /// The source's `extras` as written (JSON text), for nodes without a mesh: kept compact,
     /// since a parsed map costs ~0.8 KB a node. A node with a mesh has its extras parsed into its
     /// element's [`ElementInfo`] at ingest, and the text is dropped then (a million elements on
@@ -421,6 +425,8 @@ pub struct Scene {
     pub images: Vec<Image>,
     /// Primitives the readers could not use (points, lines), counted for the report.
     pub skipped_primitives: usize,
+    /// Elements whose id is not their plain GlobalId or node path, because it repeated ([`ids`]).
+    pub renamed_ids: usize,
 }
 
 impl Scene {
@@ -470,13 +476,14 @@ impl Scene {
             .fold(Aabb::EMPTY, |b, c| b.union(&c.world_bounds))
     }
 
-    /// Path of names from the hierarchy root to `node` ("Building/Level 1/Window-07").
+    /// Path of names from the hierarchy root to `node` ("Building/Level 1/Window-07"), a
+    /// repeated sibling name numbered ("world/object#2", see [`ids`]).
     pub fn node_path(&self, node: NodeId) -> String {
         let mut parts = Vec::new();
         let mut cur = Some(node);
         while let Some(n) = cur {
             let nd = &self.nodes[n.index()];
-            parts.push(nd.name.clone().unwrap_or_else(|| format!("node{}", n.0)));
+            parts.push(ids::path_segment(nd.name.as_deref(), n.0, nd.name_repeat));
             cur = nd.parent;
         }
         parts.reverse();
@@ -519,6 +526,7 @@ impl Scene {
             }));
         self.skipped_primitives += other.skipped_primitives;
         self.skipped_elements += other.skipped_elements;
+        self.renamed_ids += other.renamed_ids;
         self.georeference = self.georeference.or(other.georeference);
     }
 

@@ -17,53 +17,20 @@ const TOL_M: f64 = 0.0011;
 
 type Tri = [DVec3; 3];
 
-/// An element's id as the metadata gives it: the GlobalId (node `extras.guid`, or a node name of
-/// GlobalId form), else the node path ("node<i>" for unnamed nodes).
-fn element_key(doc: &gltf::Document, parents: &HashMap<usize, usize>, node: &gltf::Node) -> String {
-    let guid = node
-        .extras()
-        .as_ref()
-        .and_then(|x| serde_json::from_str::<Value>(x.get()).ok())
-        .and_then(|x| x.get("guid").and_then(Value::as_str).map(str::to_string));
-    let name_is_guid = node.name().is_some_and(|n| {
-        n.len() == 22
-            && n.chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '$')
-    });
-    if let Some(g) = guid {
-        return g;
-    }
-    if name_is_guid {
-        return node.name().unwrap().to_string();
-    }
-    let mut parts = Vec::new();
-    let mut cur = Some(node.index());
-    while let Some(i) = cur {
-        let n = doc.nodes().nth(i).unwrap();
-        parts.push(n.name().map_or_else(|| format!("node{i}"), str::to_string));
-        cur = parents.get(&i).copied();
-    }
-    parts.reverse();
-    parts.join("/")
-}
-
 /// Input components by element id, as world triangles (scene frame, z-up), read with the gltf
 /// crate.
 fn input_components(path: &Path) -> BTreeMap<String, Vec<Tri>> {
     let bytes = std::fs::read(path).unwrap();
     let g = gltf::Gltf::from_slice_without_validation(&bytes).expect("input reads");
     let (doc, blob) = (&g.document, g.blob.as_deref().expect("a GLB input"));
-    let parents: HashMap<usize, usize> = doc
-        .nodes()
-        .flat_map(|n| n.children().map(move |c| (c.index(), n.index())))
-        .collect();
+    let ids = expected_element_ids(doc);
     let mut out: BTreeMap<String, Vec<Tri>> = BTreeMap::new();
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).unwrap();
     let mut stack: Vec<(gltf::Node, DMat4)> = scene.nodes().map(|n| (n, Y_UP_TO_Z_UP)).collect();
     while let Some((node, parent)) = stack.pop() {
         let world = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
         if let Some(mesh) = node.mesh() {
-            let key = element_key(doc, &parents, &node);
+            let key = ids[&node.index()].clone();
             let tris = out.entry(key.clone()).or_default();
             assert!(tris.is_empty(), "{key}: element ids are unique");
             let flip = glam::DMat3::from_mat4(world).determinant() < 0.0;
@@ -399,5 +366,138 @@ fn removed_duplicates_stay_queryable_as_aliases() {
             a["tiles"], b["tiles"],
             "the alias is drawn where its element is"
         );
+    }
+}
+
+/// A GLB whose nodes repeat names the ways exporters do: same-named siblings (the airport's
+/// `world/object/object`), a literal `object#1` beside them, an unnamed node, same-named parents,
+/// a repeated and a unique GlobalId, a repeated root, and an exact copy (an alias).
+fn repeated_names_glb() -> Vec<u8> {
+    let verts: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let bin: Vec<u8> = verts
+        .iter()
+        .flatten()
+        .flat_map(|c| c.to_le_bytes())
+        .collect();
+    let (lo, hi) = bounds(&verts);
+    let at = |name: Option<&str>, x: f64, guid: Option<&str>| {
+        let mut n = serde_json::json!({"mesh": 0, "translation": [x, 0.0, 0.0]});
+        if let Some(name) = name {
+            n["name"] = name.into();
+        }
+        if let Some(g) = guid {
+            n["extras"] = serde_json::json!({"guid": g});
+        }
+        n
+    };
+    let repeated_guid = Some("2O2Fr$t4X7Zf8NOew3FLOH");
+    let nodes = serde_json::json!([
+        {"name": "site", "children": [1, 2, 3, 4, 5, 6, 7, 8, 11, 12, 15]},
+        at(Some("object"), 0.0, None),
+        at(Some("object"), 10.0, None),
+        at(Some("object#1"), 20.0, None),
+        at(None, 30.0, None),
+        at(Some("object"), 40.0, None),
+        {"name": "world", "children": [9]},
+        {"name": "world", "children": [10]},
+        at(Some("wall"), 50.0, repeated_guid),
+        at(Some("object"), 60.0, None),
+        at(Some("object"), 70.0, None),
+        at(Some("wall"), 80.0, repeated_guid),
+        at(Some("door"), 90.0, Some("1CBNfY0004DZ4oDpWmD3am")),
+        {"name": "site", "children": [14]},
+        at(Some("object"), 100.0, None),
+        at(Some("object"), 0.0, None),
+    ]);
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 13]}], "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": lo, "max": hi}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36}]
+    });
+    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+}
+
+#[test]
+fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
+    let dir = tmpdir("ids-repeated-names");
+    let model = dir.join("repeated-names.glb");
+    std::fs::write(&model, repeated_names_glb()).unwrap();
+    let g = gltf::Gltf::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    let expected = expected_element_ids(&g.document);
+    // The rule, spelled out for this file (README "Element ids").
+    let mut ids: Vec<&str> = expected.values().map(String::as_str).collect();
+    ids.sort_unstable();
+    assert_eq!(
+        ids,
+        [
+            "1CBNfY0004DZ4oDpWmD3am",
+            "site#1/object",
+            "site/node4",
+            "site/object",
+            "site/object#1",
+            "site/object#1#1",
+            "site/object#2",
+            "site/object#3",
+            "site/wall",
+            "site/wall#1",
+            "site/world#1/object",
+            "site/world/object",
+        ]
+    );
+    // Every element is drawn (or aliased) once under its id, with its own geometry.
+    let (elements, _, aliases) = check_model(&model, "ids-repeated-names");
+    assert_eq!((elements, aliases), (12, 1));
+    let out = repo().join("target/test-out/instancing-ids-repeated-names/tiles");
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    // Renamed: each id that is not the plain GlobalId or the path without numbers.
+    assert_eq!(report["input"]["renamed_ids"], 8);
+    for id in &ids {
+        let o = run(&["inspect", out.to_str().unwrap(), "--feature", id, "--json"]);
+        assert!(
+            o.status.success(),
+            "inspect --feature {id}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let f: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(f["id"], *id);
+        assert!(!f["tiles"].as_array().unwrap().is_empty(), "{id} is drawn");
+    }
+    // A path that is no element's id is not found.
+    let o = run(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--feature",
+        "site/object#9",
+    ]);
+    assert!(!o.status.success());
+}
+
+#[test]
+fn airport_ids_are_unique_and_inspect_finds_the_numbered_ones() {
+    let Some(model) = shared_models()
+        .into_iter()
+        .find(|m| m.ends_with("phnl_honolulu_airport.glb"))
+    else {
+        assert!(!tools_required(), "phnl_honolulu_airport.glb is missing");
+        return;
+    };
+    let g = gltf::Gltf::open(&model).unwrap();
+    let expected = expected_element_ids(&g.document);
+    let out = tmpdir("ids-airport").join("tiles");
+    let report = convert(&model, &out, &["--compression", "none", "--lod", "none"]);
+    let numbered: Vec<&String> = expected.values().filter(|id| id.contains('#')).collect();
+    assert!(numbered.len() > 100, "{} numbered ids", numbered.len());
+    assert_eq!(
+        report["input"]["renamed_ids"].as_u64().unwrap() as usize,
+        numbered.len()
+    );
+    for id in numbered.iter().step_by(7) {
+        let o = run(&["inspect", out.to_str().unwrap(), "--feature", id, "--json"]);
+        assert!(o.status.success(), "inspect --feature {id}");
+        let f: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(f["id"], id.as_str());
     }
 }

@@ -608,12 +608,16 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
             ))?;
         }
         emit(&format!(
-            "{} -> {}\n\n  input : {} triangles, {} vertices, {} components, {}\n  output: {} tiles ({} with content), depth {}, {} triangles ({} stored, {} instances), {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
+            "{} -> {}\n\n  input : {} triangles, {} vertices, {} components{}, {}\n  output: {} tiles ({} with content), depth {}, {} triangles ({} stored, {} instances), {}\n  time  : {:.2} s (ingest {:.2}, partition {:.2}, encode+write {:.2}), peak memory {}",
             r.input.files.join(", "),
             a.out.display(),
             r.input.triangles,
             r.input.vertices,
             r.input.components,
+            match r.input.renamed_ids {
+                0 => String::new(),
+                n => format!(" ({n} repeated ids numbered to stay unique)"),
+            },
             human_bytes(r.input.bytes),
             r.output.tiles,
             r.output.tiles_with_content,

@@ -1,7 +1,8 @@
 //! glTF 2.0 reader (`.gltf` with external or embedded buffers and images, and `.glb`).
 //!
 //! Every node that has a mesh becomes a [`Component`], keeping its name, `extras` and parent
-//! chain. Node transforms are read from the raw JSON as f64 (the `gltf` crate keeps them as f32,
+//! chain; its id is its GlobalId or its node path, kept unique by the rules of
+//! [`crate::scene::ids`]. Node transforms are read from the raw JSON as f64 (the `gltf` crate keeps them as f32,
 //! which loses millimetres on projected coordinates); the y-up → z-up change is applied once
 //! here, through [`Y_UP_TO_Z_UP`].
 //!
@@ -18,6 +19,7 @@ use base64::Engine;
 use glam::{DMat4, DQuat, DVec3};
 use gltf::json::validation::Validate;
 use serde_json::Value;
+use std::collections::HashMap;
 use std::path::{Component as PathPart, Path, PathBuf};
 use std::sync::Arc;
 
@@ -535,29 +537,41 @@ impl Reader<'_> {
                 parent[c] = Some(NodeId(i as u32));
             }
         }
+        let roots: Vec<u32> = match roots {
+            Some(r) => r.to_vec(),
+            None => (0..parent.len() as u32)
+                .filter(|&i| parent[i as usize].is_none())
+                .collect(),
+        };
+        // Same-named siblings are numbered in their glTF order (scene::ids, rule 1).
+        let names: Vec<Option<&str>> = nodes.iter().map(|n| n.name.as_deref()).collect();
+        let groups = std::iter::once(&roots[..]).chain(nodes.iter().map(|n| &n.children[..]));
+        let name_repeat = crate::scene::ids::number_same_named(&names, groups);
         self.scene.nodes.reserve_exact(nodes.len());
         for (i, n) in nodes.iter_mut().enumerate() {
             self.scene.nodes.push(Node {
                 name: n.name.take(),
                 parent: parent[i],
                 extras: n.extras.take(),
+                name_repeat: name_repeat[i],
             });
         }
         // Components are the reachable nodes with a mesh: reserved once, not grown by doubling.
         let with_mesh = nodes.iter().filter(|n| n.mesh.is_some()).count();
         self.scene.components.reserve_exact(with_mesh);
         self.scene.elements.reserve(with_mesh);
-        let roots: Vec<usize> = match roots {
-            Some(r) => r.iter().map(|&i| i as usize).collect(),
-            None => (0..parent.len()).filter(|&i| parent[i].is_none()).collect(),
-        };
+        // Elements are pushed once every GlobalId is known (rule 2: a repeated one is not an id).
+        let mut elements: Vec<(Component, ElementInfo)> = Vec::with_capacity(with_mesh);
         // glTF mesh index → our MeshId, in order of first use; meshes are decoded afterwards, in
         // parallel.
         let mut mesh_ids: Vec<Option<MeshId>> = vec![None; mesh_count];
         let mut mesh_order: Vec<usize> = Vec::new();
         let mut visited = vec![false; parent.len()];
-        let mut stack: Vec<(usize, DMat4)> =
-            roots.iter().rev().map(|&i| (i, Y_UP_TO_Z_UP)).collect();
+        let mut stack: Vec<(usize, DMat4)> = roots
+            .iter()
+            .rev()
+            .map(|&i| (i as usize, Y_UP_TO_Z_UP))
+            .collect();
         while let Some((idx, parent_world)) = stack.pop() {
             if std::mem::replace(&mut visited[idx], true) {
                 return Err(self.err(format!(
@@ -587,25 +601,65 @@ impl Reader<'_> {
                         .filter(|n| is_ifc_guid(n))
                         .map(str::to_string);
                 }
-                // The GlobalId is the stable identity when the exporter gives one.
-                info.key = info
-                    .guid
-                    .clone()
-                    .unwrap_or_else(|| self.scene.node_path(NodeId(idx as u32)));
                 info.name = self.scene.nodes[idx].name.clone();
-                self.scene.push_component(
-                    Component {
-                        node: Some(NodeId(idx as u32)),
-                        ..Component::new(mesh_id, world)
-                    },
-                    &info,
-                );
+                let component = Component {
+                    node: Some(NodeId(idx as u32)),
+                    ..Component::new(mesh_id, world)
+                };
+                elements.push((component, info));
             }
             for &c in node.children.iter().rev() {
                 stack.push((c as usize, world));
             }
         }
+        self.push_elements(elements);
         Ok(mesh_order)
+    }
+
+    /// Gives each element its id (a unique GlobalId, else its node path: `scene::ids`) and adds
+    /// it to the scene, counting the ids that differ from the plain GlobalId or path.
+    fn push_elements(&mut self, elements: Vec<(Component, ElementInfo)>) {
+        let mut guid_uses: HashMap<&str, u32> = HashMap::new();
+        for (_, info) in &elements {
+            if let Some(g) = &info.guid {
+                *guid_uses.entry(g).or_insert(0) += 1;
+            }
+        }
+        let keys: Vec<(String, bool)> = elements
+            .iter()
+            .map(|(c, info)| match info.guid.as_deref() {
+                Some(g) if guid_uses[g] == 1 => (g.to_string(), false),
+                guid => {
+                    let node = c.node.expect("a glTF component has its node");
+                    let path = self.scene.node_path(node);
+                    let renamed = guid.is_some() || path != self.plain_node_path(node);
+                    (path, renamed)
+                }
+            })
+            .collect();
+        drop(guid_uses);
+        for ((component, mut info), (key, renamed)) in elements.into_iter().zip(keys) {
+            info.key = key;
+            self.scene.renamed_ids += usize::from(renamed);
+            self.scene.push_component(component, &info);
+        }
+        let table = std::mem::take(&mut self.scene.elements);
+        let (table, renamed) = crate::scene::ids::make_keys_unique(table);
+        self.scene.elements = table;
+        self.scene.renamed_ids += renamed;
+    }
+
+    /// A node's path with no repeat numbers: what its id would be without `scene::ids`.
+    fn plain_node_path(&self, node: NodeId) -> String {
+        let mut parts = Vec::new();
+        let mut cur = Some(node);
+        while let Some(n) = cur {
+            let nd = &self.scene.nodes[n.index()];
+            parts.push(crate::scene::ids::path_segment(nd.name.as_deref(), n.0, 0));
+            cur = nd.parent;
+        }
+        parts.reverse();
+        parts.join("/")
     }
 
     /// Decodes the meshes [`Reader::read_nodes`] listed (`order`: glTF mesh indices) into

@@ -728,6 +728,7 @@ impl<'a> Builder<'a> {
             name: Some(name),
             parent: parent_node,
             extras,
+            name_repeat: 0,
         });
         self.node_of.insert(id, nid);
         Some(nid)
@@ -1014,6 +1015,7 @@ fn assemble(
             ),
             parent: parent_node,
             extras: None,
+            name_repeat: 0,
         });
         b.node_of.insert(el.express_id, node);
         let mesh = MeshId(b.scene.meshes.len() as u32);

@@ -245,6 +245,7 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
         s.elements = std::mem::take(&mut s.elements).map(|e| {
             if clashing.contains(&e.key) {
                 e.key = format!("{}/{}", p.name, e.key);
+                s.renamed_ids += 1;
             }
             e.building = Some(building.clone());
         });
@@ -264,11 +265,14 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
             name: Some(p.name.clone()),
             parent: None,
             extras: None,
+            name_repeat: 0,
         });
     }
     for s in parts {
         scene.append(s);
     }
+    // Two entries of one name could still clash.
+    super::keep_ids_unique(&mut scene);
     scene.georeference = Some(crate::scene::SourceGeoreference {
         longitude_deg: origin.longitude_deg,
         latitude_deg: origin.latitude_deg,

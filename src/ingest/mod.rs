@@ -48,6 +48,8 @@ fn looks_like_step(path: &Path) -> bool {
 fn read_ifc(path: &Path) -> Result<Scene> {
     let (mut scene, report) = ifc::read_ifc_with_report(path)?;
     scene.skipped_elements += report.skipped.len();
+    // A repeated GlobalId (a broken exporter) must not make two elements one.
+    keep_ids_unique(&mut scene);
     scene.georeference = report.georef.map(|g| crate::scene::SourceGeoreference {
         longitude_deg: g.longitude_deg,
         latitude_deg: g.latitude_deg,
@@ -89,7 +91,19 @@ pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
             Some(s) => s.append(next),
         }
     }
-    Ok(scene.unwrap_or_default())
+    let mut scene = scene.unwrap_or_default();
+    if paths.len() > 1 {
+        // Files are unique on their own; two of them may still share ids.
+        keep_ids_unique(&mut scene);
+    }
+    Ok(scene)
+}
+
+/// Numbers any repeated element id (`scene::ids`, rule 3), counting the renamed ones.
+pub(crate) fn keep_ids_unique(scene: &mut Scene) {
+    let (table, renamed) = crate::scene::ids::make_keys_unique(std::mem::take(&mut scene.elements));
+    scene.elements = table;
+    scene.renamed_ids += renamed;
 }
 
 /// What a conversion reads: the embedded sample, model files, or a campus manifest.

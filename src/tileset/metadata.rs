@@ -96,9 +96,11 @@ pub struct MetadataSchema {
     base: Value,
 }
 
-/// Whether a component's id is its glTF node path (no GlobalId), which ends with its name.
+/// Whether a component's id is its glTF node path (no GlobalId) and ends with its name (not
+/// with a repeat number: `object#1`).
 fn id_is_node_path(scene: &Scene, comp: &Component, info: &ElementInfo) -> bool {
-    comp.node.is_some_and(|n| info.key == scene.node_path(n))
+    comp.node
+        .is_some_and(|n| scene.nodes[n.index()].name_repeat == 0 && info.key == scene.node_path(n))
 }
 
 /// Enum value name → code (its index in `names`).
@@ -682,16 +684,19 @@ mod tests {
                 name: Some("building-0".into()),
                 parent: None,
                 extras: None,
+                name_repeat: 0,
             },
             Node {
                 name: Some("wall#0".into()),
                 parent: Some(NodeId(0)),
                 extras: None,
+                name_repeat: 0,
             },
             Node {
                 name: Some("1CBNfY0004DZ4oDpWmD3am".into()),
                 parent: Some(NodeId(0)),
                 extras: None,
+                name_repeat: 0,
             },
         ];
         s.components[0].node = Some(NodeId(1));

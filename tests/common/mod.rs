@@ -20,11 +20,17 @@ pub fn sample() -> PathBuf {
     repo().join("samples/sample_building.glb")
 }
 
-/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists.
+/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists. Missing under
+/// `BIMTILES_REQUIRE_TOOLS` (`make test`), it fails the test instead of skipping it.
 pub fn shared() -> Option<PathBuf> {
     let p = std::env::var_os("BIMTILES_SHARED")
         .map(PathBuf::from)
         .unwrap_or_else(|| repo().join("../shared"));
+    assert!(
+        p.is_dir() || !tools_required(),
+        "{}: the shared data folder is missing (BIMTILES_REQUIRE_TOOLS is set)",
+        p.display()
+    );
     p.is_dir().then_some(p)
 }
 
@@ -618,3 +624,129 @@ pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<
 #[path = "../support/height_field.rs"]
 pub mod height_field;
 pub use height_field::glb;
+
+/// Each reachable mesh node's element id (node index → id), derived from the glTF alone by the
+/// rule the README gives under "Element ids" (not by the product's code):
+/// 1. a node path segment is the node's name (`node<i>` unnamed); among siblings, in glTF order,
+///    the n-th repeat of a name is `name#n`;
+/// 2. a GlobalId (extras `guid`/`GlobalId`/`globalId`/`ifc_guid`, or a node name of GlobalId form)
+///    is the id when no other element of the file has it; else the path is;
+/// 3. an id still taken by an earlier element (depth-first reading order) gets the smallest free
+///    `#k`.
+pub fn expected_element_ids(doc: &gltf::Document) -> std::collections::HashMap<usize, String> {
+    use std::collections::{HashMap, HashSet};
+    let roots: Vec<usize> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(s) => s.nodes().map(|n| n.index()).collect(),
+        None => {
+            let children: HashSet<usize> = doc
+                .nodes()
+                .flat_map(|n| n.children().map(|c| c.index()))
+                .collect();
+            (0..doc.nodes().count())
+                .filter(|i| !children.contains(i))
+                .collect()
+        }
+    };
+    let nodes: Vec<gltf::Node> = doc.nodes().collect();
+    let mut parent: HashMap<usize, usize> = HashMap::new();
+    let mut segment: Vec<String> = nodes
+        .iter()
+        .map(|n| {
+            n.name()
+                .map_or_else(|| format!("node{}", n.index()), str::to_string)
+        })
+        .collect();
+    let mut groups: Vec<Vec<usize>> = vec![roots.clone()];
+    for n in &nodes {
+        let kids: Vec<usize> = n.children().map(|c| c.index()).collect();
+        for &k in &kids {
+            parent.insert(k, n.index());
+        }
+        groups.push(kids);
+    }
+    for g in &groups {
+        let mut seen: HashMap<String, usize> = HashMap::new();
+        for &i in g {
+            if nodes[i].name().is_none() {
+                continue;
+            }
+            let count = seen.entry(segment[i].clone()).or_default();
+            if *count > 0 {
+                segment[i] = format!("{}#{count}", segment[i]);
+            }
+            *count += 1;
+        }
+    }
+    let path = |mut i: usize| {
+        let mut parts = vec![segment[i].clone()];
+        while let Some(&p) = parent.get(&i) {
+            parts.push(segment[p].clone());
+            i = p;
+        }
+        parts.reverse();
+        parts.join("/")
+    };
+    let is_guid = |s: &str| {
+        s.len() == 22
+            && s.starts_with(['0', '1', '2', '3'])
+            && s.bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'$')
+    };
+    let guid_of = |n: &gltf::Node| -> Option<String> {
+        let extras: Option<Value> = n
+            .extras()
+            .as_ref()
+            .and_then(|x| serde_json::from_str(x.get()).ok());
+        let from_extras = ["guid", "GlobalId", "globalId", "ifc_guid"]
+            .iter()
+            .find_map(|k| extras.as_ref()?.get(*k)?.as_str().map(str::to_string));
+        from_extras.or_else(|| n.name().filter(|s| is_guid(s)).map(str::to_string))
+    };
+    // Depth-first reading order, roots and children in glTF order.
+    let mut order = Vec::new();
+    let mut stack: Vec<usize> = roots.iter().rev().copied().collect();
+    while let Some(i) = stack.pop() {
+        if nodes[i].mesh().is_some() {
+            order.push(i);
+        }
+        stack.extend(
+            nodes[i]
+                .children()
+                .map(|c| c.index())
+                .collect::<Vec<_>>()
+                .iter()
+                .rev(),
+        );
+    }
+    let mut guid_uses: HashMap<String, usize> = HashMap::new();
+    for &i in &order {
+        if let Some(g) = guid_of(&nodes[i]) {
+            *guid_uses.entry(g).or_default() += 1;
+        }
+    }
+    let first: Vec<String> = order
+        .iter()
+        .map(|&i| match guid_of(&nodes[i]) {
+            Some(g) if guid_uses[&g] == 1 => g,
+            _ => path(i),
+        })
+        .collect();
+    let mut taken: HashSet<String> = first.iter().cloned().collect();
+    let mut held: HashSet<String> = HashSet::new();
+    let mut out = HashMap::new();
+    for (&i, id) in order.iter().zip(first) {
+        let id = if held.insert(id.clone()) {
+            id
+        } else {
+            let free = (1..)
+                .map(|k| format!("{id}#{k}"))
+                .find(|c| !taken.contains(c))
+                .unwrap();
+            taken.insert(free.clone());
+            held.insert(free.clone());
+            free
+        };
+        out.insert(i, id);
+    }
+    out
+}

@@ -109,30 +109,68 @@ def feature_ids(doc, blob):
 
 
 def input_elements(path):
-    """Nodes with a mesh of a glTF/GLB input: {id: (name, class, storey)}."""
+    """Nodes with a mesh of a glTF/GLB input: {id: (name, class, storey)}, ids by the README's
+    "Element ids" rule: sibling repeats numbered `name#n`, a GlobalId when unique in the file,
+    and any id still taken by an earlier element (depth-first order) numbered `#k`."""
     doc, _ = read_glb(path) if str(path).endswith(".glb") else (json.loads(pathlib.Path(path).read_text()), b"")
     nodes = doc.get("nodes", [])
     parent = {}
     for i, n in enumerate(nodes):
         for c in n.get("children", []):
             parent[c] = i
+    scenes = doc.get("scenes", [])
+    if scenes:
+        roots = scenes[doc.get("scene", 0)].get("nodes", [])
+    else:
+        roots = [i for i in range(len(nodes)) if i not in parent]
+    segment = {i: n.get("name", f"node{i}") for i, n in enumerate(nodes)}
+    for group in [roots] + [n.get("children", []) for n in nodes]:
+        seen = {}
+        for i in group:
+            if "name" not in nodes[i]:
+                continue
+            k = seen.get(nodes[i]["name"], 0)
+            if k:
+                segment[i] = f"{nodes[i]['name']}#{k}"
+            seen[nodes[i]["name"]] = k + 1
 
     def node_path(i):
         parts = []
         while i is not None:
-            parts.append(nodes[i].get("name", f"node{i}"))
+            parts.append(segment[i])
             i = parent.get(i)
         return "/".join(reversed(parts))
 
-    out = {}
-    for i, n in enumerate(nodes):
-        if "mesh" not in n:
-            continue
+    def guid_of(n):
         extras = n.get("extras") or {}
-        guid = extras.get("guid") or extras.get("GlobalId")
-        if not guid and GUID.match(n.get("name", "")):
-            guid = n["name"]
-        key = guid or node_path(i)
+        for k in ("guid", "GlobalId", "globalId", "ifc_guid"):
+            if isinstance(extras.get(k), str):
+                return extras[k]
+        return n["name"] if GUID.match(n.get("name", "")) else None
+
+    order, stack = [], list(reversed(roots))
+    while stack:
+        i = stack.pop()
+        if "mesh" in nodes[i]:
+            order.append(i)
+        stack.extend(reversed(nodes[i].get("children", [])))
+    uses = {}
+    for i in order:
+        g = guid_of(nodes[i])
+        if g:
+            uses[g] = uses.get(g, 0) + 1
+    first = [g if (g := guid_of(nodes[i])) and uses[g] == 1 else node_path(i) for i in order]
+    taken, held, out = set(first), set(), {}
+    for i, key in zip(order, first):
+        if key in held:
+            k = 1
+            while f"{key}#{k}" in taken:
+                k += 1
+            key = f"{key}#{k}"
+            taken.add(key)
+        held.add(key)
+        n = nodes[i]
+        extras = n.get("extras") or {}
         out[key] = (n.get("name"), extras.get("ifc_class"), extras.get("storey"))
     return out
 
