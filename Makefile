@@ -13,7 +13,7 @@ BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
 APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium fonts-dejavu-core
 
-.PHONY: run test test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
+.PHONY: run test lint test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
 
 run: deps build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -47,6 +47,11 @@ $(VENV)/.installed: tests/python/requirements.txt
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
 	touch $@
+
+# Formatting and lints, as CI runs them before the tests (the build script needs libdraco-dev).
+lint: deps-system
+	$(CARGO) fmt --check
+	$(CARGO) clippy --all-targets --features charts -- -D warnings
 
 # The venv's python3 (numpy, for make_campus.py in tests/shard.rs) comes first on PATH.
 test: deps
@@ -85,7 +90,7 @@ bench-browser: deps build
 	@# A model that fails is listed in the table; the charts are drawn from the others, then make fails.
 	node tools/bench_browser.mjs --runs $(BENCH_RUNS) $(BENCH_ARGS) --json target/bench/browser.json \
 	  $(SAMPLE) $(wildcard $(SHARED)/data/*.glb) > target/bench/browser.stdout; rc=$$?; \
-	  $(CARGO) run --release --quiet --example bench_charts -- target/bench/browser.json target/bench && exit $$rc
+	  $(CARGO) run --release --quiet --features charts --example bench_charts -- target/bench/browser.json target/bench && exit $$rc
 
 # Convert the sample and open it in the viewer at http://127.0.0.1:8080/
 serve: deps build
@@ -109,7 +114,7 @@ BENCH_SCALE_ARGS ?=
 bench-scale: deps build
 	@[ -x /usr/bin/time ] || { $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq time; } \
 	  || echo "note: no GNU time; peak memory from report.json only"
-	BIMTILES_SHARED=$(SHARED) $(CARGO) run --release --example bench_scale -- --python $(CURDIR)/$(PY) $(BENCH_SCALE_ARGS)
+	BIMTILES_SHARED=$(SHARED) $(CARGO) run --release --features charts --example bench_scale -- --python $(CURDIR)/$(PY) $(BENCH_SCALE_ARGS)
 
 clean:
 	rm -rf target out $(VENV) tools/node_modules

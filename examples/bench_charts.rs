@@ -2,7 +2,7 @@
 //! Figs 13-16 equivalents (PNG, drawn with `plotters`) and a markdown table, raw model vs our
 //! tileset per model, cold (first visit) and warm (repeat visit, tile cache filled) loads.
 //!
-//! Usage: cargo run --release --example bench_charts -- [target/bench/browser.json] [OUT_DIR]
+//! Usage: cargo run --release --features charts --example bench_charts -- [target/bench/browser.json] [OUT_DIR]
 //! Writes OUT_DIR (default `target/bench`)/{fig13_load_time,fig14_bytes,fig15_memory,
 //! fig16_frame_rate}.png and browser.md. Text needs a TrueType font: the first found of
 //! $BIMTILES_FONT and the usual DejaVu / Liberation paths (Debian `fonts-dejavu-core`).

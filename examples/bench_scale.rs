@@ -28,7 +28,7 @@
 //! GB = 10^9), the issue's targets marked PASS/FAIL, and prints the markdown; exits non-zero,
 //! after writing them, when a conversion or the sharded build failed.
 //!
-//! Usage: cargo run --release --example bench_scale -- [--sizes 1M,8M,32M,100M]
+//! Usage: cargo run --release --features charts --example bench_scale -- [--sizes 1M,8M,32M,100M]
 //!        [--variants exact,jitter] [--skip-ray] [--ray-size 8M] [--ray-variant jitter]
 //!        [--ray-jobs 4] [--keep] [--out DIR] [--campus-dir DIR] [--shared DIR] [--python PATH]
 //!        [--memory-budget-gb 4]
@@ -159,7 +159,7 @@ struct Opts {
     memory_budget_gb: f64,
 }
 
-const USAGE: &str = "usage: cargo run --release --example bench_scale -- [--sizes 1M,8M,32M,100M] \
+const USAGE: &str = "usage: cargo run --release --features charts --example bench_scale -- [--sizes 1M,8M,32M,100M] \
 [--variants exact,jitter] [--skip-ray] [--ray-size 8M] [--ray-variant jitter] [--ray-jobs 4] [--keep] \
 [--out DIR] [--campus-dir DIR] [--shared DIR] [--python PATH] [--memory-budget-gb 4]";
 

@@ -24,7 +24,8 @@
 //! (the tile budget of the first-view conversions; default 3000, as `tests/textures.rs`: at the
 //! tool's default budget these small models fit one tile and a first view loads everything).
 
-use bimtiles::texture::{self, external, haar, view, TextureFormat, TextureOptions};
+use bimtiles::texture::{self, external, haar, TextureFormat, TextureOptions};
+use bimtiles::tileset::view;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -92,7 +93,7 @@ fn main() {
             let im = &scene.images[id.index()];
             if let Ok((w, h)) = texture::codec::dimensions(&im.bytes) {
                 let n = w as u64 * h as u64;
-                if largest.as_ref().map_or(true, |l| n > l.2) {
+                if largest.as_ref().is_none_or(|l| n > l.2) {
                     let name = format!(
                         "{} image {} {}",
                         input.file_name().unwrap().to_string_lossy(),
@@ -215,7 +216,7 @@ fn main() {
         let original = report["textures"]["original_bytes"].as_u64().unwrap_or(0);
         let v: Vec<(view::FirstView, usize)> = runs
             .iter()
-            .map(|(dir, _)| external::first_view_shared(dir, &Default::default()).unwrap())
+            .map(|(dir, _)| view::first_view_shared(dir, &Default::default()).unwrap())
             .collect();
         let requests = |k: usize| v[k].0.tiles + v[k].1;
         let v: Vec<view::FirstView> = v.iter().map(|x| x.0.clone()).collect();
@@ -258,7 +259,7 @@ struct Load {
 }
 
 fn load(dir: &Path) -> Load {
-    let (shared, files) = external::first_view_shared(dir, &Default::default()).unwrap();
+    let (shared, files) = view::first_view_shared(dir, &Default::default()).unwrap();
     let plain = view::first_view(dir, &Default::default()).unwrap();
     let sizes = |sub: &str| -> Vec<u64> {
         std::fs::read_dir(dir.join(sub))

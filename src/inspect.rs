@@ -1,7 +1,7 @@
 //! Reads a written tileset back and summarises it per level: tiles, triangles, bytes and geometric
 //! error. It reads only what is on disk (tileset.json and the GLB headers), so it also describes
 //! tilesets made by other tools; a bimtiles `report.json` beside them adds the levels of detail as
-//! the paper's Table I (both error metrics, see [`crate::convert::LodLevelReport`]).
+//! the paper's Table I (both error metrics, see [`crate::report::LodLevelReport`]).
 
 use crate::error::{Error, Result};
 use serde::Serialize;
@@ -29,12 +29,12 @@ pub struct TilesetSummary {
     pub levels: Vec<LevelSummary>,
     /// From `report.json`, when bimtiles wrote one with levels of detail.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub lod_levels: Vec<crate::convert::LodLevelReport>,
+    pub lod_levels: Vec<crate::report::LodLevelReport>,
 }
 
 /// The `lod_levels` table of the `report.json` in `dir`, empty if there is none (other tools,
 /// `--lod none`); an unreadable one is an error naming it.
-fn read_lod_levels(dir: &Path) -> Result<Vec<crate::convert::LodLevelReport>> {
+fn read_lod_levels(dir: &Path) -> Result<Vec<crate::report::LodLevelReport>> {
     let path = dir.join("report.json");
     let Ok(text) = std::fs::read(&path) else {
         return Ok(Vec::new());

@@ -18,6 +18,7 @@ use std::sync::Arc;
 
 mod elements;
 pub mod ids;
+pub mod placement;
 mod store;
 pub use elements::{ElementStats, ElementTable};
 pub use store::{

@@ -59,6 +59,20 @@ fn every_shared_model_converts_to_a_valid_tileset() {
         let tiles = check_tileset(&out, tris);
         eprintln!("{name}: {tris} triangles, {} tiles", tiles.len());
         gltf_validator(&out);
+        // The report counts the tiles the tileset gives content, HLOD tiles included.
+        let ts: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+        let mut with_content = 0;
+        let mut stack = vec![&ts["root"]];
+        while let Some(t) = stack.pop() {
+            with_content += usize::from(t["content"]["uri"].is_string());
+            stack.extend(t["children"].as_array().into_iter().flatten());
+        }
+        assert_eq!(
+            report["output"]["tiles_with_content"].as_u64().unwrap() as usize,
+            with_content,
+            "{name}"
+        );
     }
 }
 

@@ -193,7 +193,7 @@ fn same_triangles(a: &[Tri], b: &[Tri]) -> Result<(), String> {
                                     .fold(0.0, f64::max)
                             })
                             .fold(f64::INFINITY, f64::min);
-                        if !used[j] && dist <= TOL_M && found.map_or(true, |(_, d)| dist < d) {
+                        if !used[j] && dist <= TOL_M && found.is_none_or(|(_, d)| dist < d) {
                             found = Some((j, dist));
                         }
                     }

@@ -3,7 +3,7 @@
 //! element's identity and building, and put the geometry at the right place on Earth.
 
 mod common;
-use bimtiles::tileset::georef::GeoOrigin;
+use bimtiles::geodesy::GeoOrigin;
 use common::*;
 use glam::{DMat4, DVec3};
 use serde_json::Value;

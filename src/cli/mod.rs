@@ -6,12 +6,12 @@ use bimtiles::convert::{
 };
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
+use bimtiles::geodesy::GeoOrigin;
 use bimtiles::ingest::InputSet;
 use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::simplify::SimplifyOptions;
 use bimtiles::texture::{TextureFormat, TextureOptions};
-use bimtiles::tileset::georef::GeoOrigin;
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -19,7 +19,7 @@ use std::path::PathBuf;
 #[command(
     name = "bimtiles",
     version,
-    about = "Building models (glTF/GLB) to OGC 3D Tiles 1.1"
+    about = "Building models (glTF/GLB, IFC) to OGC 3D Tiles 1.1"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -111,7 +111,7 @@ enum Command {
 
 #[derive(Args)]
 struct ConvertArgs {
-    /// Input models (.glb, .gltf). Without any, the bundled sample building is converted.
+    /// Input models (.glb, .gltf, .ifc). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
     /// A campus manifest (JSON): models placed by longitude/latitude/height/heading or by an
     /// east/north/up offset, converted into one tileset (README "Many buildings").

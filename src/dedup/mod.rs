@@ -21,7 +21,7 @@ mod matcher;
 
 use crate::scene::{ComponentId, MaterialId, MeshId, MeshStore, Scene};
 use geom::Similarity;
-use glam::{DMat3, DMat4, DQuat, DVec3};
+use glam::{DMat3, DMat4, DVec3};
 use matcher::{
     find_motion_same_order, find_motion_search, InvariantKey, Invariants, MatchKind, SameOrder,
     Shape, Tol, ICP_RUNS_PER_CANDIDATE,
@@ -126,25 +126,6 @@ pub fn shape_groups(scene: &Scene) -> Vec<ShapeGroup> {
         .into_iter()
         .map(|(mesh, components)| ShapeGroup { mesh, components })
         .collect()
-}
-
-/// `world` as translation, rotation and scale (the instancing attributes), when it is exactly
-/// such a product (no shear, affine); None otherwise, and the writer must bake that instance.
-/// A mirroring `world` comes out with a negative scale component.
-pub fn instance_trs(world: &DMat4) -> Option<(DVec3, DQuat, DVec3)> {
-    if !world.is_finite() || world.row(3) != glam::DVec4::new(0.0, 0.0, 0.0, 1.0) {
-        return None;
-    }
-    let (s, r, t) = world.to_scale_rotation_translation();
-    let back = DMat4::from_scale_rotation_translation(s, r, t);
-    let size = DMat3::from_mat4(*world)
-        .to_cols_array()
-        .iter()
-        .fold(0f64, |a, x| a.max(x.abs()));
-    let err = (0..4)
-        .map(|i| (back.col(i) - world.col(i)).abs().max_element())
-        .fold(0f64, f64::max);
-    (err <= 1e-9 * size.max(1.0) && s.is_finite() && r.is_finite()).then_some((t, r, s))
 }
 
 /// Finds exact duplicates and congruent components in `scene` and rewrites it in place (see the

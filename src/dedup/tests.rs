@@ -814,16 +814,3 @@ fn empty_meshes_and_bad_transforms_do_not_panic() {
     let r = deduplicate(&mut s, &DedupOptions::default());
     assert_eq!(r.components, 4);
 }
-
-#[test]
-fn instance_trs_decomposes_rigid_and_rejects_shear() {
-    let w = motion([1.0, 2.0, 3.0], 40.0, [1.0, 2.0, 3.0])
-        * DMat4::from_scale(DVec3::new(2.0, 2.0, -2.0));
-    let (t, r, s) = instance_trs(&w).unwrap();
-    let back = DMat4::from_scale_rotation_translation(s, r, t);
-    assert!(back.abs_diff_eq(w, 1e-12));
-    let shear = DMat4::from_cols_array(&[
-        1.0, 0.0, 0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
-    ]);
-    assert!(instance_trs(&shear).is_none());
-}

@@ -1677,16 +1677,16 @@ mod tests {
                 pos.extend(p.iter().flatten());
                 match r.read_normals() {
                     Some(ns) => nrm.extend(ns.flatten()),
-                    None => nrm.extend(std::iter::repeat([0.0f32, 0.0, 1.0]).take(n).flatten()),
+                    None => nrm.extend(std::iter::repeat_n([0.0f32, 0.0, 1.0], n).flatten()),
                 }
                 match r.read_tex_coords(0) {
                     Some(t) => {
                         any_uv = true;
                         uv.extend(t.into_f32().flatten())
                     }
-                    None => uv.extend(std::iter::repeat(0.0f32).take(2 * n)),
+                    None => uv.extend(std::iter::repeat_n(0.0f32, 2 * n)),
                 }
-                fid.extend(std::iter::repeat((mi % 65536) as u16).take(n));
+                fid.extend(std::iter::repeat_n((mi % 65536) as u16, n));
                 match r.read_indices() {
                     Some(i) => idx.extend(i.into_u32().map(|v| v + base)),
                     None => idx.extend(base..base + n as u32),

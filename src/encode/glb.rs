@@ -11,9 +11,11 @@
 
 use super::metadata::{write_property_table, PropertyTable};
 use crate::error::{Error, Result};
+use crate::glb_container::glb_container;
+use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::*;
-use crate::tile_content::{ContentPrimitive, TileContent};
+use crate::texture::{ImageSource, TileImage};
 use byteorder::{WriteBytesExt, LE};
 use glam::{DMat4, DVec3};
 use serde_json::{json, Map, Value};
@@ -164,23 +166,6 @@ pub fn encode_content(
 ) -> Result<EncodedTile> {
     encode_content_from(scene, content, enc, metadata, None, &BTreeMap::new())
 }
-
-/// How one tile carries an image (e.g. the texture pyramid level matched to the tile:
-/// `crate::texture::TextureLevels`).
-#[derive(Debug, Clone)]
-pub enum TileImage {
-    /// The bytes go into the GLB's BIN chunk (a bufferView).
-    Embedded {
-        bytes: std::sync::Arc<Vec<u8>>,
-        mime: String,
-    },
-    /// A file shared by the tiles of the tileset, referenced by a URI relative to the GLB (glTF
-    /// 2.0 §3.3.3: relative URIs resolve against the glTF's own location).
-    External { uri: String, mime: String },
-}
-
-/// Gives the image of one tile, or why it cannot.
-pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, String> + Sync);
 
 /// [`encode_content`], with the images taken from `images` instead of the scene;
 /// `sampled_px`: the longer side of the image the tile samples instead of a scene image (a
@@ -620,7 +605,7 @@ fn write_glb(
             if let Some(f) = &frame {
                 y_up_transform *= f.matrix();
             }
-            let (t, r, s) = crate::dedup::instance_trs(&y_up_transform)
+            let (t, r, s) = crate::geometry::instance_trs(&y_up_transform)
                 .ok_or("an instance transform is not translation-rotation-scale")?;
             translations.push(t.as_vec3().to_array());
             rotations.push(r.normalize().as_quat().to_array());
@@ -890,7 +875,7 @@ fn draco_primitive(
         } else {
             positions_y_up.clone()
         };
-        crate::simplify::normals::normals_from_faces(&drawn, &m.indices, &mut normals_y_up);
+        crate::geometry::normals_from_faces(&drawn, &m.indices, &mut normals_y_up);
     }
     let mut attrs = vec![EncodeAttribute::position(positions, position_bits)];
     let mut names = vec![("POSITION", FLOAT, "VEC3")];
@@ -1017,29 +1002,6 @@ fn sampler_json(s: &Sampler) -> Value {
     v
 }
 
-/// The GLB container: 12-byte header, JSON chunk (space-padded), BIN chunk (zero-padded).
-pub fn glb_container(json: &[u8], bin: &[u8]) -> Vec<u8> {
-    let pad = |n: usize| (4 - n % 4) % 4;
-    let json_len = json.len() + pad(json.len());
-    let bin_len = bin.len() + pad(bin.len());
-    let total = 12 + 8 + json_len + if bin.is_empty() { 0 } else { 8 + bin_len };
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.write_u32::<LE>(2).expect("vec write");
-    out.write_u32::<LE>(total as u32).expect("vec write");
-    out.write_u32::<LE>(json_len as u32).expect("vec write");
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(json);
-    out.resize(out.len() + pad(json.len()), b' ');
-    if !bin.is_empty() {
-        out.write_u32::<LE>(bin_len as u32).expect("vec write");
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(bin);
-        out.resize(out.len() + pad(bin.len()), 0);
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1124,15 +1086,5 @@ mod tests {
         let r = prim.reader(|_| Some(blob));
         let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
         assert_eq!(idx, vec![0, 2, 1]);
-    }
-
-    #[test]
-    fn container_is_aligned() {
-        let g = glb_container(b"{}", &[1, 2, 3]);
-        assert_eq!(g.len() % 4, 0);
-        assert_eq!(
-            u32::from_le_bytes(g[8..12].try_into().unwrap()) as usize,
-            g.len()
-        );
     }
 }

@@ -493,7 +493,8 @@ mod tests {
 
     #[test]
     fn broken_references_are_reported_with_their_path() {
-        let cases: [(&str, fn(&mut serde_json::Value)); 6] = [
+        type Break = fn(&mut serde_json::Value);
+        let cases: [(&str, Break); 6] = [
             ("nodes[0].mesh", |j| j["nodes"][0]["mesh"] = 3.into()),
             ("scenes[0].nodes[0]", |j| {
                 j["scenes"][0]["nodes"][0] = 9.into()

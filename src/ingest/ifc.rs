@@ -175,7 +175,7 @@ pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
 /// The georeference of an IFC file (IfcSite RefLatitude/RefLongitude/RefElevation, true north,
 /// IfcMapConversion); `None` when the site has no reference latitude/longitude or the file cannot be
 /// read. A file with only an IfcMapConversion is placed from it when its CRS is UTM
-/// ([`crate::tileset::projection`]); other CRSs give `None`.
+/// ([`crate::geodesy::projection`]); other CRSs give `None`.
 pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
     let bytes = std::fs::read(path).ok()?;
     check_step(&bytes).ok()?;
@@ -282,7 +282,7 @@ fn georef_from_raw(raw: engine::RawGeoref) -> Option<IfcGeoref> {
 /// (XAxisAbscissa, XAxisOrdinate) in the map grid, and grid north is turned from true north by the
 /// meridian convergence there. Other CRSs give `None` (the caller then says no georeference).
 fn georef_from_map_conversion(m: &IfcMapConversion) -> Option<IfcGeoref> {
-    use crate::tileset::projection::{utm_to_wgs84, UtmZone};
+    use crate::geodesy::projection::{utm_to_wgs84, UtmZone};
     let zone = UtmZone::from_crs_name(m.crs_name.as_deref()?)?;
     if !(m.eastings.is_finite() && m.northings.is_finite()) {
         return None;

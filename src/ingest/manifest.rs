@@ -17,8 +17,8 @@
 //! `building` is the entry's name, and its hierarchy path starts with it.
 
 use crate::error::{Error, Result};
+use crate::geodesy::GeoOrigin;
 use crate::scene::{Node, NodeId, Scene, SharedText};
-use crate::tileset::georef::GeoOrigin;
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
 use std::collections::{BTreeMap, BTreeSet};
@@ -216,13 +216,7 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
     for p in &placements {
         let mut s = super::read_input(&p.file)?;
         // The model's own anchor goes to its placement (the rule of `convert`).
-        let local = match s.georeference {
-            Some(g) => {
-                DMat4::from_rotation_z((-g.true_north_deg.unwrap_or(0.0)).to_radians())
-                    * DMat4::from_translation(-g.anchor)
-            }
-            None => DMat4::from_translation(-crate::convert::choose_anchor(&s.bounds()).0),
-        };
+        let local = crate::scene::placement::Placement::of(&s).local;
         s.georeference = None;
         s.apply_transform(&(p.transform * local));
         parts.push(s);

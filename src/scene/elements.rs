@@ -159,7 +159,7 @@ impl ElementTable {
                 None => &self.open[s..e],
                 Some(Chunk::Resident(b)) => &b[s..e],
                 Some(Chunk::Spilled { file, offset, len }) => {
-                    if chunk.as_ref().map_or(true, |(k, _)| *k != r.chunk) {
+                    if chunk.as_ref().is_none_or(|(k, _)| *k != r.chunk) {
                         chunk = Some((r.chunk, file.read(*offset, *len).into()));
                     }
                     &chunk.as_ref().expect("just read").1[s..e]

@@ -14,7 +14,7 @@
 //! names through temporary names and, last, `DIR/jobs/job-K.bin` ([`wire`]): its tiles' figures
 //! and, for HLOD, what its subtree roots hand their parents. `merge` accepts a job only through
 //! that file, builds the top levels from the subtree roots exactly as `convert` does
-//! ([`crate::convert::TileWriter`] is the one code path: `convert` is a single job over the whole
+//! ([`crate::build::TileWriter`] is the one code path: `convert` is a single job over the whole
 //! tree, merged in memory), and writes schema.json, tileset.json and report.json.
 //!
 //! Identical to `convert`: every tile, tileset.json and schema.json. report.json differs in its
@@ -23,13 +23,14 @@
 
 pub(crate) mod wire;
 
-use crate::convert::{
-    make_report, peak_memory_bytes, prepare, read_scene, write_renamed, ConvertOptions, Prepared,
-    Report, TileWriter, Timings,
-};
+use crate::build::TileWriter;
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
+use crate::options::{ConvertOptions, LodMode};
+use crate::output_dir::write_renamed;
 use crate::partition::TilePlan;
+use crate::prepare::{prepare, read_scene, Prepared};
+use crate::report::{make_report, peak_memory_bytes, MemoryReport, Report, Timings};
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -159,7 +160,7 @@ pub fn plan(
     command: serde_json::Value,
 ) -> Result<PlanFile> {
     let dir = &opts.out_dir;
-    if matches!(opts.lod, crate::convert::LodMode::Ratios(_)) {
+    if matches!(opts.lod, LodMode::Ratios(_)) {
         // A chain hangs below a whole leaf; jobs split the tree above leaves (not built yet).
         return Err(Error::output(
             dir,
@@ -327,16 +328,7 @@ pub fn build_job(
     let uses = &l.prep.textures_prepared.uses;
     let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
     let count = roots.iter().map(|&r| subtree_tiles(plan, r)).sum();
-    let writer = TileWriter::new(
-        &l.scene,
-        plan,
-        opts,
-        dir,
-        &textures,
-        &l.prep.appearance,
-        &l.prep.chain_level,
-        count,
-    )?;
+    let writer = TileWriter::new(&l.scene, &l.prep, opts, dir, &textures, count)?;
     let output = writer.build_subtrees(roots, &Default::default(), Default::default())?;
     writer.finish_progress();
     let tiles = output.tiles.len();
@@ -432,21 +424,11 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
     for leftover in leftover_temp_files(dir) {
         std::fs::remove_file(&leftover).map_err(|e| Error::output(&leftover, e))?;
     }
-    let plan = &l.prep.plan;
     let all_roots: Vec<usize> = l.roots.iter().flatten().copied().collect();
     let uses = &l.prep.textures_prepared.uses;
     let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
     let t = Instant::now();
-    let writer = TileWriter::new(
-        &l.scene,
-        plan,
-        opts,
-        dir,
-        &textures,
-        &l.prep.appearance,
-        &l.prep.chain_level,
-        l.file.top.len(),
-    )?;
+    let writer = TileWriter::new(&l.scene, &l.prep, opts, dir, &textures, l.file.top.len())?;
     let stats = writer.merge(outputs, &all_roots, l.prep.origin, l.prep.anchor)?;
     writer.finish_progress();
     let timings = Timings {
@@ -457,7 +439,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         tileset: 0.0,
         total: 0.0,
     };
-    let memory = crate::convert::MemoryReport::of(&l.scene);
+    let memory = MemoryReport::of(&l.scene);
     let mut report = make_report(l.prep, &stats, opts, dir, timings, textures);
     report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     report.peak_memory_bytes = peak_memory_bytes();

@@ -4,9 +4,10 @@
 //! the merged tileset is byte-identical to `convert`'s. Little-endian; a magic at the start and an
 //! end mark, so a truncated file is refused.
 
-use crate::convert::{BuiltSubtree, JobOutput, TileStats};
+use crate::build::hlod::BuiltSubtree;
+use crate::build::{JobOutput, TileStats};
+use crate::partition::content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
-use crate::tile_content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use glam::{DMat4, DVec3};
 
 const MAGIC: &[u8; 8] = b"BIMTJOB3";

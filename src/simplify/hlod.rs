@@ -23,9 +23,9 @@
 
 use super::hausdorff::{sample_surface_dense, MeshBvh, TriMesh};
 use super::{simplify, MeshInput, SimplifyError, SimplifyOptions};
+use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::{ComponentId, Scene};
-use crate::tile_content::{ContentPrimitive, TileContent};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
@@ -369,10 +369,9 @@ fn drop_smallest_parts(r: &mut super::SimplifiedMesh, locked: Option<&[bool]>, t
         ));
         e.0 += 1;
         for &v in t {
-            let p = r.positions[v as usize];
-            for k in 0..3 {
-                e.1[k] = e.1[k].min(p[k]);
-                e.2[k] = e.2[k].max(p[k]);
+            for (k, &c) in r.positions[v as usize].iter().enumerate() {
+                e.1[k] = e.1[k].min(c);
+                e.2[k] = e.2[k].max(c);
             }
             e.3 |= locked.is_some_and(|l| l[r.source_vertex[v as usize] as usize]);
         }

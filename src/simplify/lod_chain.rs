@@ -11,9 +11,9 @@
 
 use super::hlod::{simplify_children, ErrorReference, TileError};
 use super::{SimplifyError, SimplifyOptions};
+use crate::partition::content::TileContent;
 use crate::partition::{PlannedTile, TilePlan};
 use crate::scene::{ComponentId, Scene};
-use crate::tile_content::TileContent;
 
 /// Area-weighted samples of a leaf's full detail when measuring a chain level's error (as many as
 /// the independent checker of `tests/hlod.rs` takes; a leaf's own triangle count was found to

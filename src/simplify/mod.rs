@@ -76,6 +76,7 @@ mod curvature;
 pub mod hausdorff;
 pub mod hlod;
 pub mod lod_chain;
+pub mod model;
 pub mod normals;
 mod parts;
 mod qem;

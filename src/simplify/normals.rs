@@ -22,6 +22,9 @@
 use glam::DVec3;
 
 use super::SimplifiedMesh;
+#[cfg(test)]
+use crate::geometry::normals_from_faces;
+use crate::geometry::{face_vectors, set_normals, vertex_sums};
 
 /// A vertex is split when its faces' area-weighted mean normal is shorter than this share of
 /// their total area: its faces face opposite ways nearly as much as not (two sides of a sheet),
@@ -78,63 +81,6 @@ fn split_opposite_faces(m: &mut SimplifiedMesh, faces: &[DVec3]) {
             }
             *v = twin[i];
         }
-    }
-}
-
-/// Replaces `normals` (one per vertex) by the area-weighted face normals of the triangles of
-/// `indices` that use each vertex.
-pub fn normals_from_faces(positions: &[[f32; 3]], indices: &[u32], normals: &mut [[f32; 3]]) {
-    set_normals(&face_vectors(positions, indices), indices, normals);
-}
-
-/// Per triangle, the cross product of two edges: its normal, with twice its area as length.
-fn face_vectors(positions: &[[f32; 3]], indices: &[u32]) -> Vec<DVec3> {
-    let at = |i: u32| DVec3::from_array(positions[i as usize].map(f64::from));
-    indices
-        .chunks_exact(3)
-        .map(|t| (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0])))
-        .collect()
-}
-
-/// What a vertex's triangles add up to.
-#[derive(Clone, Copy, Default)]
-struct VertexSum {
-    /// Sum of their face vectors (area-weighted normal).
-    sum: DVec3,
-    /// Sum of their face vectors' lengths.
-    area: f64,
-    /// The first one with area, for faces that cancel out (both sides of a sheet).
-    first: DVec3,
-}
-
-fn vertex_sums(faces: &[DVec3], indices: &[u32], n: usize) -> Vec<VertexSum> {
-    let mut sums = vec![VertexSum::default(); n];
-    for (t, &f) in indices.chunks_exact(3).zip(faces) {
-        for &v in t {
-            let s = &mut sums[v as usize];
-            s.sum += f;
-            s.area += f.length();
-            if s.first == DVec3::ZERO {
-                s.first = f;
-            }
-        }
-    }
-    sums
-}
-
-/// [`normals_from_faces`] from the face vectors.
-fn set_normals(faces: &[DVec3], indices: &[u32], normals: &mut [[f32; 3]]) {
-    let sums = vertex_sums(faces, indices, normals.len());
-    for (out, s) in normals.iter_mut().zip(sums) {
-        let old = DVec3::from_array(out.map(f64::from));
-        // Interpolation can leave a zero normal (opposite normals merged): glTF wants unit ones.
-        let n = s
-            .sum
-            .try_normalize()
-            .or_else(|| s.first.try_normalize())
-            .or_else(|| old.try_normalize())
-            .unwrap_or(DVec3::Z);
-        *out = n.as_vec3().to_array();
     }
 }
 

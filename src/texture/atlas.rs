@@ -31,10 +31,10 @@
 //! bytes, or embedded below `--embed-textures-below`. Everything is a function of the tile's
 //! content (images in id order, ties broken by id), so sharded builds write the same bytes.
 
+use super::TileImage;
 use super::{codec, TextureLevels, TileTextures};
-use crate::encode::glb::TileImage;
+use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::scene::ImageId;
-use crate::tile_content::{ContentPrimitive, TileContent};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::Arc;

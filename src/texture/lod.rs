@@ -12,7 +12,7 @@
 //! whose UV area is 0). Tiling UVs count every repeat, as they should: a brick texture repeated
 //! 20 times over a wall has texels 20 times smaller on the model.
 
-use crate::tile_content::ContentPrimitive;
+use crate::partition::content::ContentPrimitive;
 use glam::{DVec2, DVec3};
 
 /// World area (m²) and UV area (in UV units², repeats included) of a primitive's triangles.

@@ -16,7 +16,7 @@
 //! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. With `atlas`, a tile's
 //! small non-repeating images are packed into one image when that saves requests and bytes
-//! ([`atlas`]). [`view`] measures what a client loads for a first whole-model view.
+//! ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
 
 pub mod atlas;
 pub mod classify;
@@ -26,17 +26,31 @@ pub mod external;
 pub mod haar;
 pub mod identical;
 pub mod lod;
-/// The first-view selection simulation moved to the tileset module (it serves geometry too).
-pub use crate::tileset::view;
 
 pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
 
-use crate::encode::glb::TileImage;
+use crate::partition::content::TileContent;
 use crate::scene::{ImageId, Scene};
-use crate::tile_content::TileContent;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, OnceLock};
+
+/// How one tile carries an image (e.g. the texture pyramid level matched to the tile:
+/// [`TextureLevels`]); the encoder writes it.
+#[derive(Debug, Clone)]
+pub enum TileImage {
+    /// The bytes go into the GLB's BIN chunk (a bufferView).
+    Embedded {
+        bytes: std::sync::Arc<Vec<u8>>,
+        mime: String,
+    },
+    /// A file shared by the tiles of the tileset, referenced by a URI relative to the GLB (glTF
+    /// 2.0 §3.3.3: relative URIs resolve against the glTF's own location).
+    External { uri: String, mime: String },
+}
+
+/// Gives the image of one tile, or why it cannot.
+pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, String> + Sync);
 
 /// What the texture stage does.
 #[derive(Debug, Clone, PartialEq, Serialize)]

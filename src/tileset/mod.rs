@@ -1,9 +1,7 @@
 //! Writes `tileset.json` (3D Tiles 1.1): the tile tree with tight bounding boxes, geometric errors,
 //! refinement and content URIs, and the root transform that georeferences it.
 
-pub mod georef;
 pub mod metadata;
-pub mod projection;
 pub mod view;
 
 use crate::partition::octree::TilePlan;

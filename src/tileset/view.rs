@@ -19,7 +19,8 @@
 use glam::DVec3;
 use serde::Serialize;
 use serde_json::Value;
-use std::path::Path;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ViewOptions {
@@ -54,6 +55,9 @@ pub struct FirstView {
     /// Distinct tree depths (root = 0) among the selected tiles, and the deepest.
     pub levels: usize,
     pub max_depth: u32,
+    /// Content URIs of the selected tiles, in selection order (relative to tileset.json).
+    #[serde(skip)]
+    pub selected: Vec<String>,
 }
 
 /// The largest Δ(mesh) (formula (2), pixels) the paper accepts: Table I's coarsest level was
@@ -170,11 +174,7 @@ impl Obb {
 
 /// The JSON chunk of a GLB.
 fn glb_json(glb: &[u8]) -> Result<Value, String> {
-    if glb.len() < 20 || &glb[0..4] != b"glTF" {
-        return Err("not a GLB".into());
-    }
-    let n = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
-    serde_json::from_slice(glb.get(20..20 + n).ok_or("short GLB")?).map_err(|e| e.to_string())
+    crate::glb_container::json_chunk(glb).map_err(|e| e.to_string())
 }
 
 /// Image bytes embedded in a GLB, and how many images.
@@ -268,6 +268,7 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
                 out.texture_bytes += bytes;
                 out.images += n;
                 out.triangles += glb_drawn_triangles(&glb).map_err(|e| format!("{uri}: {e}"))?;
+                out.selected.push(uri.to_string());
                 depths.insert(depth);
             }
         }
@@ -280,6 +281,51 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
     out.levels = depths.len();
     out.max_depth = depths.last().copied().unwrap_or(0);
     Ok(out)
+}
+
+/// [`first_view`] counting shared texture files once (issue 6, paper III.F): the texture bytes a
+/// client loads for the first whole-model view are the embedded images of the selected tiles
+/// plus each distinct external file they reference (`../textures/`). Also returns how many
+/// distinct files that is (requests on top of the tiles').
+pub fn first_view_shared(dir: &Path, v: &ViewOptions) -> Result<(FirstView, usize), String> {
+    let mut out = first_view(dir, v)?;
+    let mut files = BTreeSet::new();
+    let mut references = 0;
+    for uri in &out.selected {
+        let tile = dir.join(uri);
+        let glb = std::fs::read(&tile).map_err(|e| format!("{uri}: {e}"))?;
+        let json = glb_json(&glb).map_err(|e| format!("{uri}: {e}"))?;
+        for im in json["images"].as_array().into_iter().flatten() {
+            if let Some(u) = im["uri"].as_str() {
+                references += 1;
+                let base = tile.parent().unwrap_or(dir);
+                files.insert(normalize(&base.join(u)));
+            }
+        }
+    }
+    for f in &files {
+        out.texture_bytes += std::fs::metadata(f)
+            .map_err(|e| format!("{}: {e}", f.display()))?
+            .len();
+    }
+    // `images` counts what is downloaded: embedded copies and distinct files.
+    out.images = out.images - references + files.len();
+    Ok((out, files.len()))
+}
+
+/// `a/b/../c` → `a/c` (no file system access).
+fn normalize(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            std::path::Component::CurDir => {}
+            c => out.push(c),
+        }
+    }
+    out
 }
 
 /// The whole model at full detail, as [`first_view`] counts it: the selection refined to the end
@@ -297,6 +343,14 @@ pub fn full_view(dir: &Path) -> Result<FirstView, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn normalize_resolves_parent_steps() {
+        assert_eq!(
+            normalize(Path::new("/x/tiles/../textures/a.png")),
+            PathBuf::from("/x/textures/a.png")
+        );
+    }
 
     #[test]
     fn obb_distance_and_radius() {

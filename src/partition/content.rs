@@ -11,7 +11,7 @@
 //! component ([`InstancedShape`], written with `EXT_mesh_gpu_instancing`); [`TileContent::expand`]
 //! turns instances back into merged geometry for stages that need one surface (HLOD).
 
-use crate::partition::ContentItem;
+use super::ContentItem;
 use crate::scene::{Aabb, Component, ComponentId, MaterialId, Mesh, MeshId, Primitive, Scene};
 use glam::{DMat3, DMat4, DVec3};
 use std::collections::BTreeMap;
@@ -215,7 +215,7 @@ pub const MIN_INSTANCES_PER_SHAPE: usize = 2;
 /// scale): mirrors and shears are baked.
 fn placeable_as_instance(world: &DMat4) -> bool {
     DMat3::from_mat4(*world).determinant() > 0.0
-        && crate::dedup::instance_trs(world).is_some_and(|(_, _, s)| s.min_element() > 0.0)
+        && crate::geometry::instance_trs(world).is_some_and(|(_, _, s)| s.min_element() > 0.0)
 }
 
 fn material_key(m: Option<MaterialId>) -> u32 {

@@ -1,0 +1,366 @@
+//! Building the tiles of a plan: content gathered per tile, HLOD content simplified bottom-up
+//! ([`hlod`]) or discrete LOD chains ([`chains`]), each tile encoded and written as soon as it is
+//! made, then tileset.json and schema.json. One code path for `convert` (a single job over the
+//! whole tree) and for sharded builds (`crate::shard`: jobs build subtrees, `merge` the top).
+
+pub mod chains;
+pub mod hlod;
+
+use crate::encode::glb::encode_content_with_images;
+use crate::encode::TileEncoding;
+use crate::error::{Error, Result};
+use crate::geodesy::GeoOrigin;
+use crate::options::{
+    default_min_instanced_triangles_saved, CoarseTileProperties, ConvertOptions, LodMode,
+};
+use crate::output_dir::write_renamed;
+use crate::partition::content::{AppearanceClasses, TileContent};
+use crate::partition::{ContentItem, TilePlan};
+use crate::prepare::Prepared;
+use crate::scene::{Aabb, Scene};
+use crate::tileset::metadata::{MetadataSchema, TableScope};
+use crate::tileset::{tileset_json, Refine, TileFacts};
+use chains::build_chains;
+use glam::DVec3;
+use hlod::{BuiltSubtree, HlodBuilder};
+use rayon::prelude::*;
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+pub(crate) fn progress_bar(show: bool, len: usize, what: &'static str) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {elapsed}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb.set_prefix(what);
+    pb
+}
+
+/// A tile's content as the options want it written: instanced or plain.
+pub(crate) fn gather(
+    scene: &Scene,
+    opts: &ConvertOptions,
+    items: &[ContentItem],
+    center: DVec3,
+) -> TileContent {
+    if opts.instancing {
+        let min_saved = opts
+            .min_instanced_triangles_saved
+            .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression));
+        TileContent::gather_instanced(scene, items, center, min_saved)
+    } else {
+        TileContent::gather(scene, items, center)
+    }
+}
+
+/// What writing one tile gave.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct TileStats {
+    pub uri: Option<String>,
+    pub geometric_error_m: f64,
+    pub bytes: u64,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub stored_triangles: usize,
+    pub instanced_shapes: usize,
+    pub instances: usize,
+    pub features: usize,
+    pub metadata_bytes: u64,
+    pub simplified_from_triangles: Option<usize>,
+    pub full_to_coarse_m: Option<f64>,
+    pub coarse_to_full_bound_m: Option<f64>,
+    pub measured_error_m: Option<f64>,
+    pub max_folding_edge_m: Option<f64>,
+    pub paper_error_m: Option<f64>,
+    /// Largest per-axis position error quantization may add (`None`: the encoding's default).
+    pub max_position_error_m: Option<f64>,
+}
+
+/// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
+/// renamed, so a killed process leaves no tile under its final name half-written), and assembles
+/// the tileset from the tiles' figures. Used by `convert` (one job over the whole tree) and by the
+/// sharded build (`crate::shard`: each job builds its subtrees, `merge` the levels above them).
+pub(crate) struct TileWriter<'a> {
+    scene: &'a Scene,
+    plan: &'a TilePlan,
+    opts: &'a ConvertOptions,
+    dir: &'a Path,
+    textures: &'a crate::texture::TextureLevels<'a>,
+    appearance: &'a AppearanceClasses,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    chain_level: &'a [Option<usize>],
+    schema: MetadataSchema,
+    encoding: TileEncoding,
+    pb: indicatif::ProgressBar,
+}
+
+/// What building some subtrees gave: the figures of every tile written, and (HLOD) what each
+/// subtree root hands its parent.
+#[derive(Debug, Default, PartialEq)]
+pub(crate) struct JobOutput {
+    pub tiles: Vec<(usize, Aabb, TileStats)>,
+    pub roots: Vec<(usize, BuiltSubtree)>,
+}
+
+impl<'a> TileWriter<'a> {
+    /// `progress_len`: tiles this process will write (for the progress bar).
+    pub(crate) fn new(
+        scene: &'a Scene,
+        prep: &'a Prepared,
+        opts: &'a ConvertOptions,
+        dir: &'a Path,
+        textures: &'a crate::texture::TextureLevels<'a>,
+        progress_len: usize,
+    ) -> Result<Self> {
+        let (plan, appearance, chain_level) = (&prep.plan, &prep.appearance, &prep.chain_level);
+        let tiles_dir = dir.join("tiles");
+        std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
+        Ok(TileWriter {
+            scene,
+            plan,
+            opts,
+            dir,
+            textures,
+            appearance,
+            chain_level,
+            // The metadata schema, once for the tileset (schema.json), referenced by every tile.
+            schema: MetadataSchema::from_scene(scene),
+            encoding: TileEncoding {
+                compression: opts.compression,
+                ..TileEncoding::default()
+            },
+            pb: progress_bar(opts.progress, progress_len, "tiles"),
+        })
+    }
+
+    pub(crate) fn finish_progress(&self) {
+        self.pb.finish_and_clear();
+    }
+
+    fn write(
+        &self,
+        i: usize,
+        content: &TileContent,
+        mut st: TileStats,
+    ) -> Result<(Aabb, TileStats)> {
+        let (scene, opts, textures) = (self.scene, self.opts, self.textures);
+        let tile = &self.plan.tiles[i];
+        let uri = format!("tiles/{}.glb", tile.path);
+        let path = self.dir.join(&uri);
+        // The texture level matched to the tile's error (REPLACE content; ADD content is full).
+        let texture_error = if opts.lod != LodMode::None {
+            st.geometric_error_m
+        } else {
+            0.0
+        };
+        let merged = self.appearance.merge(scene, content);
+        let content = merged.as_ref().unwrap_or(content);
+        let chosen = textures.for_tile(content, texture_error);
+        // Small non-repeating images packed into an atlas: UVs remapped in a copy of the content.
+        let atlas = textures
+            .atlas_for_tile(content, &chosen)
+            .map_err(|e| Error::output(&path, e))?;
+        let content = atlas.as_ref().map_or(content, |a| &a.content);
+        let image = |id| textures.image_for(id, &chosen, atlas.as_ref());
+        let sampled_px = atlas.as_ref().map(|a| a.texels_px()).unwrap_or_default();
+        let scope = match (st.simplified_from_triangles, opts.coarse_tile_properties) {
+            (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
+            _ => TableScope::All,
+        };
+        let make_table = |features: &[crate::scene::ComponentId]| {
+            self.schema
+                .property_table(scene, features, "../schema.json", scope)
+        };
+        let coarse_encoding;
+        // Simplified content: its own position grid, its normals from the faces as drawn.
+        let encoding = match st.max_position_error_m {
+            Some(e) => {
+                coarse_encoding = TileEncoding {
+                    max_position_error_m: e,
+                    normals_from_drawn_faces: true,
+                    ..self.encoding.clone()
+                };
+                &coarse_encoding
+            }
+            _ => &self.encoding,
+        };
+        let enc = encode_content_with_images(
+            scene,
+            content,
+            encoding,
+            Some(&make_table),
+            &image,
+            &sampled_px,
+        )
+        .map_err(|e| Error::output(&path, e))?;
+        write_renamed(&path, &enc.glb)?;
+        self.pb.inc(1);
+        st.uri = Some(uri);
+        st.bytes = enc.glb.len() as u64;
+        st.triangles = enc.triangles;
+        st.vertices = enc.vertices;
+        st.stored_triangles = enc.stored_triangles;
+        st.instanced_shapes = enc.instanced_shapes;
+        st.instances = enc.instances;
+        st.features = enc.features.len();
+        st.metadata_bytes = enc.metadata_bytes as u64;
+        Ok((enc.bounds, st))
+    }
+
+    /// Builds and writes the subtrees under `roots`, not descending into tiles of `stop`, whose
+    /// results are `provided` (HLOD: what those subtree roots hand up).
+    pub(crate) fn build_subtrees(
+        &self,
+        roots: &[usize],
+        stop: &std::collections::BTreeSet<usize>,
+        provided: BTreeMap<usize, BuiltSubtree>,
+    ) -> Result<JobOutput> {
+        let (scene, plan, opts) = (self.scene, self.plan, self.opts);
+        let write = |i: usize, content: &TileContent, st: TileStats| self.write(i, content, st);
+        match &opts.lod {
+            LodMode::None => {
+                let mut owned = Vec::new();
+                let mut stack: Vec<usize> = roots.iter().rev().copied().collect();
+                while let Some(j) = stack.pop() {
+                    if !stop.contains(&j) {
+                        owned.push(j);
+                        stack.extend(plan.tiles[j].children.iter().rev());
+                    }
+                }
+                let tiles = owned
+                    .par_iter()
+                    .map(|&i| {
+                        let tile = &plan.tiles[i];
+                        let st = TileStats {
+                            geometric_error_m: tile.omitted_size_m,
+                            ..Default::default()
+                        };
+                        if tile.content.is_empty() {
+                            self.pb.inc(1);
+                            return Ok((i, Aabb::EMPTY, st));
+                        }
+                        let content =
+                            gather(scene, opts, &tile.content, tile.content_bounds.center());
+                        let (b, st) = write(i, &content, st)?;
+                        Ok((i, b, st))
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                Ok(JobOutput {
+                    tiles,
+                    roots: Vec::new(),
+                })
+            }
+            LodMode::Hlod => {
+                let slots: Vec<std::sync::Mutex<Option<(Aabb, TileStats)>>> =
+                    plan.tiles.iter().map(|_| Default::default()).collect();
+                let hlod = HlodBuilder {
+                    scene,
+                    plan,
+                    opts,
+                    write: &write,
+                    slots: &slots,
+                    stop,
+                    provided: std::sync::Mutex::new(provided),
+                };
+                let built = roots
+                    .par_iter()
+                    .map(|&r| hlod.build(r))
+                    .collect::<Result<Vec<_>>>()?;
+                let tiles = slots
+                    .into_iter()
+                    .enumerate()
+                    .filter_map(|(i, m)| {
+                        m.into_inner()
+                            .expect("no poisoned slot")
+                            .map(|(b, st)| (i, b, st))
+                    })
+                    .collect();
+                Ok(JobOutput {
+                    tiles,
+                    roots: roots.iter().copied().zip(built).collect(),
+                })
+            }
+            LodMode::Ratios(ratios) => {
+                // Chains sit below whole leaves: a job builds them over the whole tree, or none.
+                if stop.contains(&0) {
+                    return Ok(JobOutput::default());
+                }
+                if roots != [0] || !stop.is_empty() {
+                    return Err(Error::output(
+                        self.dir,
+                        "--lod-ratios chains are built by convert, not by sharded jobs",
+                    ));
+                }
+                let tiles = build_chains(scene, plan, self.chain_level, ratios, opts, &write)?;
+                Ok(JobOutput {
+                    tiles,
+                    roots: Vec::new(),
+                })
+            }
+        }
+    }
+
+    /// Builds the tiles above the subtree `roots` from the jobs' outputs, then writes schema.json
+    /// and tileset.json; returns every tile's figures, in plan order.
+    pub(crate) fn merge(
+        &self,
+        jobs: Vec<JobOutput>,
+        roots: &[usize],
+        origin: GeoOrigin,
+        anchor: DVec3,
+    ) -> Result<Vec<TileStats>> {
+        let (plan, opts, tmp) = (self.plan, self.opts, self.dir);
+        let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
+        let mut provided = BTreeMap::new();
+        for job in jobs {
+            for (i, b, st) in job.tiles {
+                slots[i] = Some((b, st));
+            }
+            provided.extend(job.roots);
+        }
+        let stop: std::collections::BTreeSet<usize> = roots.iter().copied().collect();
+        let top = self.build_subtrees(&[0], &stop, provided)?;
+        for (i, b, st) in top.tiles {
+            slots[i] = Some((b, st));
+        }
+        let mut facts = Vec::with_capacity(slots.len());
+        let mut tile_stats = Vec::with_capacity(slots.len());
+        for (i, s) in slots.into_iter().enumerate() {
+            let (content_bounds, st) = s.ok_or_else(|| {
+                Error::output(
+                    tmp,
+                    format!("tile {} was built by no job", plan.tiles[i].path),
+                )
+            })?;
+            facts.push(TileFacts {
+                content_uri: st.uri.clone(),
+                content_bounds,
+                geometric_error_m: st.geometric_error_m,
+            });
+            tile_stats.push(st);
+        }
+        let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
+            .map_err(|e| Error::output(tmp, e))?;
+        write_renamed(&tmp.join("schema.json"), &schema_json)?;
+        let extras = json!({"bimtiles": {
+            "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
+            "anchor_m": anchor.to_array(),
+            "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
+        }});
+        let refine = match opts.lod {
+            LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
+            LodMode::None => Refine::Add,
+        };
+        let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
+        ts["schemaUri"] = json!("schema.json");
+        let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
+        write_renamed(&tmp.join("tileset.json"), &bytes)?;
+        Ok(tile_stats)
+    }
+}

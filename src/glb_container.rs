@@ -1,0 +1,74 @@
+//! The GLB container (glTF 2.0 §4.4, "Binary glTF Layout"): a 12-byte header, a JSON chunk
+//! padded with spaces and a BIN chunk padded with zeros, each 4-byte aligned. Written by the
+//! encoder; read back (JSON chunk only) by the measurements of a written tileset. Below every
+//! stage.
+
+use byteorder::{WriteBytesExt, LE};
+use serde_json::Value;
+
+/// Why a GLB's JSON chunk could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum GlbError {
+    #[error("not a GLB (no glTF header)")]
+    NotGlb,
+    #[error("GLB shorter than its JSON chunk")]
+    Short,
+    #[error("invalid JSON chunk: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+/// The GLB container: 12-byte header, JSON chunk (space-padded), BIN chunk (zero-padded).
+pub fn glb_container(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let pad = |n: usize| (4 - n % 4) % 4;
+    let json_len = json.len() + pad(json.len());
+    let bin_len = bin.len() + pad(bin.len());
+    let total = 12 + 8 + json_len + if bin.is_empty() { 0 } else { 8 + bin_len };
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.write_u32::<LE>(2).expect("vec write");
+    out.write_u32::<LE>(total as u32).expect("vec write");
+    out.write_u32::<LE>(json_len as u32).expect("vec write");
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(json);
+    out.resize(out.len() + pad(json.len()), b' ');
+    if !bin.is_empty() {
+        out.write_u32::<LE>(bin_len as u32).expect("vec write");
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(bin);
+        out.resize(out.len() + pad(bin.len()), 0);
+    }
+    out
+}
+
+/// The JSON chunk of a GLB, parsed.
+pub fn json_chunk(glb: &[u8]) -> Result<Value, GlbError> {
+    if glb.len() < 20 || &glb[0..4] != b"glTF" {
+        return Err(GlbError::NotGlb);
+    }
+    let n = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
+    Ok(serde_json::from_slice(
+        glb.get(20..20 + n).ok_or(GlbError::Short)?,
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn container_is_aligned() {
+        let g = glb_container(b"{}", &[1, 2, 3]);
+        assert_eq!(g.len() % 4, 0);
+        assert_eq!(
+            u32::from_le_bytes(g[8..12].try_into().unwrap()) as usize,
+            g.len()
+        );
+    }
+
+    #[test]
+    fn json_chunk_reads_back() {
+        let g = glb_container(br#"{"asset":{"version":"2.0"}}"#, &[]);
+        assert_eq!(json_chunk(&g).unwrap()["asset"]["version"], "2.0");
+        assert!(matches!(json_chunk(b"nope"), Err(GlbError::NotGlb)));
+    }
+}

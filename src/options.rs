@@ -1,0 +1,164 @@
+//! What a conversion is asked to do: [`ConvertOptions`] and its choices (levels of detail, error
+//! metric, coarse-tile properties), with the defaults chosen by measurement. Read by every phase of
+//! `convert` and by sharded builds.
+
+use crate::dedup::DedupOptions;
+use crate::encode::Compression;
+use crate::geodesy::GeoOrigin;
+use crate::partition::OctreeOptions;
+use serde::Serialize;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone)]
+pub struct ConvertOptions {
+    pub out_dir: PathBuf,
+    /// Replace an existing output folder (only one that holds a tileset, or an empty one).
+    pub force: bool,
+    /// Where the model's anchor goes on Earth; `None` = [`GeoOrigin::DEFAULT`].
+    pub origin: Option<GeoOrigin>,
+    pub octree: OctreeOptions,
+    /// Geometry compression of the tiles.
+    pub compression: Compression,
+    /// Levels of detail: HLOD (default), none, or the paper's discrete chains.
+    pub lod: LodMode,
+    /// Which error the simplified tiles declare as geometricError (both are reported).
+    pub error_metric: ErrorMetric,
+    /// Options of the QEM simplifier for LOD content (targets are set per tile).
+    pub simplify: crate::simplify::SimplifyOptions,
+    /// HLOD tiles are made coarser (up to `build::hlod::HLOD_COARSEN_TRIES` smaller triangle targets, each
+    /// measured) while their measured error stays under this fraction of their framed error
+    /// ([`crate::tileset::view::framed_error_m`] of the tile's bounding sphere: the error at which
+    /// a viewer that sees the whole tile draws it). 0: the tile budget and
+    /// `build::hlod::HLOD_CHILDREN_DIVISOR` alone set how coarse they are. See [`DEFAULT_HLOD_ERROR_FRACTION`].
+    pub hlod_error_fraction: f64,
+    /// Which properties simplified (HLOD, LOD chain) tiles carry; full-detail tiles carry all.
+    pub coarse_tile_properties: CoarseTileProperties,
+    /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
+    pub dedup: Option<DedupOptions>,
+    /// Write a shape drawn several times in a tile once, placed per instance
+    /// (`EXT_mesh_gpu_instancing`); off, every copy is written as plain geometry.
+    pub instancing: bool,
+    /// Instance a shape in a tile only when that stores at least this many fewer triangles;
+    /// `None`: [`default_min_instanced_triangles_saved`] of the compression.
+    pub min_instanced_triangles_saved: Option<usize>,
+    /// Write a tile's plain-coloured materials that differ only in base colour as one primitive,
+    /// the colours in `COLOR_0` ([`AppearanceClasses`]); off, one primitive per material;
+    /// `None`: [`default_merge_plain_materials`] of the compression.
+    pub merge_plain_materials: Option<bool>,
+    /// Show progress bars on stderr.
+    pub progress: bool,
+    /// Texture elimination, pyramids and level matching (paper III.D–III.F).
+    pub texture: crate::texture::TextureOptions,
+}
+
+impl ConvertOptions {
+    pub fn new(out_dir: impl Into<PathBuf>) -> Self {
+        ConvertOptions {
+            out_dir: out_dir.into(),
+            force: false,
+            origin: None,
+            octree: OctreeOptions::default(),
+            compression: Compression::default(),
+            lod: LodMode::default(),
+            error_metric: ErrorMetric::default(),
+            simplify: crate::simplify::SimplifyOptions::default(),
+            hlod_error_fraction: DEFAULT_HLOD_ERROR_FRACTION,
+            coarse_tile_properties: CoarseTileProperties::default(),
+            dedup: Some(DedupOptions::default()),
+            instancing: true,
+            min_instanced_triangles_saved: None,
+            merge_plain_materials: None,
+            progress: false,
+            texture: Default::default(),
+        }
+    }
+}
+
+/// Default of [`ConvertOptions::min_instanced_triangles_saved`], chosen by measurement on the
+/// sample and the shared models (README, dedup section). Draco already compresses a repeated
+/// shape to a few bytes per triangle, so an instanced shape's own node, mesh, accessors and
+/// instance attributes (about 1 KB) only pay off for larger savings; plain geometry costs tens of
+/// bytes per triangle.
+pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
+    match compression {
+        Compression::Draco => 1000,
+        Compression::None | Compression::Quantized => 100,
+    }
+}
+
+/// Default of [`ConvertOptions::merge_plain_materials`], by measurement (README): with Draco,
+/// merging cuts primitives 2.6–5x and bytes 7–12% on the shared BIM models (one Draco stream per
+/// class instead of per material, 8-bit colours); plain float `COLOR_0` costs 16 bytes a vertex,
+/// +20–26% bytes, so without compression materials stay apart.
+pub fn default_merge_plain_materials(compression: Compression) -> bool {
+    compression == Compression::Draco
+}
+
+/// Which properties the tables of simplified tiles carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CoarseTileProperties {
+    /// What names an element (id, name, class, storey, building, site, material, source,
+    /// aliases): picking a coarse tile names the element; its property sets and hierarchy path
+    /// come with full detail ([`TableScope::Identity`]).
+    #[default]
+    Identity,
+    /// Every property in every tile.
+    All,
+}
+
+/// How levels of detail are made.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum LodMode {
+    /// Hierarchical LOD (paper III.C(3)): every internal tile carries its subtree's content merged
+    /// and simplified to the tile budget; `refine: "REPLACE"`; leaves hold full detail.
+    #[default]
+    Hlod,
+    /// No simplified content: internal tiles hold the components too large for their children and
+    /// refine by adding (`refine: "ADD"`), with a size-bound geometric error.
+    None,
+    /// The paper's discrete LODs (III.C, Table IV): every leaf becomes a chain of tiles with its
+    /// bounds, coarsest first, simplified to these ratios of its triangles (finest first, as
+    /// [`crate::simplify::lod_chain::chain_ratios`] gives them), full detail last;
+    /// `refine: "REPLACE"`; internal tiles are empty, with a size-bound error.
+    Ratios(Vec<f32>),
+}
+
+impl LodMode {
+    pub fn name(&self) -> &'static str {
+        match self {
+            LodMode::Hlod => "hlod",
+            LodMode::None => "none",
+            LodMode::Ratios(_) => "ratios",
+        }
+    }
+}
+
+/// Which error simplified tiles declare as `geometricError`. The report shows both per level
+/// (`lod_levels`, as the paper's Table I).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ErrorMetric {
+    /// The measured distance between a tile's content and the full detail it stands for (honest:
+    /// checked by an independent measurement in the tests).
+    #[default]
+    Measured,
+    /// The paper's screen-space error (III.C(3), formulas (1), (2)): the geometricError that makes
+    /// a client switch where Δ(mesh) of the longest collapsed edge reaches
+    /// `tileset::view::PAPER_MAX_DELTA_PX` at 1920x1080 and 60° (`paper_geometric_error_m`). Not a distance
+    /// bound: it can be smaller than the real deviation (not honest in general).
+    PaperSse,
+}
+
+impl ErrorMetric {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ErrorMetric::Measured => "measured",
+            ErrorMetric::PaperSse => "paper-sse",
+        }
+    }
+}
+
+/// Default of [`ConvertOptions::hlod_error_fraction`]. A client measures the distance to the
+/// bounding box, which from a corner is nearer than the sphere `framed_error_m` assumes (0.91 of
+/// it on Mini_Project's root); 0.8 keeps a first view of the whole model on the root alone.
+pub const DEFAULT_HLOD_ERROR_FRACTION: f64 = 0.8;

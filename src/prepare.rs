@@ -1,0 +1,148 @@
+//! Everything before the tiles are built, as one pure function of the input and the options (so
+//! every process of a sharded build gets the same): read, place (anchor, georeference), dedup
+//! (paper III.A), texture preparation (III.D) and the octree plan (IV.A).
+
+use crate::dedup::{deduplicate, DedupReport};
+use crate::error::{Error, Result};
+use crate::geodesy::GeoOrigin;
+use crate::ingest::InputSet;
+use crate::options::{default_merge_plain_materials, ConvertOptions, LodMode};
+use crate::partition::content::AppearanceClasses;
+use crate::partition::{plan_octree, TilePlan};
+use crate::scene::placement::Placement;
+use crate::scene::Scene;
+use crate::simplify::lod_chain::with_lod_chains;
+use glam::DVec3;
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InputReport {
+    pub files: Vec<String>,
+    pub bytes: u64,
+    /// Elements a reader could not use (e.g. IFC elements that failed to triangulate).
+    pub skipped_elements: usize,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub components: usize,
+    pub meshes: usize,
+    pub materials: usize,
+    pub images: usize,
+    pub skipped_primitives: usize,
+    /// Elements whose id was numbered or prefixed because it repeated (README, "Element ids").
+    pub renamed_ids: usize,
+}
+
+/// Reads an input set into one scene; an input without triangles is an error.
+pub(crate) fn read_scene(inputs: &InputSet) -> Result<Scene> {
+    let scene = inputs.read()?;
+    if scene.triangle_count() == 0 {
+        let name = scene
+            .sources
+            .first()
+            .map(|s| s.path.clone())
+            .unwrap_or_default();
+        return Err(Error::input(name, "the input has no triangles to tile"));
+    }
+    Ok(scene)
+}
+
+/// A scene placed, deduplicated and planned: everything before the tiles are built. A pure
+/// function of the input and the options, so every process of a sharded build gets the same.
+pub(crate) struct Prepared {
+    pub input: InputReport,
+    pub anchor: DVec3,
+    pub anchor_rule: String,
+    pub origin: GeoOrigin,
+    pub origin_source: &'static str,
+    pub dedup: Option<DedupReport>,
+    pub textures_prepared: crate::texture::Prepared,
+    /// White twin materials added to the scene for merging plain colours per tile.
+    pub appearance: AppearanceClasses,
+    pub plan: TilePlan,
+    /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
+    pub chain_level: Vec<Option<usize>>,
+    pub t_dedup: f64,
+    pub t_partition: f64,
+}
+
+/// Place, dedup, texture preparation and the octree plan.
+pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
+    let input = InputReport {
+        files: scene
+            .sources
+            .iter()
+            .map(|s| s.path.display().to_string())
+            .collect(),
+        bytes: scene.sources.iter().map(|s| s.bytes).sum(),
+        skipped_elements: scene.skipped_elements,
+        triangles: scene.triangle_count(),
+        vertices: scene.vertex_count(),
+        components: scene.components.len(),
+        meshes: scene.meshes.len(),
+        materials: scene.materials.len(),
+        images: scene.images.len(),
+        skipped_primitives: scene.skipped_primitives,
+        renamed_ids: scene.renamed_ids,
+    };
+
+    // Place: the anchor goes to the scene frame's origin, in f64, before anything is rounded. An
+    // input's own georeference (IFC site) gives the anchor, the true-north turn and, unless
+    // --origin overrides it, the place on Earth.
+    let placed = Placement::of(scene);
+    if scene.georeference.is_some() || placed.anchor != DVec3::ZERO {
+        scene.apply_transform(&placed.local);
+    }
+    let (origin, origin_source) = match (scene.georeference, opts.origin) {
+        (_, Some(user)) => (user, "option"),
+        (Some(g), None) => (
+            GeoOrigin {
+                longitude_deg: g.longitude_deg,
+                latitude_deg: g.latitude_deg,
+                height_m: g.height_m,
+            },
+            "input-site",
+        ),
+        (None, None) => (GeoOrigin::DEFAULT, "default"),
+    };
+    let (anchor, anchor_rule) = (placed.anchor, placed.rule);
+
+    let t_dedup_start = Instant::now();
+    let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
+    let t_dedup = t_dedup_start.elapsed().as_secs_f64();
+
+    let textures_prepared = crate::texture::prepare(scene, &opts.texture);
+    let merge_materials = opts
+        .merge_plain_materials
+        .unwrap_or_else(|| default_merge_plain_materials(opts.compression));
+    let appearance = match merge_materials {
+        true => AppearanceClasses::add_to(scene),
+        false => AppearanceClasses::default(),
+    };
+    let t1 = Instant::now();
+    let mut plan = plan_octree(scene, &opts.octree);
+    let mut chain_level = Vec::new();
+    match &opts.lod {
+        LodMode::Hlod => plan = plan.with_content_in_leaves(),
+        LodMode::Ratios(r) => {
+            let c = with_lod_chains(&plan.with_content_in_leaves(), r.len());
+            (plan, chain_level) = (c.plan, c.level);
+        }
+        LodMode::None => {}
+    }
+    let t_partition = t1.elapsed().as_secs_f64();
+    Prepared {
+        input,
+        anchor,
+        anchor_rule,
+        origin,
+        origin_source,
+        dedup,
+        textures_prepared,
+        appearance,
+        plan,
+        chain_level,
+        t_dedup,
+        t_partition,
+    }
+}
