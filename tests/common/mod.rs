@@ -45,51 +45,41 @@ pub fn sample() -> PathBuf {
     repo().join("samples/sample_building.glb")
 }
 
-/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists. Missing under
-/// `BIMTILES_REQUIRE_TOOLS` (`make test`), it fails the test instead of skipping it; otherwise
-/// says that it is skipped.
+/// `path` when it is there (`found`), else `None` after saying so; a failure under
+/// `BIMTILES_REQUIRE_TOOLS` (`make test`), which must not skip.
+fn found_or_skipped(path: PathBuf, found: bool, what: &str) -> Option<PathBuf> {
+    assert!(
+        found || !tools_required(),
+        "{}: {what} is missing (BIMTILES_REQUIRE_TOOLS is set)",
+        path.display()
+    );
+    if !found {
+        eprintln!("SKIPPED: {} not found ({what})", path.display());
+    }
+    found.then_some(path)
+}
+
+/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists (see [`found_or_skipped`]).
 pub fn shared() -> Option<PathBuf> {
     let p = std::env::var_os("BIMTILES_SHARED")
         .map(PathBuf::from)
         .unwrap_or_else(|| repo().join("../shared"));
-    assert!(
-        p.is_dir() || !tools_required(),
-        "{}: the shared data folder is missing (BIMTILES_REQUIRE_TOOLS is set)",
-        p.display()
-    );
-    if !p.is_dir() {
-        eprintln!("SKIPPED: {} not found (set BIMTILES_SHARED)", p.display());
-    }
-    p.is_dir().then_some(p)
+    let found = p.is_dir();
+    found_or_skipped(p, found, "the shared data folder")
 }
 
-/// The models folder of the shared data (`data/`, with `MANIFEST.md`), as [`shared`] finds it.
+/// The models folder of the shared data (`data/`, with `MANIFEST.md`), if it exists.
 pub fn shared_data() -> Option<PathBuf> {
     let d = shared()?.join("data");
-    assert!(
-        d.is_dir() || !tools_required(),
-        "{}: the shared data folder is missing (BIMTILES_REQUIRE_TOOLS is set)",
-        d.display()
-    );
-    if !d.is_dir() {
-        eprintln!("SKIPPED: {} not found", d.display());
-    }
-    d.is_dir().then_some(d)
+    let found = d.is_dir();
+    found_or_skipped(d, found, "the shared models folder")
 }
 
-/// One file of the shared data folder (`data/<name>`), or `None` after saying it is not there
-/// (a failure under `BIMTILES_REQUIRE_TOOLS`).
+/// One file of the shared data folder (`data/<name>`), if it exists.
 pub fn shared_file(name: &str) -> Option<PathBuf> {
     let f = shared_data()?.join(name);
-    assert!(
-        f.is_file() || !tools_required(),
-        "{}: missing from the shared data (BIMTILES_REQUIRE_TOOLS is set)",
-        f.display()
-    );
-    if !f.is_file() {
-        eprintln!("SKIPPED: {} not found", f.display());
-    }
-    f.is_file().then_some(f)
+    let found = f.is_file();
+    found_or_skipped(f, found, "a shared data file")
 }
 
 /// The files of the shared data folder with one of these extensions (any case), sorted; `None`
@@ -108,37 +98,23 @@ pub fn shared_files(extensions: &[&str]) -> Option<Vec<PathBuf>> {
     Some(v)
 }
 
-/// The GLB models listed in the shared data's MANIFEST.md (empty when the folder is missing).
+/// The GLB models listed in the shared data's MANIFEST.md (empty, after saying so, without it).
 /// Under `BIMTILES_REQUIRE_TOOLS` the manifest and every GLB it lists must be there.
 pub fn shared_models() -> Vec<PathBuf> {
-    let Some(data) = shared_data() else {
+    let Some(manifest) = shared_file("MANIFEST.md") else {
         eprintln!("SKIPPED: only the bundled sample is tested");
         return Vec::new();
     };
-    let manifest = std::fs::read_to_string(data.join("MANIFEST.md"));
-    assert!(
-        manifest.is_ok() || !tools_required(),
-        "{}: no MANIFEST.md (BIMTILES_REQUIRE_TOOLS is set)",
-        data.display()
-    );
+    let data = manifest.parent().unwrap();
     let mut out: Vec<PathBuf> = Vec::new();
-    for line in manifest
-        .unwrap_or_default()
-        .lines()
-        .filter(|l| l.starts_with('|'))
-    {
-        if let Some(name) = line.split('|').nth(1).map(str::trim) {
-            let f = data.join(name);
-            if name.ends_with(".glb") && !out.contains(&f) {
-                assert!(
-                    f.is_file() || !tools_required(),
-                    "{}: listed in MANIFEST.md but missing (BIMTILES_REQUIRE_TOOLS is set)",
-                    f.display()
-                );
-                if f.is_file() {
-                    out.push(f);
-                }
-            }
+    for line in std::fs::read_to_string(&manifest).unwrap().lines() {
+        let Some(name) = line.strip_prefix('|').and_then(|l| l.split('|').next()) else {
+            continue;
+        };
+        let f = data.join(name.trim());
+        if name.trim().ends_with(".glb") && !out.contains(&f) {
+            let found = f.is_file();
+            out.extend(found_or_skipped(f, found, "a model listed in MANIFEST.md"));
         }
     }
     out
