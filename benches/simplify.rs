@@ -19,7 +19,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use bimtiles::simplify::{simplify, MeshInput, SimplifiedMesh, SimplifyOptions};
-use glam::{Mat4, Vec3};
+
+#[path = "../tests/support/world.rs"]
+#[allow(dead_code)]
+mod world;
 
 struct Model {
     name: String,
@@ -58,64 +61,18 @@ fn grid(n: usize) -> Model {
     }
 }
 
-/// All primitives merged in world coordinates, group id = node index (as in
+/// All primitives merged in world coordinates, group id = node index (the loader of
 /// tests/simplify_quality.rs).
 fn load_glb(path: &Path) -> Option<Model> {
-    let bytes = std::fs::read(path).ok()?;
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).ok()?;
-    let blob = g.blob.as_deref();
-    let mut m = Model {
-        name: path.file_stem()?.to_string_lossy().into_owned(),
-        positions: vec![],
-        normals: Some(vec![]),
-        groups: Some(vec![]),
-        indices: vec![],
-    };
-    fn visit(node: gltf::Node, parent: Mat4, blob: Option<&[u8]>, m: &mut Model) {
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            let nmat = world.inverse().transpose();
-            for prim in mesh.primitives() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    continue;
-                }
-                let r = prim.reader(|_| blob);
-                let Some(pos) = r.read_positions() else {
-                    continue;
-                };
-                let pos: Vec<[f32; 3]> = pos.collect();
-                let nrm: Vec<[f32; 3]> = match r.read_normals() {
-                    Some(n) => n.collect(),
-                    None => vec![[0.0, 0.0, 1.0]; pos.len()],
-                };
-                let base = m.positions.len() as u32;
-                let idx: Vec<u32> = match r.read_indices() {
-                    Some(i) => i.into_u32().collect(),
-                    None => (0..pos.len() as u32).collect(),
-                };
-                for (p, n) in pos.iter().zip(&nrm) {
-                    m.positions
-                        .push(world.transform_point3(Vec3::from(*p)).to_array());
-                    m.normals.as_mut().unwrap().push(
-                        nmat.transform_vector3(Vec3::from(*n))
-                            .normalize_or_zero()
-                            .to_array(),
-                    );
-                    m.groups.as_mut().unwrap().push(node.index() as u32);
-                }
-                m.indices.extend(idx.iter().map(|i| i + base));
-            }
-        }
-        for c in node.children() {
-            visit(c, world, blob, m);
-        }
-    }
-    for scene in g.scenes() {
-        for n in scene.nodes() {
-            visit(n, Mat4::IDENTITY, blob, &mut m);
-        }
-    }
-    (!m.indices.is_empty()).then_some(m)
+    let name = path.file_stem()?.to_string_lossy().into_owned();
+    let m = world::world_mesh(path)?;
+    (!m.indices.is_empty()).then_some(Model {
+        name,
+        positions: m.positions,
+        normals: Some(m.normals),
+        groups: Some(m.groups),
+        indices: m.indices,
+    })
 }
 
 /// CPU time of the process (all threads) in seconds, from /proc/self/stat

@@ -16,6 +16,9 @@
 //!        cargo run --release --example bench_tiler -- --first-view TILESET_DIR...  (the first-view
 //!        table of tilesets already written)
 
+#[path = "../tests/support/glb.rs"]
+#[allow(dead_code)]
+mod glb;
 #[path = "../tests/support/height_field.rs"]
 #[allow(dead_code)]
 mod height_field;

@@ -52,11 +52,9 @@ fn tri() -> [[f32; 3]; 3] {
 
 /// Edits the JSON chunk of a GLB.
 fn edit_glb(glb_bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
-    let jlen = u32::from_le_bytes(glb_bytes[12..16].try_into().unwrap()) as usize;
-    let mut json: serde_json::Value = serde_json::from_slice(&glb_bytes[20..20 + jlen]).unwrap();
+    let (mut json, bin) = glb_chunks(glb_bytes);
     edit(&mut json);
-    let bin_start = 20 + jlen + 8;
-    glb(&serde_json::to_vec(&json).unwrap(), &glb_bytes[bin_start..])
+    glb(&serde_json::to_vec(&json).unwrap(), &bin)
 }
 
 #[test]
@@ -93,30 +91,13 @@ fn accessor_past_its_buffer() {
 #[test]
 fn index_out_of_range() {
     let d = tmpdir("bad-index");
-    // Indices [0, 1, 7] stored after the positions.
-    let mut bin = Vec::new();
-    for v in tri() {
-        for c in v {
-            bin.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    for i in [0u32, 1, 7] {
-        bin.extend_from_slice(&i.to_le_bytes());
-    }
-    let json = serde_json::json!({
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]},
-            {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"}],
-        "bufferViews": [{"buffer": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 12}],
-        "buffers": [{"byteLength": 48}]
-    });
-    let p = write(
-        &d,
-        "bad_index.glb",
-        &glb(&serde_json::to_vec(&json).unwrap(), &bin),
+    let g = one_mesh_glb(
+        &tri(),
+        Some(&[0, 1, 7]),
+        serde_json::json!([{"mesh": 0}]),
+        &[0],
     );
+    let p = write(&d, "bad_index.glb", &g);
     expect_failure(&p, "index", &["index 7 is out of range"]);
 }
 
@@ -234,13 +215,13 @@ fn existing_output_needs_force() {
 #[test]
 fn broken_ifc_files() {
     let d = tmpdir("bad-ifc");
-    let Some(sh) = shared() else {
+    let Some(ifc) = shared_file("IfcOpenHouse_IFC4.ifc") else {
         // A small hand-written IFC stands in for the real one.
         let p = write(&d, "cut.ifc", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n#1=IFCPROJECT('0YvctVUKr0kugbFTf53O9L',$,'P',$,$,$,$,(#2),#3");
         expect_failure(&p, "ifc-truncated", &[]);
         return;
     };
-    let full = std::fs::read(sh.join("data/IfcOpenHouse_IFC4.ifc")).unwrap();
+    let full = std::fs::read(ifc).unwrap();
     let p = write(&d, "truncated.ifc", &full[..full.len() / 2]);
     expect_failure(&p, "ifc-truncated", &[]);
     let p = write(

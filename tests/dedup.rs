@@ -1,22 +1,19 @@
 //! Dedup on real inputs: the bundled sample (every baked copy and exact duplicate listed in its
 //! expect.json must be found, nothing else) and every model of the shared data folder
 //! (`$BIMTILES_SHARED/data`, else `../shared/data` beside the crate; skipped with a message when
-//! absent). After dedup, every component is expanded back to world geometry and compared with
+//! absent, a failure under `BIMTILES_REQUIRE_TOOLS`). After dedup, every component is expanded back to world geometry and compared with
 //! the input, and identities are counted. Run with `-- --nocapture` to see the per-model table.
 
+mod common;
 use bimtiles::dedup::{deduplicate, shape_groups, DedupOptions, DedupReport};
 use bimtiles::ingest::read_input;
 use bimtiles::scene::{Component, ComponentId, ElementInfo, Scene};
 use glam::{DMat3, DVec3};
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const TOL: f64 = 0.001;
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// One drawn corner: position, unit normal, UV.
 type Corner = (DVec3, Option<DVec3>, Option<[f32; 2]>);
@@ -256,9 +253,10 @@ fn by_key(s: &Scene, key: &str) -> ComponentId {
 
 #[test]
 fn sample_building_every_baked_copy_and_duplicate() {
-    let path = repo().join("samples/sample_building.glb");
+    let path = common::sample();
     let expect: Value = serde_json::from_str(
-        &std::fs::read_to_string(repo().join("samples/sample_building.expect.json")).unwrap(),
+        &std::fs::read_to_string(common::repo().join("samples/sample_building.expect.json"))
+            .unwrap(),
     )
     .unwrap();
     let before = read_input(&path).unwrap();
@@ -355,15 +353,6 @@ fn sample_building_every_baked_copy_and_duplicate() {
     assert!(r.bytes_after < r.bytes_before);
 }
 
-fn shared_data() -> Option<PathBuf> {
-    let root = std::env::var_os("BIMTILES_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo().join("../shared"));
-    [root.join("data"), root]
-        .into_iter()
-        .find(|d| d.is_dir() && d.join("MANIFEST.md").is_file())
-}
-
 fn row(name: &str, r: &DedupReport, read_s: f64) -> String {
     format!(
         "| {name} | {} | {} | {} | {} | {} | {} ({} / {}) | {:.1} % | {} | {} | {:.3} | {:.2} |",
@@ -385,25 +374,10 @@ fn row(name: &str, r: &DedupReport, read_s: f64) -> String {
 
 #[test]
 fn shared_models_table_and_correctness() {
-    let Some(data) = shared_data() else {
-        eprintln!("SKIPPED: no shared data folder ($BIMTILES_SHARED/data or ../shared/data)");
+    let Some(files) = common::shared_files(&["glb", "ifc"]) else {
         return;
     };
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&data)
-        .unwrap()
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            matches!(
-                p.extension()
-                    .and_then(|e| e.to_str())
-                    .map(str::to_ascii_lowercase)
-                    .as_deref(),
-                Some("glb") | Some("ifc")
-            )
-        })
-        .collect();
-    files.sort();
-    assert!(!files.is_empty(), "no .glb/.ifc in {}", data.display());
+    assert!(!files.is_empty(), "no .glb/.ifc in the shared data");
     let mut table = vec![
         "| model | components | shapes before | shapes after | instanced | removed (exact) | rewritten (congruent: same order / search) | bytes saved | bytes before | bytes after | dedup s | read s |".to_string(),
         "|---|---|---|---|---|---|---|---|---|---|---|---|".to_string(),

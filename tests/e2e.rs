@@ -341,16 +341,9 @@ fn draco_tiles_stay_within_a_millimetre_of_the_uncompressed_ones() {
 
 #[test]
 fn every_shared_ifc_converts_with_semantics_and_georeference() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found (IFC models)");
+    let Some(ifcs) = shared_files(&["ifc"]) else {
         return;
     };
-    let mut ifcs: Vec<_> = std::fs::read_dir(sh.join("data"))
-        .unwrap()
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "ifc"))
-        .collect();
-    ifcs.sort();
     assert!(!ifcs.is_empty());
     for ifc in ifcs {
         let name = ifc.file_stem().unwrap().to_string_lossy().to_string();

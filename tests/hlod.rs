@@ -671,11 +671,7 @@ fn sample_lod_chains_are_honest_and_keep_their_ratios() {
 
 #[test]
 fn shared_model_lod_chains_are_honest_and_keep_their_ratios() {
-    let Some(model) = shared_models()
-        .into_iter()
-        .find(|m| m.to_string_lossy().contains("AC20-FZK-Haus.glb"))
-    else {
-        eprintln!("SKIPPED: AC20-FZK-Haus not found");
+    let Some(model) = shared_file("AC20-FZK-Haus.glb") else {
         return;
     };
     let out = tmpdir("chains-fzk").join("tiles");
@@ -703,11 +699,7 @@ fn railway_root_is_within_the_budget() {
     // kept 2,170 triangles for 2,000). At the root no part continues outside, so nothing is
     // locked and the budget holds. Below it, parts cut across tiles keep their borders locked (no
     // cracks), and tiles made mostly of such borders can still overshoot (r0: 2,453).
-    let Some(model) = shared_models()
-        .into_iter()
-        .find(|m| m.to_string_lossy().contains("LoD3_Railway.glb"))
-    else {
-        eprintln!("SKIPPED: LoD3_Railway not found");
+    let Some(model) = shared_file("LoD3_Railway.glb") else {
         return;
     };
     let out = tmpdir("hlod-railway-budget").join("tiles");

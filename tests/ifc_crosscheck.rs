@@ -1,7 +1,7 @@
 //! Cross-check of the IFC reader against IfcOpenShell's exports of the same files.
 //!
 //! For every `.ifc` in the shared data folder (`$BIMTILES_SHARED/data`, default `../shared/data`
-//! beside the crate, or `/work/shared/data`), read it with `bimtiles::ingest::ifc` and compare with
+//! beside the crate: `common::shared_data`), read it with `bimtiles::ingest::ifc` and compare with
 //! the matching `.glb` that IfcOpenShell 0.9 exported from it (one node per product, node name =
 //! GlobalId, extras {ifc_class, name, storey}, world coordinates baked, y-up):
 //! * the set of GlobalIds with geometry, their classes and storeys;
@@ -17,6 +17,7 @@
 //! Also here: bad input (truncated, garbage, unknown schema, broken references, mangled entities)
 //! gives an error, never a panic.
 
+mod common;
 use bimtiles::ingest::ifc::{
     read_ifc_bytes, read_ifc_georef, read_ifc_with_report, IfcGeoref, IfcReadReport,
 };
@@ -25,31 +26,18 @@ use serde_json::{json, Value};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
-fn data_dir() -> Option<PathBuf> {
-    let mut cands: Vec<PathBuf> = Vec::new();
-    if let Some(s) = std::env::var_os("BIMTILES_SHARED") {
-        cands.push(PathBuf::from(s).join("data"));
-    }
-    cands.push(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    cands.push(PathBuf::from("/work/shared/data"));
-    cands.into_iter().find(|p| p.is_dir())
-}
-
+/// Every `.ifc` of the shared data folder (see `common::shared_files`).
 fn ifc_files() -> Vec<PathBuf> {
-    let Some(d) = data_dir() else {
-        eprintln!("SKIPPED: no shared data folder (set BIMTILES_SHARED); IFC cross-check not run");
-        return Vec::new();
-    };
-    let mut v: Vec<PathBuf> = std::fs::read_dir(&d)
-        .unwrap()
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ifc")))
-        .collect();
-    v.sort();
+    let v = common::shared_files(&["ifc"]).unwrap_or_default();
     if v.is_empty() {
-        eprintln!("SKIPPED: no .ifc files in {}", d.display());
+        eprintln!("SKIPPED: no .ifc files in the shared data; IFC cross-check not run");
     }
     v
+}
+
+/// The text of the shared IfcOpenHouse_IFC4.ifc (see `common::shared_file`).
+fn open_house_text() -> Option<String> {
+    Some(std::fs::read_to_string(common::shared_file("IfcOpenHouse_IFC4.ifc")?).unwrap())
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -68,21 +56,7 @@ struct GlbElement {
 fn read_glb(path: &Path) -> HashMap<String, GlbElement> {
     let b = std::fs::read(path).unwrap();
     assert_eq!(&b[0..4], b"glTF", "{}", path.display());
-    let u32at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap()) as usize;
-    let jlen = u32at(12);
-    let j: Value = serde_json::from_slice(&b[20..20 + jlen]).unwrap();
-    let bin_start = 20 + jlen + 8;
-    let bin = &b[bin_start..bin_start + u32at(20 + jlen)];
-    let acc = |i: usize| -> (&[u8], usize, usize, u64, usize) {
-        let a = &j["accessors"][i];
-        let bv = &j["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
-        let off = bv["byteOffset"].as_u64().unwrap_or(0) as usize
-            + a["byteOffset"].as_u64().unwrap_or(0) as usize;
-        let ct = a["componentType"].as_u64().unwrap();
-        let n = a["count"].as_u64().unwrap() as usize;
-        let stride = bv["byteStride"].as_u64().unwrap_or(0) as usize;
-        (&bin[off..], n, stride, ct, off)
-    };
+    let (j, bin) = common::glb_chunks(&b);
     let mut out = HashMap::new();
     for node in j["nodes"].as_array().unwrap() {
         let Some(mi) = node["mesh"].as_u64() else {
@@ -102,19 +76,11 @@ fn read_glb(path: &Path) -> HashMap<String, GlbElement> {
             triangles: 0,
         };
         for p in j["meshes"][mi as usize]["primitives"].as_array().unwrap() {
-            let (data, n, stride, ct, _) =
-                acc(p["attributes"]["POSITION"].as_u64().unwrap() as usize);
-            assert_eq!(ct, 5126);
-            let stride = if stride == 0 { 12 } else { stride };
-            for k in 0..n {
-                let f = |c: usize| {
-                    f32::from_le_bytes(
-                        data[k * stride + 4 * c..k * stride + 4 * c + 4]
-                            .try_into()
-                            .unwrap(),
-                    ) as f64
-                };
-                let (x, y, z) = (f(0), f(1), f(2));
+            let pa = p["attributes"]["POSITION"].as_u64().unwrap() as usize;
+            assert_eq!(j["accessors"][pa]["componentType"], 5126);
+            let positions = common::read_accessor(&j, &bin, pa);
+            for v in &positions {
+                let (x, y, z) = (v[0], v[1], v[2]);
                 let zu = [x, -z, y];
                 for (c, v) in zu.into_iter().enumerate() {
                     e.min[c] = e.min[c].min(v);
@@ -122,8 +88,8 @@ fn read_glb(path: &Path) -> HashMap<String, GlbElement> {
                 }
             }
             e.triangles += match p["indices"].as_u64() {
-                Some(ii) => acc(ii as usize).1 / 3,
-                None => n / 3,
+                Some(ii) => j["accessors"][ii as usize]["count"].as_u64().unwrap() as usize / 3,
+                None => positions.len() / 3,
             };
         }
         out.insert(guid, e);
@@ -427,15 +393,9 @@ fn check_scene_invariants(name: &str, scene: &Scene) {
 
 #[test]
 fn semantics_of_fzk_haus() {
-    let Some(d) = data_dir() else {
-        eprintln!("SKIPPED: no shared data folder");
+    let Some(f) = common::shared_file("AC20-FZK-Haus.ifc") else {
         return;
     };
-    let f = d.join("AC20-FZK-Haus.ifc");
-    if !f.is_file() {
-        eprintln!("SKIPPED: {} missing", f.display());
-        return;
-    }
     let (scene, _) = read_ifc_with_report(&f).unwrap();
     // A window: in the ground floor, glass is transparent, typed properties.
     let (c, i) = scene
@@ -503,9 +463,7 @@ fn read_georef_of(text: &str, tag: &str) -> (Option<IfcGeoref>, IfcReadReport) {
 /// IfcOpenHouse with a site reference and an IfcMapConversion written into it.
 #[test]
 fn georef_from_site_and_map_conversion() {
-    let Some(d) = data_dir() else { return };
-    let f = d.join("IfcOpenHouse_IFC4.ifc");
-    let Ok(text) = std::fs::read_to_string(&f) else {
+    let Some(text) = open_house_text() else {
         return;
     };
     // IfcOpenHouse is in millimetres: RefElevation 110000. = 110 m.
@@ -539,9 +497,7 @@ fn georef_from_site_and_map_conversion() {
 /// the meridian convergence there; a CRS that is not UTM gives no georeference.
 #[test]
 fn georef_from_a_map_conversion_alone() {
-    let Some(d) = data_dir() else { return };
-    let f = d.join("IfcOpenHouse_IFC4.ifc");
-    let Ok(text) = std::fs::read_to_string(&f) else {
+    let Some(text) = open_house_text() else {
         return;
     };
     if !text.contains("#11=IFCGEOMETRICREPRESENTATIONCONTEXT") || text.contains("IFCMAPCONVERSION")
@@ -580,9 +536,7 @@ fn georef_from_a_map_conversion_alone() {
 /// millimetre, and keeps mesh positions small (precision survives projected coordinates).
 #[test]
 fn site_placement_far_away_and_rotated() {
-    let Some(d) = data_dir() else { return };
-    let f = d.join("IfcOpenHouse_IFC4.ifc");
-    let Ok(text) = std::fs::read_to_string(&f) else {
+    let Some(text) = open_house_text() else {
         return;
     };
     let (a, b) = (

@@ -7,7 +7,7 @@
 
 mod common;
 use common::*;
-use glam::{DMat4, DVec3};
+use glam::DVec3;
 use serde_json::Value;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -25,33 +25,28 @@ fn input_components(path: &Path) -> BTreeMap<String, Vec<Tri>> {
     let (doc, blob) = (&g.document, g.blob.as_deref().expect("a GLB input"));
     let ids = expected_element_ids(doc);
     let mut out: BTreeMap<String, Vec<Tri>> = BTreeMap::new();
-    let scene = doc.default_scene().or_else(|| doc.scenes().next()).unwrap();
-    let mut stack: Vec<(gltf::Node, DMat4)> = scene.nodes().map(|n| (n, Y_UP_TO_Z_UP)).collect();
-    while let Some((node, parent)) = stack.pop() {
-        let world = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
-        if let Some(mesh) = node.mesh() {
-            let key = ids[&node.index()].clone();
-            let tris = out.entry(key.clone()).or_default();
-            assert!(tris.is_empty(), "{key}: element ids are unique");
-            let flip = glam::DMat3::from_mat4(world).determinant() < 0.0;
-            for p in mesh.primitives() {
-                let r = p.reader(|_| Some(blob));
-                let pos: Vec<DVec3> = r
-                    .read_positions()
-                    .unwrap()
-                    .map(|v| world.transform_point3(DVec3::from_array(v.map(f64::from))))
-                    .collect();
-                let idx: Vec<u32> = match r.read_indices() {
-                    Some(i) => i.into_u32().collect(),
-                    None => (0..pos.len() as u32).collect(),
-                };
-                for t in idx.chunks_exact(3) {
-                    let [a, b, c] = [0, 1, 2].map(|k| pos[t[k] as usize]);
-                    tris.push(if flip { [a, c, b] } else { [a, b, c] });
-                }
+    for (node, world) in world_nodes(scene_roots(doc), Y_UP_TO_Z_UP) {
+        let Some(mesh) = node.mesh() else { continue };
+        let key = ids[&node.index()].clone();
+        let tris = out.entry(key.clone()).or_default();
+        assert!(tris.is_empty(), "{key}: element ids are unique");
+        let flip = glam::DMat3::from_mat4(world).determinant() < 0.0;
+        for p in mesh.primitives() {
+            let r = p.reader(|_| Some(blob));
+            let pos: Vec<DVec3> = r
+                .read_positions()
+                .unwrap()
+                .map(|v| world.transform_point3(DVec3::from_array(v.map(f64::from))))
+                .collect();
+            let idx: Vec<u32> = match r.read_indices() {
+                Some(i) => i.into_u32().collect(),
+                None => (0..pos.len() as u32).collect(),
+            };
+            for t in idx.chunks_exact(3) {
+                let [a, b, c] = [0, 1, 2].map(|k| pos[t[k] as usize]);
+                tris.push(if flip { [a, c, b] } else { [a, b, c] });
             }
         }
-        stack.extend(node.children().map(|c| (c, world)));
     }
     out
 }
@@ -296,12 +291,7 @@ fn sample_instances_expand_to_the_input_elements() {
 
 #[test]
 fn shared_models_instances_expand_to_the_input_elements() {
-    let models = shared_models();
-    if models.is_empty() {
-        eprintln!("SKIPPED: ../shared/data not found");
-        return;
-    }
-    for model in models {
+    for model in shared_models() {
         let name = model.file_stem().unwrap().to_string_lossy().to_string();
         let (elements, instances, aliases) = check_model(&model, &name);
         eprintln!("{name}: {elements} elements, {instances} instances, {aliases} aliases");
@@ -374,12 +364,6 @@ fn removed_duplicates_stay_queryable_as_aliases() {
 /// a repeated and a unique GlobalId, a repeated root, and an exact copy (an alias).
 fn repeated_names_glb() -> Vec<u8> {
     let verts: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-    let bin: Vec<u8> = verts
-        .iter()
-        .flatten()
-        .flat_map(|c| c.to_le_bytes())
-        .collect();
-    let (lo, hi) = bounds(&verts);
     let at = |name: Option<&str>, x: f64, guid: Option<&str>| {
         let mut n = serde_json::json!({"mesh": 0, "translation": [x, 0.0, 0.0]});
         if let Some(name) = name {
@@ -409,14 +393,7 @@ fn repeated_names_glb() -> Vec<u8> {
         at(Some("object"), 100.0, None),
         at(Some("object"), 0.0, None),
     ]);
-    let json = serde_json::json!({
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 13]}], "nodes": nodes,
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": lo, "max": hi}],
-        "bufferViews": [{"buffer": 0, "byteLength": 36}],
-        "buffers": [{"byteLength": 36}]
-    });
-    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+    one_mesh_glb(&verts, None, nodes, &[0, 13])
 }
 
 #[test]
@@ -477,11 +454,7 @@ fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
 
 #[test]
 fn airport_ids_are_unique_and_inspect_finds_the_numbered_ones() {
-    let Some(model) = shared_models()
-        .into_iter()
-        .find(|m| m.ends_with("phnl_honolulu_airport.glb"))
-    else {
-        assert!(!tools_required(), "phnl_honolulu_airport.glb is missing");
+    let Some(model) = shared_file("phnl_honolulu_airport.glb") else {
         return;
     };
     let g = gltf::Gltf::open(&model).unwrap();

@@ -145,16 +145,13 @@ fn sample_placed_twice_keeps_identity_building_and_place() {
 
 #[test]
 fn shared_models_in_one_campus() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared not found");
+    let Some(models) = ["IfcOpenHouse_IFC4.ifc", "duplex.glb", "AC20-FZK-Haus.glb"]
+        .iter()
+        .map(|m| shared_file(m))
+        .collect::<Option<Vec<_>>>()
+    else {
         return;
     };
-    let data = sh.join("data");
-    let models: Vec<_> = ["IfcOpenHouse_IFC4.ifc", "duplex.glb", "AC20-FZK-Haus.glb"]
-        .iter()
-        .map(|m| data.join(m))
-        .filter(|p| p.is_file())
-        .collect();
     let dir = tmpdir("manifest-shared");
     let entries: Vec<Value> = models
         .iter()

@@ -239,17 +239,20 @@ fn killed_job_is_refused_and_a_rerun_completes() {
 
 #[test]
 fn real_campus_sharded_is_byte_identical() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared not found; the sample campus is tested instead");
+    // Without the shared data, the sample campus is tested instead.
+    let (Some(make_campus), Some(fzk)) = (
+        shared_file("make_campus.py"),
+        shared_file("AC20-FZK-Haus.glb"),
+    ) else {
         return;
     };
     let dir = tmpdir("shard-campus");
     let campus = dir.join("campus.glb");
     let o = std::process::Command::new("python3")
-        .arg(sh.join("data/make_campus.py"))
+        .arg(make_campus)
         .arg(&campus)
         .args(["--copies", "3", "--bake", "--inputs"])
-        .arg(sh.join("data/AC20-FZK-Haus.glb"))
+        .arg(fzk)
         .output()
         .expect("python3");
     assert!(

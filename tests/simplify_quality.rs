@@ -18,7 +18,7 @@ fn independent_hd(a: TriMesh, b: TriMesh, input_tris: usize) -> f64 {
     let s = 4 * input_tris.clamp(20_000, 250_000);
     hausdorff_one_sided(a, b, s).max(hausdorff_one_sided(b, a, s))
 }
-use glam::{DVec3, Mat4, Vec3};
+use glam::{DVec3, Vec3};
 
 struct Model {
     name: String,
@@ -43,63 +43,16 @@ impl Model {
     }
 }
 
-/// All primitives merged in world coordinates, group id = node index.
+/// All primitives merged in world coordinates, group id = node index (`common::world_mesh`).
 fn load_glb(path: &Path) -> Option<Model> {
-    let bytes = std::fs::read(path).ok()?;
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).ok()?;
-    let blob = g.blob.as_deref();
-    let mut m = Model {
+    let m = common::world_mesh(path)?;
+    Some(Model {
         name: path.file_name()?.to_string_lossy().into_owned(),
-        positions: vec![],
-        normals: vec![],
-        groups: vec![],
-        indices: vec![],
-    };
-    fn visit(node: gltf::Node, parent: Mat4, blob: Option<&[u8]>, m: &mut Model) {
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            let nmat = world.inverse().transpose();
-            for prim in mesh.primitives() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    continue;
-                }
-                let r = prim.reader(|_| blob);
-                let Some(pos) = r.read_positions() else {
-                    continue;
-                };
-                let pos: Vec<[f32; 3]> = pos.collect();
-                let nrm: Vec<[f32; 3]> = match r.read_normals() {
-                    Some(n) => n.collect(),
-                    None => vec![[0.0, 0.0, 1.0]; pos.len()],
-                };
-                let base = m.positions.len() as u32;
-                let idx: Vec<u32> = match r.read_indices() {
-                    Some(i) => i.into_u32().collect(),
-                    None => (0..pos.len() as u32).collect(),
-                };
-                for (p, n) in pos.iter().zip(&nrm) {
-                    m.positions
-                        .push(world.transform_point3(Vec3::from(*p)).to_array());
-                    m.normals.push(
-                        nmat.transform_vector3(Vec3::from(*n))
-                            .normalize_or_zero()
-                            .to_array(),
-                    );
-                    m.groups.push(node.index() as u32);
-                }
-                m.indices.extend(idx.iter().map(|i| i + base));
-            }
-        }
-        for c in node.children() {
-            visit(c, world, blob, m);
-        }
-    }
-    for scene in g.scenes() {
-        for n in scene.nodes() {
-            visit(n, Mat4::IDENTITY, blob, &mut m);
-        }
-    }
-    Some(m)
+        positions: m.positions,
+        normals: m.normals,
+        groups: m.groups,
+        indices: m.indices,
+    })
 }
 
 /// Synthetic: a bumpy height field in four groups (duplicated vertices along

@@ -3,10 +3,9 @@
 
 mod common;
 use common::height_field::height_field_glb;
-#[allow(unused_imports)]
-use common::AsDMat4;
+use common::world::WorldMatrix;
 use common::*;
-use glam::DVec3;
+use glam::{DMat4, DVec3};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -39,8 +38,7 @@ fn textured_vertices(glb_path: &Path, offset: DVec3) -> (Vec<TexturedVertex>, us
     let (mut tris, mut area) = (0usize, 0.0f64);
     for node in g.document.nodes() {
         let Some(mesh) = node.mesh() else { continue };
-        let m =
-            Y_UP_TO_Z_UP * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
+        let m = Y_UP_TO_Z_UP * DMat4::from_gltf(node.transform().matrix());
         for p in mesh.primitives() {
             let r = p.reader(|_| Some(blob));
             let pos: Vec<DVec3> = r
@@ -91,11 +89,9 @@ fn key(p: DVec3) -> (i64, i64, i64) {
 
 #[test]
 fn railway_scene_is_cut_into_tiles_with_textures_intact() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb)");
+    let Some(input) = shared_file("LoD3_Railway.glb") else {
         return;
     };
-    let input = sh.join("data/LoD3_Railway.glb");
     let out = tmpdir("split-railway").join("tiles");
     let report = convert(
         &input,
@@ -182,76 +178,41 @@ fn merge_by_material(input: &Path) -> Vec<u8> {
     // Positions, normals, indices per material.
     type Merged = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>);
     let mut per_material: std::collections::BTreeMap<usize, Merged> = Default::default();
-    fn walk(node: gltf::Node, parent: glam::Mat4, f: &mut dyn FnMut(&gltf::Node, glam::Mat4)) {
-        let m = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix());
-        f(&node, m);
-        for c in node.children() {
-            walk(c, m, f);
-        }
-    }
-    for root in g.document.default_scene().unwrap().nodes() {
-        walk(root, glam::Mat4::IDENTITY, &mut |node, m| {
-            let Some(mesh) = node.mesh() else { return };
-            for p in mesh.primitives() {
-                let r = p.reader(|_| Some(blob));
-                let e = per_material
-                    .entry(p.material().index().unwrap_or(usize::MAX))
-                    .or_default();
-                let base = e.0.len() as u32;
-                let pos: Vec<[f32; 3]> = r.read_positions().unwrap().collect();
-                let nrm: Vec<[f32; 3]> = r
-                    .read_normals()
+    let roots = g.document.default_scene().unwrap().nodes();
+    for (node, m) in world_nodes(roots, glam::Mat4::IDENTITY) {
+        let Some(mesh) = node.mesh() else { continue };
+        for p in mesh.primitives() {
+            let r = p.reader(|_| Some(blob));
+            let e = per_material
+                .entry(p.material().index().unwrap_or(usize::MAX))
+                .or_default();
+            let base = e.0.len() as u32;
+            let pos: Vec<[f32; 3]> = r.read_positions().unwrap().collect();
+            let nrm: Vec<[f32; 3]> =
+                r.read_normals()
                     .map(|n| n.collect())
                     .unwrap_or(vec![[0.0, 1.0, 0.0]; pos.len()]);
-                for (p, n) in pos.iter().zip(&nrm) {
-                    e.0.push(m.transform_point3(glam::Vec3::from(*p)).to_array());
-                    e.1.push(
-                        m.transform_vector3(glam::Vec3::from(*n))
-                            .normalize_or_zero()
-                            .to_array(),
-                    );
-                }
-                e.2.extend(r.read_indices().unwrap().into_u32().map(|i| i + base));
+            for (p, n) in pos.iter().zip(&nrm) {
+                e.0.push(m.transform_point3(glam::Vec3::from(*p)).to_array());
+                e.1.push(
+                    m.transform_vector3(glam::Vec3::from(*n))
+                        .normalize_or_zero()
+                        .to_array(),
+                );
             }
-        });
+            e.2.extend(r.read_indices().unwrap().into_u32().map(|i| i + base));
+        }
     }
-    let mut bin = Vec::new();
-    let (mut views, mut accessors, mut meshes, mut nodes, mut materials) =
-        (vec![], vec![], vec![], vec![], vec![]);
+    let mut b = GlbBuilder::default();
+    let (mut meshes, mut nodes, mut materials) = (vec![], vec![], vec![]);
     for (mat, (pos, nrm, idx)) in &per_material {
-        let mut add = |data: &[u8], acc: serde_json::Value| {
-            while bin.len() % 4 != 0 {
-                bin.push(0);
-            }
-            views.push(
-                serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": data.len()}),
-            );
-            bin.extend_from_slice(data);
-            let mut a = acc;
-            a["bufferView"] = (views.len() - 1).into();
-            accessors.push(a);
-            accessors.len() - 1
-        };
-        let f = |v: &[[f32; 3]]| {
-            v.iter()
-                .flatten()
-                .flat_map(|x| x.to_le_bytes())
-                .collect::<Vec<u8>>()
-        };
-        let (lo, hi) = common::bounds(pos);
-        let pa = add(
-            &f(pos),
-            serde_json::json!({"componentType": 5126, "count": pos.len(), "type": "VEC3", "min": lo, "max": hi}),
-        );
-        let na = add(
-            &f(nrm),
+        let pa = b.positions(pos, None);
+        let na = b.accessor(
+            &f32_bytes(nrm),
+            None,
             serde_json::json!({"componentType": 5126, "count": nrm.len(), "type": "VEC3"}),
         );
-        let ib: Vec<u8> = idx.iter().flat_map(|i| i.to_le_bytes()).collect();
-        let ia = add(
-            &ib,
-            serde_json::json!({"componentType": 5125, "count": idx.len(), "type": "SCALAR"}),
-        );
+        let ia = b.indices(idx, None);
         let color = g
             .document
             .materials()
@@ -263,28 +224,24 @@ fn merge_by_material(input: &Path) -> Vec<u8> {
         nodes
             .push(serde_json::json!({"mesh": meshes.len() - 1, "name": format!("material-{mat}")}));
     }
-    let json = serde_json::json!({
+    b.finish(serde_json::json!({
         "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": (0..nodes.len()).collect::<Vec<_>>()}],
-        "nodes": nodes, "meshes": meshes, "materials": materials, "accessors": accessors, "bufferViews": views,
-        "buffers": [{"byteLength": bin.len()}]
-    });
-    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+        "nodes": nodes, "meshes": meshes, "materials": materials,
+    }))
 }
 
 #[test]
 fn merged_by_material_exports_tile_like_per_element_ones() {
-    let models = shared_models();
     for name in ["duplex.glb", "ISSUE_021_Mini_Project.glb"] {
-        let Some(model) = models.iter().find(|m| m.ends_with(name)) else {
-            eprintln!("SKIPPED: {name} not in ../shared/data");
+        let Some(model) = shared_file(name) else {
             continue;
         };
         let d = tmpdir(&format!("split-merged-{name}"));
         let merged = d.join("merged.glb");
-        std::fs::write(&merged, merge_by_material(model)).unwrap();
+        std::fs::write(&merged, merge_by_material(&model)).unwrap();
         let budget = "5000";
         let per_element = convert(
-            model,
+            &model,
             &d.join("per-element"),
             &["--max-tile-triangles", budget],
         );

@@ -379,20 +379,6 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
     gltf_validator(&draco);
 }
 
-/// ../shared/data/LoD3_Railway.glb, or `None` after saying why it is not tested.
-fn railway() -> Option<std::path::PathBuf> {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found (LoD3_Railway.glb not tested)");
-        return None;
-    };
-    let model = sh.join("data/LoD3_Railway.glb");
-    if !model.is_file() {
-        eprintln!("SKIPPED: {} not found", model.display());
-        return None;
-    }
-    Some(model)
-}
-
 #[test]
 fn sample_textures_follow_the_tile_error() {
     check_model(&sample(), "sample", "2000");
@@ -400,7 +386,9 @@ fn sample_textures_follow_the_tile_error() {
 
 #[test]
 fn lod3_railway_textures_follow_the_tile_error() {
-    let Some(model) = railway() else { return };
+    let Some(model) = shared_file("LoD3_Railway.glb") else {
+        return;
+    };
     check_model(&model, "railway", "3000");
 }
 
@@ -428,10 +416,7 @@ fn sample_texture_classes_and_crop_are_reported() {
 /// non-repeating image (the photo, bound by both materials; the floor tiles repeat), so none of
 /// its tiles has two images to pack; here the tiles holding the west cladding and a planter do.
 fn sample_with_two_facades(out: &Path) {
-    let glb = std::fs::read(sample()).unwrap();
-    let n = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
-    let mut json: Value = serde_json::from_slice(&glb[20..20 + n]).unwrap();
-    let mut bin = glb[20 + n + 8..].to_vec();
+    let (mut json, mut bin) = glb_chunks(&std::fs::read(sample()).unwrap());
     let photo = json["images"]
         .as_array()
         .unwrap()
@@ -488,27 +473,7 @@ fn sample_with_two_facades(out: &Path) {
         .find(|m| m["name"] == "Stone cladding dark")
         .unwrap();
     dark["pbrMetallicRoughness"]["baseColorTexture"]["index"] = texture.into();
-    std::fs::write(out, glb_of(&serde_json::to_vec(&json).unwrap(), &bin)).unwrap();
-}
-
-/// A GLB of a JSON and a BIN chunk.
-fn glb_of(json: &[u8], bin: &[u8]) -> Vec<u8> {
-    let pad = |b: &[u8], fill: u8| {
-        let mut v = b.to_vec();
-        v.resize(b.len().div_ceil(4) * 4, fill);
-        v
-    };
-    let (j, b) = (pad(json, b' '), pad(bin, 0));
-    let mut out = b"glTF".to_vec();
-    out.extend(2u32.to_le_bytes());
-    out.extend(((28 + j.len() + b.len()) as u32).to_le_bytes());
-    out.extend((j.len() as u32).to_le_bytes());
-    out.extend(b"JSON");
-    out.extend(&j);
-    out.extend((b.len() as u32).to_le_bytes());
-    out.extend(b"BIN\0");
-    out.extend(&b);
-    out
+    std::fs::write(out, glb(&serde_json::to_vec(&json).unwrap(), &bin)).unwrap();
 }
 
 /// Which tiles [`same_colours`] compares.
@@ -632,7 +597,9 @@ fn assert_same_tiles(a: &Run, b: &Run) {
 /// those of the atlas off.
 #[test]
 fn lod3_railway_repeated_textures_are_never_packed() {
-    let Some(model) = railway() else { return };
+    let Some(model) = shared_file("LoD3_Railway.glb") else {
+        return;
+    };
     let budget = ["--max-tile-triangles", "3000"];
     let (off, on) = run_atlas_off_on(&model, "atlas-railway", &budget);
     let t = &on.report["textures"];
@@ -645,60 +612,30 @@ fn lod3_railway_repeated_textures_are_never_packed() {
     assert_same_tiles(&off, &on);
 }
 
-/// A wall of `n` posters (1 m quads, each with its own small PNG, UVs inside [0, 1], CLAMP) in
-/// rows of 4, and a floor in front with a tiling texture (UVs 0..6, REPEAT). Each poster and the
-/// floor is its own node and mesh. Poster images are smooth patterns of 48-128 texels a side,
-/// each different, named `Poster <k>`; the floor's material is `Floor`.
-/// The JSON arrays and BIN chunk of a GLB being written.
-#[derive(Default)]
-struct GlbBuilder {
-    bin: Vec<u8>,
-    views: Vec<Value>,
-    accessors: Vec<Value>,
-}
-
-impl GlbBuilder {
-    fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.bin.len() % 4 != 0 {
-            self.bin.push(0);
-        }
-        let mut v = serde_json::json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
-        if let Some(t) = target {
-            v["target"] = t.into();
-        }
-        self.bin.extend_from_slice(bytes);
-        self.views.push(v);
-        self.views.len() - 1
-    }
-
-    /// A quad primitive (two triangles) with one normal and the given UVs; its JSON.
-    fn quad(
-        &mut self,
-        corners: [[f32; 3]; 4],
-        uvs: [[f32; 2]; 4],
-        normal: [f32; 3],
-        material: usize,
-    ) -> Value {
-        let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
-        let (lo, hi) = common::bounds(&corners);
-        let p = self.view(&floats(corners.as_flattened()), Some(34962));
-        let n = self.view(&floats([normal; 4].as_flattened()), Some(34962));
-        let t = self.view(&floats(uvs.as_flattened()), Some(34962));
-        let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3]
-            .iter()
-            .flat_map(|i| i.to_le_bytes())
-            .collect();
-        let i = self.view(&idx, Some(34963));
-        let a = self.accessors.len();
-        self.accessors.extend([
-            serde_json::json!({"bufferView": p, "componentType": 5126, "count": 4, "type": "VEC3", "min": lo, "max": hi}),
-            serde_json::json!({"bufferView": n, "componentType": 5126, "count": 4, "type": "VEC3"}),
-            serde_json::json!({"bufferView": t, "componentType": 5126, "count": 4, "type": "VEC2"}),
-            serde_json::json!({"bufferView": i, "componentType": 5123, "count": 6, "type": "SCALAR"}),
-        ]);
-        serde_json::json!({"attributes": {"POSITION": a, "NORMAL": a + 1, "TEXCOORD_0": a + 2},
-            "indices": a + 3, "material": material})
-    }
+/// A quad primitive (two triangles) with one normal and the given UVs; its JSON.
+fn quad(
+    b: &mut GlbBuilder,
+    corners: [[f32; 3]; 4],
+    uvs: [[f32; 2]; 4],
+    normal: [f32; 3],
+    material: usize,
+) -> Value {
+    const VERTICES: Option<u32> = Some(34962);
+    let p = b.positions(&corners, VERTICES);
+    let vec = |n: usize| serde_json::json!({"componentType": 5126, "count": 4, "type": format!("VEC{n}")});
+    let n = b.accessor(&f32_bytes(&[normal; 4]), VERTICES, vec(3));
+    let t = b.accessor(&f32_bytes(&uvs), VERTICES, vec(2));
+    let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3]
+        .iter()
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    let i = b.accessor(
+        &idx,
+        Some(34963),
+        serde_json::json!({"componentType": 5123, "count": 6, "type": "SCALAR"}),
+    );
+    serde_json::json!({"attributes": {"POSITION": p, "NORMAL": n, "TEXCOORD_0": t},
+        "indices": i, "material": material})
 }
 
 fn png_of(img: &image::RgbaImage) -> Vec<u8> {
@@ -749,7 +686,9 @@ fn poster_wall(n: usize, scale: u32) -> Vec<u8> {
         ];
         // v runs down the image: the poster's top edge samples row 0.
         let uv = [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]];
-        meshes.push(json!({"primitives": [b.quad(c, uv, [0.0, 0.0, 1.0], materials.len() - 1)]}));
+        meshes.push(
+            json!({"primitives": [quad(&mut b, c, uv, [0.0, 0.0, 1.0], materials.len() - 1)]}),
+        );
         nodes.push(json!({"name": format!("Poster-{k:02}"), "mesh": meshes.len() - 1}));
     }
     let tile = image::RgbaImage::from_fn(32, 32, |x, y| {
@@ -767,18 +706,16 @@ fn poster_wall(n: usize, scale: u32) -> Vec<u8> {
         [0.0, 0.0, 0.5],
     ];
     let uv = [[0.0, 6.0], [6.0, 6.0], [6.0, 0.0], [0.0, 0.0]];
-    meshes.push(json!({"primitives": [b.quad(c, uv, [0.0, 1.0, 0.0], materials.len() - 1)]}));
+    meshes.push(json!({"primitives": [quad(&mut b, c, uv, [0.0, 1.0, 0.0], materials.len() - 1)]}));
     nodes.push(json!({"name": "Floor", "mesh": meshes.len() - 1}));
-    let json = json!({
+    b.finish(json!({
         "asset": {"version": "2.0", "generator": "bimtiles tests/textures.rs poster_wall"},
         "scene": 0, "scenes": [{"nodes": (0..nodes.len()).collect::<Vec<_>>()}],
         "nodes": nodes, "meshes": meshes, "materials": materials, "textures": textures,
-        "images": images, "accessors": b.accessors, "bufferViews": b.views,
+        "images": images,
         "samplers": [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071},
                      {"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}],
-        "buffers": [{"byteLength": b.bin.len()}],
-    });
-    glb_of(&serde_json::to_vec(&json).unwrap(), &b.bin)
+    }))
 }
 
 /// Tiles whose GLB binds one image to two or more materials named `prefix…`: an atlas.

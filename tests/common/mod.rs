@@ -1,56 +1,120 @@
-//! Helpers shared by the end-to-end tests: run the real binary, find the reference data, and read
-//! the output back with tools that are not our writer (the `gltf` crate, gltf-validator, the
-//! official 3D Tiles JSON schemas).
-#![allow(dead_code)]
+//! Helpers shared by the end-to-end tests, in one place:
+//! * running the real binary ([`run`], [`convert`]) into scratch folders ([`tmpdir`]);
+//! * the reference data: the bundled [`sample`], and the shared data folder ([`shared`],
+//!   [`shared_data`], [`shared_file`], [`shared_files`], [`shared_models`]); missing under
+//!   `BIMTILES_REQUIRE_TOOLS` (`make test`), it fails the test instead of skipping it;
+//! * GLBs written and split by hand (`tests/support/glb.rs`: [`glb`], [`glb_chunks`],
+//!   [`GlbBuilder`], [`one_mesh_glb`], [`triangle_glb`]) and a synthetic height field
+//!   (`tests/support/height_field.rs`);
+//! * glTF read back with tools that are not our writer (the `gltf` crate, [`read_accessor`]) and
+//!   expanded to world space (`tests/support/world.rs`: [`world_nodes`], [`world_mesh`];
+//!   [`drawn_meshes`] with GPU instances, [`decode_tileset`] for whole tilesets);
+//! * checks by independent tools: gltf-validator, the official 3D Tiles JSON schemas
+//!   ([`check_tileset`]), and the README's element-id rule ([`expected_element_ids`]).
+// Each test crate uses only some of these helpers.
+#![allow(dead_code, unused_imports)]
 
 use glam::{DMat4, DVec3};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+#[path = "../support/glb.rs"]
+pub mod glb;
+pub use glb::{bounds, f32_bytes, glb, glb_chunks, one_mesh_glb, GlbBuilder};
+
+#[path = "../support/height_field.rs"]
+pub mod height_field;
+
+#[path = "../support/world.rs"]
+pub mod world;
+pub use world::{scene_roots, world_mesh, world_nodes, WorldMesh};
+
+/// The bimtiles binary built for the tests.
 pub fn bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_bimtiles"))
 }
 
+/// The crate's folder.
 pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The bundled sample model.
 pub fn sample() -> PathBuf {
     repo().join("samples/sample_building.glb")
 }
 
-/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists. Missing under
-/// `BIMTILES_REQUIRE_TOOLS` (`make test`), it fails the test instead of skipping it.
+/// `path` when it is there (`found`), else `None` after saying so; a failure under
+/// `BIMTILES_REQUIRE_TOOLS` (`make test`), which must not skip.
+fn found_or_skipped(path: PathBuf, found: bool, what: &str) -> Option<PathBuf> {
+    assert!(
+        found || !tools_required(),
+        "{}: {what} is missing (BIMTILES_REQUIRE_TOOLS is set)",
+        path.display()
+    );
+    if !found {
+        eprintln!("SKIPPED: {} not found ({what})", path.display());
+    }
+    found.then_some(path)
+}
+
+/// `../shared` beside the repo (or $BIMTILES_SHARED), if it exists (see [`found_or_skipped`]).
 pub fn shared() -> Option<PathBuf> {
     let p = std::env::var_os("BIMTILES_SHARED")
         .map(PathBuf::from)
         .unwrap_or_else(|| repo().join("../shared"));
-    assert!(
-        p.is_dir() || !tools_required(),
-        "{}: the shared data folder is missing (BIMTILES_REQUIRE_TOOLS is set)",
-        p.display()
-    );
-    p.is_dir().then_some(p)
+    let found = p.is_dir();
+    found_or_skipped(p, found, "the shared data folder")
 }
 
-/// The GLB models listed in ../shared/data/MANIFEST.md; prints why when there are none.
+/// The models folder of the shared data (`data/`, with `MANIFEST.md`), if it exists.
+pub fn shared_data() -> Option<PathBuf> {
+    let d = shared()?.join("data");
+    let found = d.is_dir();
+    found_or_skipped(d, found, "the shared models folder")
+}
+
+/// One file of the shared data folder (`data/<name>`), if it exists.
+pub fn shared_file(name: &str) -> Option<PathBuf> {
+    let f = shared_data()?.join(name);
+    let found = f.is_file();
+    found_or_skipped(f, found, "a shared data file")
+}
+
+/// The files of the shared data folder with one of these extensions (any case), sorted; `None`
+/// when the folder is missing (see [`shared_data`]).
+pub fn shared_files(extensions: &[&str]) -> Option<Vec<PathBuf>> {
+    let d = shared_data()?;
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&d)
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
+        })
+        .collect();
+    v.sort();
+    Some(v)
+}
+
+/// The GLB models listed in the shared data's MANIFEST.md (empty, after saying so, without it).
+/// Under `BIMTILES_REQUIRE_TOOLS` the manifest and every GLB it lists must be there.
 pub fn shared_models() -> Vec<PathBuf> {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared/data not found; only the bundled sample is tested");
+    let Some(manifest) = shared_file("MANIFEST.md") else {
+        eprintln!("SKIPPED: only the bundled sample is tested");
         return Vec::new();
     };
-    let data = sh.join("data");
-    let manifest = std::fs::read_to_string(data.join("MANIFEST.md")).unwrap_or_default();
+    let data = manifest.parent().unwrap();
     let mut out: Vec<PathBuf> = Vec::new();
-    for line in manifest.lines().filter(|l| l.starts_with('|')) {
-        if let Some(name) = line.split('|').nth(1).map(str::trim) {
-            if name.ends_with(".glb")
-                && data.join(name).is_file()
-                && !out.contains(&data.join(name))
-            {
-                out.push(data.join(name));
-            }
+    for line in std::fs::read_to_string(&manifest).unwrap().lines() {
+        let Some(name) = line.strip_prefix('|').and_then(|l| l.split('|').next()) else {
+            continue;
+        };
+        let f = data.join(name.trim());
+        if name.trim().ends_with(".glb") && !out.contains(&f) {
+            let found = f.is_file();
+            out.extend(found_or_skipped(f, found, "a model listed in MANIFEST.md"));
         }
     }
     out
@@ -61,6 +125,7 @@ pub fn tools_required() -> bool {
     std::env::var_os("BIMTILES_REQUIRE_TOOLS").is_some()
 }
 
+/// Runs the binary with `args`.
 pub fn run(args: &[&str]) -> Output {
     Command::new(bin())
         .args(args)
@@ -68,6 +133,7 @@ pub fn run(args: &[&str]) -> Output {
         .expect("run bimtiles")
 }
 
+/// An empty scratch folder `target/test-out/<name>`.
 pub fn tmpdir(name: &str) -> PathBuf {
     let d = repo().join("target/test-out").join(name);
     let _ = std::fs::remove_dir_all(&d);
@@ -275,8 +341,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
 
 /// The JSON chunk of a GLB, as plain JSON (extensions included).
 pub fn glb_json(bytes: &[u8]) -> Value {
-    let glb = gltf::binary::Glb::from_slice(bytes).expect("a GLB");
-    serde_json::from_slice(&glb.json).expect("GLB JSON")
+    glb_chunks(bytes).0
 }
 
 /// Where a mesh is drawn: the node's world matrix (times the instance transform for
@@ -294,15 +359,7 @@ pub fn drawn_meshes<'a>(
     blob: &[u8],
 ) -> Vec<(gltf::Mesh<'a>, Placement)> {
     let mut out = Vec::new();
-    let scene = g
-        .document
-        .default_scene()
-        .or_else(|| g.document.scenes().next());
-    let mut stack: Vec<(gltf::Node, DMat4)> = scene
-        .map(|s| s.nodes().map(|n| (n, DMat4::IDENTITY)).collect())
-        .unwrap_or_default();
-    while let Some((node, parent)) = stack.pop() {
-        let world = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix()).as_dmat4();
+    for (node, world) in world_nodes(scene_roots(&g.document), DMat4::IDENTITY) {
         if let Some(mesh) = node.mesh() {
             match doc["nodes"][node.index()]
                 .pointer("/extensions/EXT_mesh_gpu_instancing/attributes")
@@ -352,7 +409,6 @@ pub fn drawn_meshes<'a>(
                 )),
             }
         }
-        stack.extend(node.children().map(|c| (c, world)));
     }
     out
 }
@@ -454,15 +510,6 @@ pub fn primitive_geometry(
         .map(|v| [v[0] as f32, v[1] as f32, v[2] as f32])
         .collect();
     (pos, indices)
-}
-
-pub trait AsDMat4 {
-    fn as_dmat4(&self) -> DMat4;
-}
-impl AsDMat4 for glam::Mat4 {
-    fn as_dmat4(&self) -> DMat4 {
-        DMat4::from_cols_array(&self.to_cols_array().map(|x| x as f64))
-    }
 }
 
 /// Checks the structural promises of a written tileset; returns the decoded tiles.
@@ -591,39 +638,14 @@ pub fn check_tileset(dir: &Path, input_triangles: usize) -> Vec<DecodedTile> {
     tiles
 }
 
-/// Per-axis minimum and maximum of `points`: a glTF POSITION accessor's `min` and `max`.
-pub fn bounds(points: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
-    let lo = std::array::from_fn(|k| points.iter().map(|p| p[k]).fold(f32::MAX, f32::min));
-    let hi = std::array::from_fn(|k| points.iter().map(|p| p[k]).fold(f32::MIN, f32::max));
-    (lo, hi)
-}
-
 /// A one-triangle GLB with vertices given in glTF (y-up) coordinates and an optional node translation.
 pub fn triangle_glb(verts: [[f32; 3]; 3], translation: Option<[f64; 3]>) -> Vec<u8> {
-    let mut bin = Vec::new();
-    for v in verts {
-        for c in v {
-            bin.extend_from_slice(&c.to_le_bytes());
-        }
-    }
     let mut node = serde_json::json!({"mesh": 0});
     if let Some(t) = translation {
         node["translation"] = serde_json::json!(t);
     }
-    let (lo, hi) = bounds(&verts);
-    let json = serde_json::json!({
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": lo, "max": hi}],
-        "bufferViews": [{"buffer": 0, "byteLength": 36}],
-        "buffers": [{"byteLength": 36}]
-    });
-    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+    one_mesh_glb(&verts, None, serde_json::json!([node]), &[0])
 }
-
-#[path = "../support/height_field.rs"]
-pub mod height_field;
-pub use height_field::glb;
 
 /// Each reachable mesh node's element id (node index → id), derived from the glTF alone by the
 /// rule the README gives under "Element ids" (not by the product's code):
