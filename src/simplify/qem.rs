@@ -89,15 +89,6 @@ use super::quadric::Quadric;
 const NONE: u32 = u32::MAX;
 /// `NEXT[k]`, `NEXT[k + 1]`: the corners after corner `k` of a triangle.
 const NEXT: [usize; 4] = [1, 2, 0, 1];
-const MAX_OF_ENDPOINTS: bool = true;
-const SQRT_AREA: bool = true;
-const BORDER_SCALE: f64 = 1.0;
-const COVERAGE: bool = true;
-const PRUNE: bool = true;
-const COVER_P: bool = true;
-const RANK_COVERAGE: bool = true;
-const INTERIOR: bool = true;
-const PREFETCH: bool = true;
 
 /// Hint to load the cache line holding `x` (no-op off x86-64).
 #[inline(always)]
@@ -158,24 +149,32 @@ pub(crate) struct QemOutput {
 /// An edge of `ranked` (index) whose full key is known, waiting in the
 /// deferred heap; ordered as [`rank_cmp`] (reversed: a min-heap).
 #[derive(Clone, Copy, PartialEq)]
-struct Deferred(u32, f64, u32, u32);
+struct Deferred {
+    /// Index in `ranked`.
+    ranked: u32,
+    /// Its full key (cost).
+    key: f64,
+    u: u32,
+    v: u32,
+}
 impl Deferred {
     /// Comes before `r` in [`rank_cmp`] order.
     #[inline]
     fn before(&self, r: &Ranked) -> bool {
-        self.1
+        self.key
             .total_cmp(&r.key)
-            .then(self.2.cmp(&r.u))
-            .then(self.3.cmp(&r.v))
+            .then(self.u.cmp(&r.u))
+            .then(self.v.cmp(&r.v))
             .is_lt()
     }
 }
 impl Eq for Deferred {}
 impl Ord for Deferred {
     fn cmp(&self, o: &Self) -> Ordering {
-        o.1.total_cmp(&self.1)
-            .then(o.2.cmp(&self.2))
-            .then(o.3.cmp(&self.3))
+        o.key
+            .total_cmp(&self.key)
+            .then(o.u.cmp(&self.u))
+            .then(o.v.cmp(&self.v))
     }
 }
 impl PartialOrd for Deferred {
@@ -357,11 +356,7 @@ impl<'s> EdgeCost<'s> {
         // to their own planes (as in meshoptimizer, which uses the removed vertex's quadric
         // only): averaging over the union of planes would dilute the planes of a small part
         // (the end cap of a bar) by the large ones of its neighbour.
-        let d2 = if MAX_OF_ENDPOINTS {
-            (self.qu.eval(p) * self.iu).max(self.qv.eval(p) * self.iv)
-        } else {
-            Quadric::sum(self.qu, self.qv).distance2(p)
-        };
+        let d2 = (self.qu.eval(p) * self.iu).max(self.qv.eval(p) * self.iv);
         Candidate {
             p,
             key: d2 * self.factor + self.tie,
@@ -380,21 +375,12 @@ impl<'s> EdgeCost<'s> {
             (self.qu, self.iu, self.qv, self.iv)
         };
         let a = first.eval(p) * iq;
-        if MAX_OF_ENDPOINTS && (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan()
-        {
+        if (a * self.factor + self.tie).total_cmp(&best).is_ge() && !a.is_nan() {
             return None;
         }
-        let d2 = if MAX_OF_ENDPOINTS {
-            let b = second.eval(p) * is;
-            // In `at`'s order (`max` may pick either zero of ±0).
-            if at_u {
-                b.max(a)
-            } else {
-                a.max(b)
-            }
-        } else {
-            Quadric::sum(self.qu, self.qv).distance2(p)
-        };
+        let b = second.eval(p) * is;
+        // In `at`'s order (`max` may pick either zero of ±0).
+        let d2 = if at_u { b.max(a) } else { a.max(b) };
         let key = d2 * self.factor + self.tie;
         key.total_cmp(&best).is_lt().then_some(key)
     }
@@ -836,7 +822,7 @@ impl State<'_> {
         // Exact shortcuts: `p` at an endpoint is a vertex of the old star
         // (dp = 0) and of every new triangle (distance of that endpoint 0).
         let (at_u, at_v) = (p == pu, p == pv);
-        let need_p = COVER_P && !at_u && !at_v;
+        let need_p = !at_u && !at_v;
         let mut du = if at_u { 0.0 } else { f64::INFINITY };
         let mut dv = if at_v { 0.0 } else { f64::INFINITY };
         let mut dp = if need_p { f64::INFINITY } else { 0.0 };
@@ -1182,15 +1168,13 @@ fn face_quadrics(pos: &[DVec3], wedge_pos: &[u32], tris: &[[u32; 3]]) -> Vec<Qua
     for t in tris {
         let v = t.map(|w| wedge_pos[w as usize] as usize);
         if let Some(mut q) = Quadric::from_triangle(pos[v[0]], pos[v[1]], pos[v[2]]) {
-            if SQRT_AREA {
-                // Weight sqrt(area) instead of area (as meshoptimizer): small
-                // faces (thin plates, small parts) keep more say in the mean.
-                let s = 1.0 / q.weight.sqrt();
-                q.a.iter_mut().for_each(|x| *x *= s);
-                q.b.iter_mut().for_each(|x| *x *= s);
-                q.c *= s;
-                q.weight *= s;
-            }
+            // Weight sqrt(area) instead of area (as meshoptimizer): small
+            // faces (thin plates, small parts) keep more say in the mean.
+            let s = 1.0 / q.weight.sqrt();
+            q.a.iter_mut().for_each(|x| *x *= s);
+            q.b.iter_mut().for_each(|x| *x *= s);
+            q.c *= s;
+            q.weight *= s;
             for &x in &v {
                 quad[x].add(&q);
             }
@@ -1227,11 +1211,7 @@ fn add_border_planes(st: &mut State, locked: &mut [bool], su: &mut Vec<StarTri>)
                 let e = pb - pa;
                 let n = e.cross(e.cross(pc - pa)).normalize_or_zero();
                 if n != DVec3::ZERO {
-                    let w = if SQRT_AREA {
-                        e.length() * st.p.boundary_weight * BORDER_SCALE
-                    } else {
-                        e.length_squared() * st.p.boundary_weight
-                    };
+                    let w = e.length() * st.p.boundary_weight;
                     let q = Quadric::from_plane(n, -n.dot(pa), w);
                     st.quad[a as usize].add(&q);
                     st.quad[b as usize].add(&q);
@@ -1426,10 +1406,9 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                         let f = stref.factor(a, b);
                         // Coverage can only raise the key: computed lazily
                         // (below) unless its bound is no larger.
-                        let skip = !RANK_COVERAGE
-                            || stref
-                                .coverage2_bound(a, b, p, star.len(), e)
-                                .is_some_and(|ub| ub * f <= key);
+                        let skip = stref
+                            .coverage2_bound(a, b, p, star.len(), e)
+                            .is_some_and(|ub| ub * f <= key);
                         out.push(Ranked {
                             key,
                             u: a,
@@ -1455,24 +1434,22 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
             ranked.extend_from_slice(&b.0);
         }
         dirty.iter_mut().for_each(|d| *d = false);
-        if PRUNE {
-            // Whole-part removal: a connected part is dropped for its radius.
-            comp_live.iter_mut().for_each(|c| *c = 0);
-            for (t, &a) in st.tris.iter().zip(&st.tri_alive) {
-                if a {
-                    comp_live[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize] += 1;
-                }
+        // Whole-part removal: a connected part is dropped for its radius.
+        comp_live.iter_mut().for_each(|c| *c = 0);
+        for (t, &a) in st.tris.iter().zip(&st.tri_alive) {
+            if a {
+                comp_live[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize] += 1;
             }
-            for (c, &n) in comp_live.iter().enumerate() {
-                if n > 0 && prunable[c] {
-                    ranked.push(Ranked {
-                        key: st.comp_r2[c],
-                        u: NONE,
-                        v: c as u32,
-                        p: DVec3::ZERO,
-                        f: 0.0,
-                    });
-                }
+        }
+        for (c, &n) in comp_live.iter().enumerate() {
+            if n > 0 && prunable[c] {
+                ranked.push(Ranked {
+                    key: st.comp_r2[c],
+                    u: NONE,
+                    v: c as u32,
+                    p: DVec3::ZERO,
+                    f: 0.0,
+                });
             }
         }
         if ranked.is_empty() {
@@ -1517,7 +1494,7 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 (true, None) => false,
                 (false, None) => break,
             };
-            if PREFETCH && i < m {
+            if i < m {
                 for (stage, ahead) in [(0u32, 32usize), (1, 24), (2, 16), (3, 8), (4, 4)] {
                     if let Some(r) = ranked.get(i + ahead).filter(|_| i + ahead < m) {
                         if r.u != NONE {
@@ -1527,7 +1504,7 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 }
             }
             let ri = if from_heap {
-                deferred.pop().map_or(0, |d| d.0 as usize)
+                deferred.pop().map_or(0, |d| d.ranked as usize)
             } else {
                 i += 1;
                 i - 1
@@ -1560,7 +1537,12 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 let later = (i < m && rank_cmp(&r, &ranked[i]).is_gt())
                     || deferred.peek().is_some_and(|d| d.before(&r));
                 if later {
-                    deferred.push(Deferred(ri as u32, r.key, r.u, r.v));
+                    deferred.push(Deferred {
+                        ranked: ri as u32,
+                        key: r.key,
+                        u: r.u,
+                        v: r.v,
+                    });
                     continue;
                 }
                 fresh = Some(d1);
@@ -1647,53 +1629,50 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 }
                 if st.valid(u, v, cand.p, &su, &sv, &e) {
                     let mut c = cand;
-                    if COVERAGE {
-                        // Only values above the cost matter (`t`: early exits;
-                        // the key also holds the tie-break term).
-                        let f = st.factor(u, v);
-                        let t = c.key / f;
-                        // Errors up to `t_free` change nothing either: the
-                        // collapse is still within the pass goal and its
-                        // distance does not raise the largest one so far
-                        // (`max_d2`), so the checks below may stop at that
-                        // threshold instead of `t`.
-                        let t_free = max_d2.min(error_goal / f);
-                        let tt =
-                            if c.key <= error_goal && c.dist2 <= max_d2 && t_free * f <= error_goal
-                            {
-                                t.max(t_free)
-                            } else {
-                                t
-                            };
-                        // Below the threshold, both checks are bounded by how far the endpoints
-                        // move (`p` is a vertex of every new triangle, `u` and `v` of the old
-                        // star; a new triangle's sample point is within half that of the old
-                        // triangle it replaces): skipped when the bound cannot exceed it (with
-                        // a margin for rounding).
-                        let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
-                        let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
-                        let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
-                        let mut d1 = if ci == 0 && unchanged && RANK_COVERAGE {
-                            if en.key > c.key {
-                                en.key / f
-                            } else {
-                                0.0
-                            }
-                        } else if st
-                            .coverage2_bound(u, v, c.p, su.len(), &e)
-                            .is_some_and(|b| below(b, tt))
-                        {
-                            0.0
+                    // Only values above the cost matter (`t`: early exits;
+                    // the key also holds the tie-break term).
+                    let f = st.factor(u, v);
+                    let t = c.key / f;
+                    // Errors up to `t_free` change nothing either: the
+                    // collapse is still within the pass goal and its
+                    // distance does not raise the largest one so far
+                    // (`max_d2`), so the checks below may stop at that
+                    // threshold instead of `t`.
+                    let t_free = max_d2.min(error_goal / f);
+                    let tt = if c.key <= error_goal && c.dist2 <= max_d2 && t_free * f <= error_goal
+                    {
+                        t.max(t_free)
+                    } else {
+                        t
+                    };
+                    // Below the threshold, both checks are bounded by how far the endpoints
+                    // move (`p` is a vertex of every new triangle, `u` and `v` of the old
+                    // star; a new triangle's sample point is within half that of the old
+                    // triangle it replaces): skipped when the bound cannot exceed it (with
+                    // a margin for rounding).
+                    let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
+                    let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
+                    let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
+                    let mut d1 = if ci == 0 && unchanged {
+                        if en.key > c.key {
+                            en.key / f
                         } else {
-                            st.coverage2(u, v, c.p, &su, &sv, tt)
-                        };
-                        if INTERIOR && !below(0.25 * moved2, tt.max(d1)) {
-                            d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
+                            0.0
                         }
-                        if d1 > tt {
-                            c.key = c.key.max(d1 * f);
-                            c.dist2 = c.dist2.max(d1);
-                        }
+                    } else if st
+                        .coverage2_bound(u, v, c.p, su.len(), &e)
+                        .is_some_and(|b| below(b, tt))
+                    {
+                        0.0
+                    } else {
+                        st.coverage2(u, v, c.p, &su, &sv, tt)
+                    };
+                    if !below(0.25 * moved2, tt.max(d1)) {
+                        d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
+                    }
+                    if d1 > tt {
+                        c.key = c.key.max(d1 * f);
+                        c.dist2 = c.dist2.max(d1);
                     }
                     chosen = Some(c);
                     break;

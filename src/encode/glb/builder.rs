@@ -1,0 +1,153 @@
+//! The glTF JSON and BIN chunk of one tile as they are built: buffer views (aligned) and
+//! accessors (float, normalized integer, index), with min/max where glTF requires them.
+
+use super::*;
+
+pub(super) const ARRAY_BUFFER: u32 = 34962;
+pub(super) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+pub(super) const FLOAT: u32 = 5126;
+pub(super) const BYTE: u32 = 5120;
+pub(super) const SHORT: u32 = 5122;
+pub(super) const UNSIGNED_SHORT: u32 = 5123;
+pub(super) const UNSIGNED_INT: u32 = 5125;
+
+/// Builds the glTF JSON and BIN chunk.
+pub(super) struct GltfBuilder {
+    pub(super) bin: Vec<u8>,
+    pub(super) buffer_views: Vec<Value>,
+    pub(super) accessors: Vec<Value>,
+}
+
+impl GltfBuilder {
+    pub(super) fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+        self.view_aligned(bytes, target, 4)
+    }
+
+    /// A bufferView whose offset is a multiple of `align` (and of 4).
+    pub(super) fn view_aligned(
+        &mut self,
+        bytes: &[u8],
+        target: Option<u32>,
+        align: usize,
+    ) -> usize {
+        let align = align.max(4);
+        while self.bin.len() % align != 0 {
+            self.bin.push(0);
+        }
+        let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+        if let Some(t) = target {
+            v["target"] = json!(t);
+        }
+        self.bin.extend_from_slice(bytes);
+        self.buffer_views.push(v);
+        self.buffer_views.len() - 1
+    }
+
+    pub(super) fn float_accessor<const N: usize>(
+        &mut self,
+        data: &[[f32; N]],
+        with_min_max: bool,
+    ) -> usize {
+        self.float_accessor_in(data, with_min_max, Some(ARRAY_BUFFER))
+    }
+
+    /// A float accessor in its own bufferView (`target` None for instance attributes, which are
+    /// not vertex buffers).
+    pub(super) fn float_accessor_in<const N: usize>(
+        &mut self,
+        data: &[[f32; N]],
+        with_min_max: bool,
+        target: Option<u32>,
+    ) -> usize {
+        let mut bytes = Vec::with_capacity(data.len() * N * 4);
+        for v in data {
+            for x in v {
+                bytes.write_f32::<LE>(*x).expect("vec write");
+            }
+        }
+        let view = self.view(&bytes, target);
+        let ty = match N {
+            1 => "SCALAR",
+            2 => "VEC2",
+            3 => "VEC3",
+            _ => "VEC4",
+        };
+        let mut a =
+            json!({"bufferView": view, "componentType": FLOAT, "count": data.len(), "type": ty});
+        if with_min_max {
+            let mut lo = [f32::INFINITY; N];
+            let mut hi = [f32::NEG_INFINITY; N];
+            for v in data {
+                for k in 0..N {
+                    lo[k] = lo[k].min(v[k]);
+                    hi[k] = hi[k].max(v[k]);
+                }
+            }
+            a["min"] = json!(lo.iter().map(|&x| x as f64).collect::<Vec<_>>());
+            a["max"] = json!(hi.iter().map(|&x| x as f64).collect::<Vec<_>>());
+        }
+        self.accessors.push(a);
+        self.accessors.len() - 1
+    }
+
+    /// A normalized integer vertex attribute: `N` components of `size` bytes each (1 or 2),
+    /// padded to a 4-byte stride as glTF requires of vertex attributes; with `with_min_max`, the
+    /// integer bounds.
+    pub(super) fn normalized_accessor<const N: usize>(
+        &mut self,
+        data: &[[i32; N]],
+        component_type: u32,
+        with_min_max: bool,
+    ) -> usize {
+        let size = if component_type == BYTE { 1 } else { 2 };
+        let stride = (N * size).div_ceil(4) * 4;
+        let mut bytes = Vec::with_capacity(data.len() * stride);
+        for v in data {
+            for &x in v {
+                match size {
+                    1 => bytes.push(x as i8 as u8),
+                    _ => bytes.extend_from_slice(&(x as u16).to_le_bytes()),
+                }
+            }
+            bytes.resize(bytes.len() + stride - N * size, 0);
+        }
+        let view = self.view(&bytes, Some(ARRAY_BUFFER));
+        if stride != N * size {
+            self.buffer_views[view]["byteStride"] = json!(stride);
+        }
+        let ty = ["SCALAR", "VEC2", "VEC3", "VEC4"][N - 1];
+        let mut a = json!({"bufferView": view, "componentType": component_type,
+            "normalized": true, "count": data.len(), "type": ty});
+        if with_min_max {
+            let lo: Vec<i32> = (0..N)
+                .map(|k| data.iter().map(|v| v[k]).min().unwrap_or(0))
+                .collect();
+            let hi: Vec<i32> = (0..N)
+                .map(|k| data.iter().map(|v| v[k]).max().unwrap_or(0))
+                .collect();
+            a["min"] = json!(lo);
+            a["max"] = json!(hi);
+        }
+        self.accessors.push(a);
+        self.accessors.len() - 1
+    }
+
+    pub(super) fn index_accessor(&mut self, indices: &[u32], vertex_count: usize) -> usize {
+        let (bytes, ct) = if vertex_count <= u16::MAX as usize {
+            let mut b = Vec::with_capacity(indices.len() * 2);
+            for &i in indices {
+                b.write_u16::<LE>(i as u16).expect("vec write");
+            }
+            (b, UNSIGNED_SHORT)
+        } else {
+            let mut b = Vec::with_capacity(indices.len() * 4);
+            for &i in indices {
+                b.write_u32::<LE>(i).expect("vec write");
+            }
+            (b, UNSIGNED_INT)
+        };
+        let view = self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER));
+        self.accessors.push(json!({"bufferView": view, "componentType": ct, "count": indices.len(), "type": "SCALAR"}));
+        self.accessors.len() - 1
+    }
+}

@@ -1,0 +1,223 @@
+//! One tile primitive written plain (floats or `KHR_mesh_quantization`) or as a Draco stream
+//! (`KHR_draco_mesh_compression`), with its feature IDs (`EXT_mesh_features`).
+
+use super::*;
+
+/// Draco bits for normals (octahedral): 8 bits (Draco's default) keeps normals within about a
+/// degree, below visible shading error.
+pub(super) const NORMAL_BITS: u8 = 8;
+/// Draco bits for colours: 8 bits per channel, as images have.
+pub(super) const COLOR_BITS: u8 = 8;
+
+/// Writes one primitive (plain or Draco) with its material; with `feature_count`, per-vertex
+/// feature IDs (`EXT_mesh_features`). Returns the primitive and, when compressed, the decoded
+/// positions (glTF y-up, primitive frame): where the client draws the vertices.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn write_primitive(
+    scene: &Scene,
+    b: &mut GltfBuilder,
+    mats: &mut MaterialTable,
+    m: &ContentPrimitive,
+    feature_count: Option<usize>,
+    property_table: bool,
+    enc: &TileEncoding,
+    frame: Option<&QuantFrame>,
+) -> std::result::Result<(Value, Option<Vec<DVec3>>), String> {
+    let (mut prim, decoded) = match enc.compression {
+        Compression::None => (plain_primitive(b, m, feature_count.is_some(), None), None),
+        Compression::Quantized => {
+            let p = plain_primitive(b, m, feature_count.is_some(), Some(frame));
+            (p, frame.map(|f| f.decoded_positions(&m.positions)))
+        }
+        Compression::Draco => {
+            let texels = texture_texels(scene, m.material, &mats.sampled_px);
+            let (p, bx) = draco_primitive(b, m, feature_count, enc, texels)?;
+            (p, Some(bx))
+        }
+    };
+    prim["mode"] = json!(4);
+    if let Some(n) = feature_count {
+        let mut feature_ids = json!({"featureCount": n, "attribute": 0});
+        if property_table {
+            feature_ids["propertyTable"] = json!(0);
+        }
+        prim["extensions"]["EXT_mesh_features"] = json!({"featureIds": [feature_ids]});
+    }
+    if let Some(mid) = m.material {
+        prim["material"] = json!(mats.index(scene, b, mid)?);
+    }
+    Ok((prim, decoded))
+}
+
+/// Attributes and indices as plain accessors; with `quantized` (`KHR_mesh_quantization`),
+/// normals as i8, UVs in [0, 1] as u16, and positions as i16 in the mesh's frame if it has one.
+pub(super) fn plain_primitive(
+    b: &mut GltfBuilder,
+    m: &ContentPrimitive,
+    with_features: bool,
+    quantized: Option<Option<&QuantFrame>>,
+) -> Value {
+    let mut attributes = Map::new();
+    let positions = match quantized.flatten() {
+        Some(f) => {
+            let q: Vec<[i32; 3]> = y_up(&m.positions)
+                .into_iter()
+                .map(|p| f.quantize(p))
+                .collect();
+            b.normalized_accessor(&q, SHORT, true)
+        }
+        None => b.float_accessor(&y_up(&m.positions), true),
+    };
+    attributes.insert("POSITION".into(), json!(positions));
+    if !m.normals.is_empty() {
+        let n = y_up(&m.normals);
+        let normals = match quantized {
+            Some(_) => {
+                let q: Vec<[i32; 3]> = n.into_iter().map(normal_i8).collect();
+                b.normalized_accessor(&q, BYTE, false)
+            }
+            None => b.float_accessor(&n, false),
+        };
+        attributes.insert("NORMAL".into(), json!(normals));
+    }
+    if !m.uvs.is_empty() {
+        let uvs = match quantized.and_then(|_| uvs_u16(&m.uvs)) {
+            Some(q) => b.normalized_accessor(&q, UNSIGNED_SHORT, false),
+            None => b.float_accessor(&m.uvs, false),
+        };
+        attributes.insert("TEXCOORD_0".into(), json!(uvs));
+    }
+    if !m.colors.is_empty() {
+        attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
+    }
+    if with_features {
+        let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
+        attributes.insert(
+            "_FEATURE_ID_0".into(),
+            json!(b.float_accessor(&fids, false)),
+        );
+    }
+    let indices = b.index_accessor(&m.indices, m.positions.len());
+    json!({"attributes": attributes, "indices": indices})
+}
+
+/// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
+/// decoded data, as KHR_draco_mesh_compression requires; with `feature_count`, the per-vertex
+/// feature IDs go in too. Also returns the decoded positions.
+pub(super) fn draco_primitive(
+    b: &mut GltfBuilder,
+    m: &ContentPrimitive,
+    feature_count: Option<usize>,
+    enc: &TileEncoding,
+    uv_texels: u32,
+) -> std::result::Result<(Value, Vec<DVec3>), String> {
+    use crate::encode::draco::{
+        encode_mesh, position_bits_for, quantization_step, EncodeAttribute, EncodeOptions,
+    };
+    let positions_y_up = y_up(&m.positions);
+    let mut normals_y_up = y_up(&m.normals);
+    let positions = positions_y_up.as_flattened();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in &positions_y_up {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    let position_bits = position_bits_for(extent, enc.max_position_error_m);
+    if enc.normals_from_drawn_faces && !normals_y_up.is_empty() {
+        // Draco's grid: one step for all axes from the box's low corner, values rounded.
+        let step = quantization_step(extent, position_bits);
+        let drawn: Vec<[f32; 3]> = if step > 0.0 {
+            positions_y_up
+                .iter()
+                .map(|p| {
+                    std::array::from_fn(|k| {
+                        let q = ((p[k] - lo[k]) as f64 / step).round();
+                        (lo[k] as f64 + q * step) as f32
+                    })
+                })
+                .collect()
+        } else {
+            positions_y_up.clone()
+        };
+        crate::geometry::normals_from_faces(&drawn, &m.indices, &mut normals_y_up);
+    }
+    let mut attrs = vec![EncodeAttribute::position(positions, position_bits)];
+    let mut names = vec![("POSITION", FLOAT, "VEC3")];
+    if !m.normals.is_empty() {
+        attrs.push(EncodeAttribute::normal(
+            normals_y_up.as_flattened(),
+            NORMAL_BITS,
+        ));
+        names.push(("NORMAL", FLOAT, "VEC3"));
+    }
+    if !m.uvs.is_empty() {
+        attrs.push(EncodeAttribute::tex_coord(
+            m.uvs.as_flattened(),
+            uv_bits(&m.uvs, uv_texels),
+        ));
+        names.push(("TEXCOORD_0", FLOAT, "VEC2"));
+    }
+    if !m.colors.is_empty() {
+        attrs.push(EncodeAttribute::color_f32(
+            m.colors.as_flattened(),
+            COLOR_BITS,
+        ));
+        names.push(("COLOR_0", FLOAT, "VEC4"));
+    }
+    // Feature IDs are exact integers: u16 while they fit (lossless in Draco), f32 beyond.
+    let fid_u16: Vec<u16>;
+    let fid_f32: Vec<f32>;
+    match feature_count {
+        None => {}
+        Some(n) if n <= u16::MAX as usize => {
+            fid_u16 = m.feature_ids.iter().map(|&f| f as u16).collect();
+            attrs.push(EncodeAttribute::feature_id_u16(&fid_u16));
+            names.push(("_FEATURE_ID_0", UNSIGNED_SHORT, "SCALAR"));
+        }
+        Some(_) => {
+            fid_f32 = m.feature_ids.iter().map(|&f| f as f32).collect();
+            attrs.push(EncodeAttribute::feature_id_f32(&fid_f32));
+            names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
+        }
+    }
+    let encoded =
+        encode_mesh(&attrs, &m.indices, &EncodeOptions::default()).map_err(|e| e.to_string())?;
+    let view = b.view(&encoded.bytes, None);
+    let mut attributes = Map::new();
+    let mut draco_ids = Map::new();
+    for (k, &(name, ct, ty)) in names.iter().enumerate() {
+        let mut a = json!({"componentType": ct, "count": encoded.point_count, "type": ty});
+        if name == "POSITION" {
+            let (min, max) = &encoded.attribute_min_max[k];
+            a["min"] = json!(min);
+            a["max"] = json!(max);
+        }
+        b.accessors.push(a);
+        attributes.insert(name.into(), json!(b.accessors.len() - 1));
+        draco_ids.insert(name.into(), json!(encoded.attribute_ids[k]));
+    }
+    let index_type = if encoded.indices_fit_u16() {
+        UNSIGNED_SHORT
+    } else {
+        UNSIGNED_INT
+    };
+    b.accessors.push(
+        json!({"componentType": index_type, "count": encoded.face_count * 3, "type": "SCALAR"}),
+    );
+    let indices = b.accessors.len() - 1;
+    Ok((
+        json!({
+            "attributes": attributes,
+            "indices": indices,
+            "extensions": {"KHR_draco_mesh_compression": {"bufferView": view, "attributes": draco_ids}}
+        }),
+        encoded
+            .decoded_positions
+            .iter()
+            .map(|p| DVec3::from(p.map(f64::from)))
+            .collect(),
+    ))
+}
