@@ -286,6 +286,15 @@ fn le_uint(b: &[u8]) -> u64 {
     b.iter().rev().fold(0, |a, &x| a << 8 | u64::from(x))
 }
 
+/// The ids of an `aliases` value: a JSON array of ids, or (tilesets written before ids could
+/// hold spaces) a space-separated list.
+fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
+    match serde_json::from_str::<Vec<String>>(value) {
+        Ok(ids) => Box::new(ids.into_iter()),
+        Err(_) => Box::new(value.split_whitespace().map(str::to_string)),
+    }
+}
+
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
 pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let summary_tiles = {
@@ -355,7 +364,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
         };
         // An exact duplicate that was not drawn is found through the row of the kept element.
         let is_alias =
-            |r: usize| text("aliases", r).is_some_and(|a| a.split_whitespace().any(|x| x == id));
+            |r: usize| text("aliases", r).is_some_and(|a| alias_ids(&a).any(|x| x == id));
         let Some(row) = (0..count).find(|&r| text("id", r).as_deref() == Some(id) || is_alias(r))
         else {
             continue;

@@ -100,7 +100,8 @@ fn drawn(dir: &Path, anchor: DVec3) -> Drawn {
         let ids = string_column(&doc, blob, &table["properties"]["id"], count);
         if let Some(a) = table["properties"].get("aliases") {
             for (kept, list) in ids.iter().zip(string_column(&doc, blob, a, count)) {
-                for alias in list.split_whitespace() {
+                let ids: Vec<String> = serde_json::from_str(&list).expect("aliases: a JSON array");
+                for alias in &ids {
                     let old = d.aliases.insert(alias.to_string(), kept.clone());
                     assert!(
                         old.is_none() || old.as_ref() == Some(kept),
@@ -361,7 +362,8 @@ fn removed_duplicates_stay_queryable_as_aliases() {
 
 /// A GLB whose nodes repeat names the ways exporters do: same-named siblings (the airport's
 /// `world/object/object`), a literal `object#1` beside them, an unnamed node, same-named parents,
-/// a repeated and a unique GlobalId, a repeated root, and an exact copy (an alias).
+/// a repeated and a unique GlobalId, a repeated root, and an exact copy whose id holds a space
+/// (an alias).
 fn repeated_names_glb() -> Vec<u8> {
     let verts: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     let at = |name: Option<&str>, x: f64, guid: Option<&str>| {
@@ -391,7 +393,7 @@ fn repeated_names_glb() -> Vec<u8> {
         at(Some("door"), 90.0, Some("1CBNfY0004DZ4oDpWmD3am")),
         {"name": "site", "children": [14]},
         at(Some("object"), 100.0, None),
-        at(Some("object"), 0.0, None),
+        at(Some("object copy"), 0.0, None),
     ]);
     one_mesh_glb(&verts, None, nodes, &[0, 13])
 }
@@ -415,8 +417,8 @@ fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
             "site/object",
             "site/object#1",
             "site/object#1#1",
+            "site/object copy",
             "site/object#2",
-            "site/object#3",
             "site/wall",
             "site/wall#1",
             "site/world#1/object",
@@ -430,7 +432,7 @@ fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
     let report: Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     // Renamed: each id that is not the plain GlobalId or the path without numbers.
-    assert_eq!(report["input"]["renamed_ids"], 8);
+    assert_eq!(report["input"]["renamed_ids"], 7);
     for id in &ids {
         let o = run(&["inspect", out.to_str().unwrap(), "--feature", id, "--json"]);
         assert!(
@@ -442,6 +444,16 @@ fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
         assert_eq!(f["id"], *id);
         assert!(!f["tiles"].as_array().unwrap().is_empty(), "{id} is drawn");
     }
+    // The exact copy is an alias; its id holds a space and still reads back whole.
+    let o = run(&[
+        "inspect",
+        out.to_str().unwrap(),
+        "--feature",
+        "site/object copy",
+        "--json",
+    ]);
+    let f: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(f["properties"]["Alias of"], "site/object");
     // A path that is no element's id is not found.
     let o = run(&[
         "inspect",

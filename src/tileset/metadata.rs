@@ -91,7 +91,7 @@ pub struct MetadataSchema {
     /// Enum id → value names (index = code; 0 is [`NO_VALUE`]).
     pub enums: BTreeMap<String, Vec<String>>,
     enum_codes: HashMap<String, HashMap<String, u16>>,
-    /// Kept component → ids of its aliases (exact duplicates not drawn), space-separated.
+    /// Kept component → ids of its aliases (exact duplicates not drawn), as a JSON array.
     aliases: HashMap<ComponentId, String>,
     base: Value,
 }
@@ -273,16 +273,20 @@ impl MetadataSchema {
             });
             pset_keys.push((set.to_string(), name.to_string()));
         }
-        let mut aliases: HashMap<ComponentId, String> = HashMap::new();
+        // A JSON array of ids: any id (node names hold spaces) reads back unchanged.
+        let mut alias_ids: HashMap<ComponentId, Vec<String>> = HashMap::new();
         for c in &scene.components {
             if let Some(kept) = c.alias_of {
-                let list = aliases.entry(kept).or_default();
-                if !list.is_empty() {
-                    list.push(' ');
-                }
-                list.push_str(&scene.element(c.id).key);
+                alias_ids
+                    .entry(kept)
+                    .or_default()
+                    .push(scene.element(c.id).key);
             }
         }
+        let aliases = alias_ids
+            .into_iter()
+            .map(|(kept, ids)| (kept, Value::from(ids).to_string()))
+            .collect();
         MetadataSchema {
             properties,
             pset_keys,

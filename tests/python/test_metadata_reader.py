@@ -220,7 +220,7 @@ def test_metadata_names_every_input_element():
                     assert r["id"].endswith("/" + expected[r["id"]][0]) or r["id"] == expected[r["id"]][0], \
                         f"{r['id']}: name left out of {tile['content']} but the id does not end with it"
                 # Exact duplicates that were not drawn are listed by the element drawn for them.
-                for alias in (r.get("aliases") or "").split():
+                for alias in json.loads(r.get("aliases") or "[]"):
                     assert aliases.setdefault(alias, r["id"]) == r["id"], f"{alias}: alias of two elements"
         missing = set(expected) - set(seen) - set(aliases)
         assert not missing, f"{d}: {len(missing)} input elements have no feature, e.g. {sorted(missing)[:3]}"
