@@ -113,8 +113,7 @@ pub fn simplify_model(
         scene: out,
         center,
         error_m,
-    } = simplify_scene(&scene, opts)
-        .map_err(|e| Error::input(input, format!("simplification failed: {e}")))?;
+    } = simplify_scene(&scene, opts).map_err(|e| Error::simplify(input, e))?;
     let items = [crate::partition::ContentItem {
         component: crate::scene::ComponentId(0),
         triangles: None,
@@ -123,7 +122,8 @@ pub fn simplify_model(
         compression: Compression::None,
         ..TileEncoding::default()
     };
-    let tile = encode_tile(&out, &items, center, &enc, None)?;
+    let tile =
+        encode_tile(&out, &items, center, &enc, None).map_err(|e| Error::encode(output, e))?;
     let tmp = output.with_extension("glb.tmp");
     std::fs::write(&tmp, &tile.glb).map_err(|e| Error::output(&tmp, e))?;
     std::fs::rename(&tmp, output).map_err(|e| Error::output(output, e))?;

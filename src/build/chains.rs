@@ -51,12 +51,7 @@ pub(crate) fn build_chains(
                 ratios,
                 &opts.simplify,
             )
-            .map_err(|e| {
-                Error::output(
-                    format!("tiles/{}.glb", tile.path),
-                    format!("simplification failed: {e}"),
-                )
-            })?;
+            .map_err(|e| Error::simplify(format!("tiles/{}.glb", tile.path), e))?;
             // Finest first: chain tile i - k holds level k.
             let mut below = 0.0;
             for (k, l) in levels.iter().enumerate() {

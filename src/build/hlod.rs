@@ -130,7 +130,7 @@ impl HlodBuilder<'_> {
                     target,
                     &self.opts.simplify,
                 )
-                .map_err(|e| Error::output(path(), format!("simplification failed: {e}")))?;
+                .map_err(|e| Error::simplify(path(), e))?;
                 let err = reference.measure_within(&r.content, &self.opts.simplify, limit_m);
                 Ok(err.map(|e| (r, e)))
             };

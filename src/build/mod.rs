@@ -198,7 +198,7 @@ impl<'a> TileWriter<'a> {
             &image,
             &sampled_px,
         )
-        .map_err(|e| Error::output(&path, e))?;
+        .map_err(|e| Error::encode(&path, e))?;
         write_renamed(&path, &enc.glb)?;
         self.pb.inc(1);
         st.uri = Some(uri);

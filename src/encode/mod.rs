@@ -5,3 +5,17 @@ pub mod glb;
 pub mod metadata;
 
 pub use glb::{encode_content, encode_tile, Compression, EncodedTile, TableMaker, TileEncoding};
+
+/// Why a tile could not be encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    #[error("Draco compression")]
+    Draco(#[from] draco::DracoError),
+    /// The tile's image (texture level) could not be had.
+    #[error("tile image: {0}")]
+    Image(String),
+    #[error("an instance transform is not translation-rotation-scale")]
+    InstanceTransform,
+    #[error("glTF JSON")]
+    Json(#[from] serde_json::Error),
+}

@@ -29,7 +29,7 @@ impl MaterialTable<'_> {
         scene: &Scene,
         b: &mut GltfBuilder,
         mid: MaterialId,
-    ) -> std::result::Result<usize, String> {
+    ) -> std::result::Result<usize, EncodeError> {
         if let Some(&i) = self.material_map.get(&mid.0) {
             return Ok(i);
         }
@@ -41,7 +41,7 @@ impl MaterialTable<'_> {
                 None => {
                     let im = &scene.images[t.image.index()];
                     let image = match self.image_source {
-                        Some(source) => source(t.image)?,
+                        Some(source) => source(t.image).map_err(EncodeError::Image)?,
                         None => TileImage::Embedded {
                             bytes: im.bytes.clone(),
                             mime: im.mime_type.clone(),

@@ -10,7 +10,7 @@
 //! root node's translation. Precision is thus bounded by the tile's size, not the model's.
 
 use super::metadata::{write_property_table, PropertyTable};
-use crate::error::{Error, Result};
+use super::EncodeError;
 use crate::glb_container::glb_container;
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
@@ -105,7 +105,7 @@ pub fn encode_tile(
     center: DVec3,
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
-) -> Result<EncodedTile> {
+) -> std::result::Result<EncodedTile, EncodeError> {
     encode_content(
         scene,
         &TileContent::gather(scene, content, center),
@@ -120,7 +120,7 @@ pub fn encode_content(
     content: &TileContent,
     enc: &TileEncoding,
     metadata: Option<TableMaker>,
-) -> Result<EncodedTile> {
+) -> std::result::Result<EncodedTile, EncodeError> {
     encode_content_from(scene, content, enc, metadata, None, &BTreeMap::new())
 }
 
@@ -134,7 +134,7 @@ pub fn encode_content_with_images(
     metadata: Option<TableMaker>,
     images: ImageSource,
     sampled_px: &BTreeMap<ImageId, u32>,
-) -> Result<EncodedTile> {
+) -> std::result::Result<EncodedTile, EncodeError> {
     encode_content_from(scene, content, enc, metadata, Some(images), sampled_px)
 }
 
@@ -145,7 +145,7 @@ fn encode_content_from(
     metadata: Option<TableMaker>,
     images: Option<ImageSource>,
     sampled_px: &BTreeMap<ImageId, u32>,
-) -> Result<EncodedTile> {
+) -> std::result::Result<EncodedTile, EncodeError> {
     let mut bounds = content.bounds();
     let table = metadata.map(|make| make(&content.features));
     let mats = MaterialTable {
@@ -153,9 +153,7 @@ fn encode_content_from(
         sampled_px: sampled_px.clone(),
         ..MaterialTable::default()
     };
-    let (glb, metadata_bytes) =
-        write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)
-            .map_err(|e| Error::output("tile", format!("GLB encoding failed: {e}")))?;
+    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)?;
     Ok(EncodedTile {
         glb,
         triangles: content.triangle_count(),
@@ -188,7 +186,7 @@ fn write_glb(
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
     mut mats: MaterialTable,
-) -> std::result::Result<(Vec<u8>, usize), String> {
+) -> std::result::Result<(Vec<u8>, usize), EncodeError> {
     let mut b = GltfBuilder {
         bin: Vec::new(),
         buffer_views: Vec::new(),
@@ -275,7 +273,7 @@ fn write_glb(
                 y_up_transform *= f.matrix();
             }
             let (t, r, s) = crate::geometry::instance_trs(&y_up_transform)
-                .ok_or("an instance transform is not translation-rotation-scale")?;
+                .ok_or(EncodeError::InstanceTransform)?;
             translations.push(t.as_vec3().to_array());
             rotations.push(r.normalize().as_quat().to_array());
             scales.push(s.as_vec3().to_array());
@@ -367,7 +365,7 @@ fn write_glb(
         root["extensions"] = json!({"EXT_structural_metadata": ext});
     }
     mats.write_into(&mut root);
-    let json_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?;
+    let json_bytes = serde_json::to_vec(&root)?;
     Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
 }
 

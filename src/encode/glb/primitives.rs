@@ -22,7 +22,7 @@ pub(super) fn write_primitive(
     property_table: bool,
     enc: &TileEncoding,
     frame: Option<&QuantFrame>,
-) -> std::result::Result<(Value, Option<Vec<DVec3>>), String> {
+) -> std::result::Result<(Value, Option<Vec<DVec3>>), EncodeError> {
     let (mut prim, decoded) = match enc.compression {
         Compression::None => (plain_primitive(b, m, feature_count.is_some(), None), None),
         Compression::Quantized => {
@@ -110,7 +110,7 @@ pub(super) fn draco_primitive(
     feature_count: Option<usize>,
     enc: &TileEncoding,
     uv_texels: u32,
-) -> std::result::Result<(Value, Vec<DVec3>), String> {
+) -> std::result::Result<(Value, Vec<DVec3>), EncodeError> {
     use crate::encode::draco::{
         encode_mesh, position_bits_for, quantization_step, EncodeAttribute, EncodeOptions,
     };
@@ -183,8 +183,7 @@ pub(super) fn draco_primitive(
             names.push(("_FEATURE_ID_0", FLOAT, "SCALAR"));
         }
     }
-    let encoded =
-        encode_mesh(&attrs, &m.indices, &EncodeOptions::default()).map_err(|e| e.to_string())?;
+    let encoded = encode_mesh(&attrs, &m.indices, &EncodeOptions::default())?;
     let view = b.view(&encoded.bytes, None);
     let mut attributes = Map::new();
     let mut draco_ids = Map::new();
