@@ -16,6 +16,7 @@ use glam::DVec3;
 use serde::Serialize;
 use std::time::Instant;
 
+/// What was read: `report.json`'s `input` (made here, where the scene is read).
 #[derive(Debug, Clone, Serialize)]
 pub struct InputReport {
     pub files: Vec<String>,
