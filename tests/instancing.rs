@@ -100,7 +100,11 @@ fn drawn(dir: &Path, anchor: DVec3) -> Drawn {
         let ids = string_column(&doc, blob, &table["properties"]["id"], count);
         if let Some(a) = table["properties"].get("aliases") {
             for (kept, list) in ids.iter().zip(string_column(&doc, blob, a, count)) {
-                let ids: Vec<String> = serde_json::from_str(&list).expect("aliases: a JSON array");
+                // No aliases: the empty string (noData); else a JSON array of ids.
+                let ids: Vec<String> = match list.as_str() {
+                    "" => Vec::new(),
+                    l => serde_json::from_str(l).expect("aliases: a JSON array"),
+                };
                 for alias in &ids {
                     let old = d.aliases.insert(alias.to_string(), kept.clone());
                     assert!(
@@ -415,9 +419,9 @@ fn repeated_sibling_names_give_unique_ids_that_inspect_finds() {
             "site#1/object",
             "site/node4",
             "site/object",
+            "site/object copy",
             "site/object#1",
             "site/object#1#1",
-            "site/object copy",
             "site/object#2",
             "site/wall",
             "site/wall#1",
