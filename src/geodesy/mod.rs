@@ -12,6 +12,21 @@ use glam::{DMat4, DVec3, DVec4};
 const WGS84_A: f64 = 6_378_137.0;
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
 
+/// Why a `LON,LAT[,HEIGHT]` text is not a place.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum OriginError {
+    #[error("origin '{text}' must be LON,LAT[,HEIGHT]")]
+    Form { text: String },
+    #[error("origin '{text}': {what} '{value}' is not a number")]
+    NotANumber {
+        text: String,
+        what: &'static str,
+        value: String,
+    },
+    #[error("origin '{text}': longitude must be in [-180,180] and latitude in [-90,90]")]
+    OutOfRange { text: String },
+}
+
 /// A place on WGS84: degrees, degrees, metres above the ellipsoid.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct GeoOrigin {
@@ -31,16 +46,20 @@ impl GeoOrigin {
     };
 
     /// Parses "LON,LAT,HEIGHT" (height optional, 0).
-    pub fn parse(s: &str) -> Result<GeoOrigin, String> {
+    pub fn parse(s: &str) -> Result<GeoOrigin, OriginError> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if !(2..=3).contains(&parts.len()) {
-            return Err(format!("origin '{s}' must be LON,LAT[,HEIGHT]"));
+            return Err(OriginError::Form { text: s.into() });
         }
-        let num = |p: &str, what: &str| {
+        let num = |p: &str, what: &'static str| {
             p.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("origin '{s}': {what} '{p}' is not a number"))
+                .ok_or_else(|| OriginError::NotANumber {
+                    text: s.into(),
+                    what,
+                    value: p.into(),
+                })
         };
         let o = GeoOrigin {
             longitude_deg: num(parts[0], "longitude")?,
@@ -53,9 +72,7 @@ impl GeoOrigin {
         };
         if !(-180.0..=180.0).contains(&o.longitude_deg) || !(-90.0..=90.0).contains(&o.latitude_deg)
         {
-            return Err(format!(
-                "origin '{s}': longitude must be in [-180,180] and latitude in [-90,90]"
-            ));
+            return Err(OriginError::OutOfRange { text: s.into() });
         }
         Ok(o)
     }

@@ -16,6 +16,7 @@
 //!    ([`paper_sse_px`], [`paper_delta_mesh_px`]), and the geometricError that makes a 3D Tiles
 //!    client switch where Δ(mesh) reaches [`PAPER_MAX_DELTA_PX`] ([`paper_geometric_error_m`]).
 
+use crate::glb_container::{json_chunk, GlbError};
 use glam::DVec3;
 use serde::Serialize;
 use serde_json::Value;
@@ -172,14 +173,44 @@ impl Obb {
     }
 }
 
-/// The JSON chunk of a GLB.
-fn glb_json(glb: &[u8]) -> Result<Value, String> {
-    crate::glb_container::json_chunk(glb).map_err(|e| e.to_string())
+/// Why a written tileset could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    #[error("{path}: cannot read")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a readable GLB")]
+    Glb { path: PathBuf, source: GlbError },
+    #[error("{path}: invalid JSON")]
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+    #[error("{path}: the root tile has no bounding box")]
+    NoRootBox { path: PathBuf },
+}
+
+/// The bytes of `path`.
+fn read(path: &Path) -> Result<Vec<u8>, ViewError> {
+    std::fs::read(path).map_err(|source| ViewError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// The JSON chunk of the GLB at `path` (`glb`: its bytes).
+fn glb_json_of(path: &Path, glb: &[u8]) -> Result<Value, ViewError> {
+    json_chunk(glb).map_err(|source| ViewError::Glb {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Image bytes embedded in a GLB, and how many images.
-pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
-    let json = glb_json(glb)?;
+pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), GlbError> {
+    let json = json_chunk(glb)?;
     let views = json["bufferViews"].as_array().cloned().unwrap_or_default();
     let images = json["images"].as_array().cloned().unwrap_or_default();
     let bytes = images
@@ -192,8 +223,8 @@ pub fn glb_image_bytes(glb: &[u8]) -> Result<(u64, usize), String> {
 
 /// Triangles a GLB draws: index (or vertex) count / 3 of each triangle primitive of each node's
 /// mesh, times the node's instance count (`EXT_mesh_gpu_instancing`).
-pub fn glb_drawn_triangles(glb: &[u8]) -> Result<u64, String> {
-    let json = glb_json(glb)?;
+pub fn glb_drawn_triangles(glb: &[u8]) -> Result<u64, GlbError> {
+    let json = json_chunk(glb)?;
     let accessors = json["accessors"].as_array().cloned().unwrap_or_default();
     let count = |a: &Value| {
         a.as_u64()
@@ -235,13 +266,15 @@ pub fn glb_drawn_triangles(glb: &[u8]) -> Result<u64, String> {
 }
 
 /// Selects the tiles of the tileset in `dir` for a whole-model view and sums their bytes.
-pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
-    let ts: Value = serde_json::from_slice(
-        &std::fs::read(dir.join("tileset.json")).map_err(|e| e.to_string())?,
-    )
-    .map_err(|e| e.to_string())?;
+pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
+    let ts_path = dir.join("tileset.json");
+    let ts: Value = serde_json::from_slice(&read(&ts_path)?).map_err(|source| ViewError::Json {
+        path: ts_path.clone(),
+        source,
+    })?;
     let root = &ts["root"];
-    let rb = Obb::from_json(&root["boundingVolume"]["box"]).ok_or("root has no box")?;
+    let rb = Obb::from_json(&root["boundingVolume"]["box"])
+        .ok_or(ViewError::NoRootBox { path: ts_path })?;
     let dir_view = DVec3::new(1.0, -1.0, 0.7).normalize();
     let eye = rb.center + dir_view * (rb.radius() / (v.fov_y_deg.to_radians() / 2.0).sin());
     let mut out = FirstView::default();
@@ -261,13 +294,18 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
         let refines = sse > v.max_sse_px && children.is_some();
         if !refines || refine == "ADD" {
             if let Some(uri) = t["content"]["uri"].as_str() {
-                let glb = std::fs::read(dir.join(uri)).map_err(|e| format!("{uri}: {e}"))?;
-                let (bytes, n) = glb_image_bytes(&glb).map_err(|e| format!("{uri}: {e}"))?;
+                let path = dir.join(uri);
+                let glb = read(&path)?;
+                let glb_error = |source| ViewError::Glb {
+                    path: path.clone(),
+                    source,
+                };
+                let (bytes, n) = glb_image_bytes(&glb).map_err(glb_error)?;
                 out.tiles += 1;
                 out.glb_bytes += glb.len() as u64;
                 out.texture_bytes += bytes;
                 out.images += n;
-                out.triangles += glb_drawn_triangles(&glb).map_err(|e| format!("{uri}: {e}"))?;
+                out.triangles += glb_drawn_triangles(&glb).map_err(glb_error)?;
                 out.selected.push(uri.to_string());
                 depths.insert(depth);
             }
@@ -287,14 +325,14 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, String> {
 /// client loads for the first whole-model view are the embedded images of the selected tiles
 /// plus each distinct external file they reference (`../textures/`). Also returns how many
 /// distinct files that is (requests on top of the tiles').
-pub fn first_view_shared(dir: &Path, v: &ViewOptions) -> Result<(FirstView, usize), String> {
+pub fn first_view_shared(dir: &Path, v: &ViewOptions) -> Result<(FirstView, usize), ViewError> {
     let mut out = first_view(dir, v)?;
     let mut files = BTreeSet::new();
     let mut references = 0;
     for uri in &out.selected {
         let tile = dir.join(uri);
-        let glb = std::fs::read(&tile).map_err(|e| format!("{uri}: {e}"))?;
-        let json = glb_json(&glb).map_err(|e| format!("{uri}: {e}"))?;
+        let glb = read(&tile)?;
+        let json = glb_json_of(&tile, &glb)?;
         for im in json["images"].as_array().into_iter().flatten() {
             if let Some(u) = im["uri"].as_str() {
                 references += 1;
@@ -305,7 +343,10 @@ pub fn first_view_shared(dir: &Path, v: &ViewOptions) -> Result<(FirstView, usiz
     }
     for f in &files {
         out.texture_bytes += std::fs::metadata(f)
-            .map_err(|e| format!("{}: {e}", f.display()))?
+            .map_err(|source| ViewError::Read {
+                path: f.clone(),
+                source,
+            })?
             .len();
     }
     // `images` counts what is downloaded: embedded copies and distinct files.
@@ -330,7 +371,7 @@ fn normalize(p: &Path) -> PathBuf {
 
 /// The whole model at full detail, as [`first_view`] counts it: the selection refined to the end
 /// (a screen-space error limit of 0 refines every tile whose `geometricError` is above 0).
-pub fn full_view(dir: &Path) -> Result<FirstView, String> {
+pub fn full_view(dir: &Path) -> Result<FirstView, ViewError> {
     first_view(
         dir,
         &ViewOptions {
