@@ -165,7 +165,7 @@ impl<'a> TileWriter<'a> {
         // Small non-repeating images packed into an atlas: UVs remapped in a copy of the content.
         let atlas = textures
             .atlas_for_tile(content, &chosen)
-            .map_err(|e| Error::output(&path, e))?;
+            .map_err(|e| Error::encode(&path, e))?;
         let content = atlas.as_ref().map_or(content, |a| &a.content);
         let image = |id| textures.image_for(id, &chosen, atlas.as_ref());
         let sampled_px = atlas.as_ref().map(|a| a.texels_px()).unwrap_or_default();

@@ -11,9 +11,9 @@ pub use glb::{encode_content, encode_tile, Compression, EncodedTile, TableMaker,
 pub enum EncodeError {
     #[error("Draco compression")]
     Draco(#[from] draco::DracoError),
-    /// The tile's image (texture level) could not be had.
-    #[error("tile image: {0}")]
-    Image(String),
+    /// The tile's image (texture level) could not be written.
+    #[error("tile image")]
+    Image(#[from] crate::texture::external::StoreError),
     #[error("an instance transform is not translation-rotation-scale")]
     InstanceTransform,
     #[error("glTF JSON")]

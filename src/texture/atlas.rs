@@ -61,10 +61,10 @@ pub const ATLAS_BYTES_PER_SAVED_REQUEST: u64 = 512;
 /// Why packing failed (bad images are left unpacked; these are the output side).
 #[derive(Debug, thiserror::Error)]
 pub enum AtlasError {
-    #[error("texture atlas encoding failed: {0}")]
-    Encode(String),
-    #[error("texture atlas file: {0}")]
-    Store(String),
+    #[error("texture atlas encoding failed")]
+    Encode(#[source] super::codec::CodecError),
+    #[error("texture atlas file")]
+    Store(#[source] super::external::StoreError),
 }
 
 /// One packed image's rectangle in the atlas (its texels, border excluded).

@@ -29,17 +29,30 @@ pub enum TextureFormat {
     Jpeg,
 }
 
+/// Why an image could not be decoded or encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum CodecError {
+    #[error(transparent)]
+    Image(#[from] image::ImageError),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    #[error("PNG")]
+    Png(#[from] png::DecodingError),
+    /// Data that contradicts itself (rows past the header's height, a pixel buffer of the wrong
+    /// size).
+    #[error("{0}")]
+    Inconsistent(&'static str),
+}
+
 /// Default JPEG quality (libjpeg scale 1-100).
 pub const DEFAULT_JPEG_QUALITY: u8 = 85;
 
 /// Decodes any supported image without the `image` crate's default 512 MiB allocation limit
 /// (a 16k x 16k RGBA texture is 1 GiB of pixels).
-pub fn decode(bytes: &[u8]) -> Result<DynamicImage, String> {
-    let mut r = image::ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| e.to_string())?;
+pub fn decode(bytes: &[u8]) -> Result<DynamicImage, CodecError> {
+    let mut r = image::ImageReader::new(Cursor::new(bytes)).with_guessed_format()?;
     r.no_limits();
-    r.decode().map_err(|e| e.to_string())
+    Ok(r.decode()?)
 }
 
 /// Decoded pixels of an image, read one row at a time, top to bottom, in the `image` crate's
@@ -68,7 +81,7 @@ const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
 
 impl<'a> Rows<'a> {
     /// Starts decoding `bytes` (any format [`decode`] reads).
-    pub fn open(bytes: &'a [u8]) -> Result<Rows<'a>, String> {
+    pub fn open(bytes: &'a [u8]) -> Result<Rows<'a>, CodecError> {
         if bytes.starts_with(PNG_SIGNATURE) {
             if let Some(rows) = Self::open_png(bytes)? {
                 return Ok(rows);
@@ -99,15 +112,15 @@ impl<'a> Rows<'a> {
 
     /// A row reader for a non-interlaced PNG, `None` for the PNGs left to `image` (interlaced:
     /// rows arrive in passes; an animation whose first frame is smaller than the image).
-    fn open_png(bytes: &'a [u8]) -> Result<Option<Rows<'a>>, String> {
+    fn open_png(bytes: &'a [u8]) -> Result<Option<Rows<'a>>, CodecError> {
         // As `image::codecs::png::PngDecoder::with_limits` with no limits: the same checks,
         // errors and output samples.
         let mut decoder =
             png::Decoder::new_with_limits(Cursor::new(bytes), png::Limits { bytes: usize::MAX });
         decoder.set_ignore_text_chunk(false);
-        decoder.read_header_info().map_err(|e| e.to_string())?;
+        decoder.read_header_info()?;
         decoder.set_transformations(png::Transformations::EXPAND);
-        let reader = decoder.read_info().map_err(|e| e.to_string())?;
+        let reader = decoder.read_info()?;
         let info = reader.info();
         let (width, height) = (info.width, info.height);
         let subframe_differs = info
@@ -156,7 +169,7 @@ impl<'a> Rows<'a> {
 
     /// The next row, `None` after the last one. An image is decoded without error only if every
     /// row and then `None` came back.
-    pub fn next_row(&mut self) -> Result<Option<&[u8]>, String> {
+    pub fn next_row(&mut self) -> Result<Option<&[u8]>, CodecError> {
         let line = self.color.bytes_per_pixel() as usize * self.width as usize;
         let y = self.next as usize;
         match &mut self.source {
@@ -168,17 +181,19 @@ impl<'a> Rows<'a> {
                 Ok(Some(&img.as_bytes()[y * line..(y + 1) * line]))
             }
             RowSource::Png { reader, row } => {
-                let got = reader.read_row(row).map_err(|e| e.to_string())?;
+                let got = reader.read_row(row)?;
                 if self.next == self.height {
                     // Past the last row the reader consumes the rest of the image data, as
                     // `next_frame` does (its errors are the image's).
                     return match got {
                         None => Ok(None),
-                        Some(_) => Err("more PNG rows than the header says".into()),
+                        Some(_) => Err(CodecError::Inconsistent(
+                            "more PNG rows than the header says",
+                        )),
                     };
                 }
                 if got.is_none() {
-                    return Err("PNG image data ends early".into());
+                    return Err(CodecError::Inconsistent("PNG image data ends early"));
                 }
                 self.next += 1;
                 if self.color.bytes_per_pixel() / self.color.channel_count() == 2 {
@@ -268,12 +283,10 @@ fn one_row_image(color: ColorType, width: u32, row: &[u8]) -> DynamicImage {
 }
 
 /// Width and height from the header only (no pixel decoding).
-pub fn dimensions(bytes: &[u8]) -> Result<(u32, u32), String> {
-    image::ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| e.to_string())?
-        .into_dimensions()
-        .map_err(|e| e.to_string())
+pub fn dimensions(bytes: &[u8]) -> Result<(u32, u32), CodecError> {
+    Ok(image::ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()?
+        .into_dimensions()?)
 }
 
 /// Encodes 8-bit RGBA; returns the bytes and their MIME type. `source_mime` picks the family
@@ -285,7 +298,7 @@ pub fn encode_rgba(
     format: TextureFormat,
     source_mime: &str,
     jpeg_quality: u8,
-) -> Result<(Vec<u8>, &'static str), String> {
+) -> Result<(Vec<u8>, &'static str), CodecError> {
     let opaque = rgba.chunks_exact(4).all(|p| p[3] == 255);
     let jpeg = opaque
         && match format {
@@ -294,28 +307,32 @@ pub fn encode_rgba(
             TextureFormat::Jpeg => true,
         };
     if rgba.len() != width as usize * height as usize * 4 {
-        return Err("pixel buffer size".into());
+        return Err(CodecError::Inconsistent("pixel buffer size"));
     }
     let mut out = Vec::new();
     // Opaque images drop their alpha channel (a quarter fewer bytes to compress), in place: no
     // second copy of the level.
     let img = if opaque {
         let rgb = rgba_to_rgb_in_place(rgba);
-        DynamicImage::ImageRgb8(image::RgbImage::from_raw(width, height, rgb).ok_or("size")?)
+        DynamicImage::ImageRgb8(
+            image::RgbImage::from_raw(width, height, rgb)
+                .ok_or(CodecError::Inconsistent("pixel buffer size"))?,
+        )
     } else {
-        DynamicImage::ImageRgba8(image::RgbaImage::from_raw(width, height, rgba).ok_or("size")?)
+        DynamicImage::ImageRgba8(
+            image::RgbaImage::from_raw(width, height, rgba)
+                .ok_or(CodecError::Inconsistent("pixel buffer size"))?,
+        )
     };
     if jpeg {
         let DynamicImage::ImageRgb8(rgb) = &img else {
             unreachable!("JPEG only for opaque images")
         };
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, jpeg_quality.clamp(1, 100))
-            .encode_image(rgb)
-            .map_err(|e| e.to_string())?;
+            .encode_image(rgb)?;
         Ok((out, "image/jpeg"))
     } else {
-        img.write_to(&mut Cursor::new(&mut out), ImageFormat::Png)
-            .map_err(|e| e.to_string())?;
+        img.write_to(&mut Cursor::new(&mut out), ImageFormat::Png)?;
         Ok((out, "image/png"))
     }
 }
@@ -453,7 +470,7 @@ pub(crate) mod tests {
     }
 
     /// Every row and the end, or the first error.
-    fn read_all(bytes: &[u8]) -> Result<(Rows<'_>, Vec<u8>), String> {
+    fn read_all(bytes: &[u8]) -> Result<(Rows<'_>, Vec<u8>), CodecError> {
         let mut rows = Rows::open(bytes)?;
         let mut all = Vec::new();
         while let Some(r) = rows.next_row()? {

@@ -17,7 +17,7 @@
 //! Memory: the image is decoded row by row and only the used rectangle is kept ([`crop_rgba8`]).
 
 use super::classify::{ImageUse, TextureClass};
-use super::codec::{dimensions, encode_rgba, row_to_rgba8, Rows, TextureFormat};
+use super::codec::{dimensions, encode_rgba, row_to_rgba8, CodecError, Rows, TextureFormat};
 use crate::scene::{ImageId, MeshId, Primitive, Scene};
 use serde::Serialize;
 use std::sync::Arc;
@@ -61,12 +61,12 @@ pub fn used_rect(uv_box: ([f32; 2], [f32; 2]), w: u32, h: u32, pad: u32) -> [u32
 /// The texels `[x0, x1) x [y0, y1)` of an encoded image as 8-bit RGBA, decoded row by row: only
 /// the rectangle is held (plus the whole decoded image for formats without a row decoder). The
 /// image is decoded to its end, so one that does not decode is not cropped.
-pub fn crop_rgba8(bytes: &[u8], rect: [u32; 4]) -> Result<Vec<u8>, String> {
+pub fn crop_rgba8(bytes: &[u8], rect: [u32; 4]) -> Result<Vec<u8>, CodecError> {
     let [x0, y0, x1, y1] = rect.map(|v| v as usize);
     let mut rows = Rows::open(bytes)?;
     let (w, h) = (rows.width() as usize, rows.height() as usize);
     if x0 >= x1 || y0 >= y1 || x1 > w || y1 > h {
-        return Err(format!("crop {rect:?} outside {w}x{h}"));
+        return Err(CodecError::Inconsistent("crop rectangle outside the image"));
     }
     let bpp = rows.color().bytes_per_pixel() as usize;
     let color = rows.color();

@@ -17,6 +17,20 @@ pub const TEXTURE_DIR: &str = "textures";
 /// How a tile GLB (in `tiles/`) reaches that folder.
 const FROM_TILES: &str = "../textures/";
 
+/// Why a shared texture file could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("{path}: cannot write")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("two texture files hash to {name}")]
+    HashCollision { name: String },
+    #[error("the texture writer is poisoned (a thread panicked while writing)")]
+    Poisoned,
+}
+
 /// Writes shared texture files, each once.
 #[derive(Debug)]
 pub struct ExternalTextures {
@@ -68,27 +82,32 @@ impl ExternalTextures {
         bytes: &Arc<Vec<u8>>,
         mime: &str,
         level: usize,
-    ) -> Result<(String, bool), String> {
+    ) -> Result<(String, bool), StoreError> {
         let name = file_name(bytes, mime);
-        let mut files = self.files.lock().map_err(|_| "texture writer poisoned")?;
+        let mut files = self.files.lock().map_err(|_| StoreError::Poisoned)?;
         let new = match files.get_mut(&name) {
             Some(f) if f.bytes.as_slice() == bytes.as_slice() => {
                 f.finest_level = f.finest_level.min(level);
                 false
             }
-            Some(_) => return Err(format!("two texture files hash to {name}")),
+            Some(_) => return Err(StoreError::HashCollision { name }),
             None => {
-                std::fs::create_dir_all(&self.dir)
-                    .map_err(|e| format!("{}: {e}", self.dir.display()))?;
+                std::fs::create_dir_all(&self.dir).map_err(|source| StoreError::Io {
+                    path: self.dir.clone(),
+                    source,
+                })?;
                 let path = self.dir.join(&name);
                 // Through a temporary name: sharded jobs may write the same file, and a killed
                 // job must not leave a half-written one under its final name.
                 let tmp = self.dir.join(format!(".{name}.tmp-{}", std::process::id()));
                 std::fs::write(&tmp, bytes.as_slice())
                     .and_then(|()| std::fs::rename(&tmp, &path))
-                    .map_err(|e| {
+                    .map_err(|source| {
                         let _ = std::fs::remove_file(&tmp);
-                        format!("{}: {e}", path.display())
+                        StoreError::Io {
+                            path: path.clone(),
+                            source,
+                        }
                     })?;
                 files.insert(
                     name.clone(),

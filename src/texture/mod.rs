@@ -50,7 +50,8 @@ pub enum TileImage {
 }
 
 /// Gives the image of one tile, or why it cannot.
-pub type ImageSource<'a> = &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, String> + Sync);
+pub type ImageSource<'a> =
+    &'a (dyn Fn(ImageId) -> std::result::Result<TileImage, external::StoreError> + Sync);
 
 /// What the texture stage does.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -157,7 +158,7 @@ pub fn build_pyramid(
     image: &crate::scene::Image,
     format: TextureFormat,
     jpeg_quality: u8,
-) -> Result<Vec<EncodedLevel>, String> {
+) -> Result<Vec<EncodedLevel>, codec::CodecError> {
     let mut rows = codec::Rows::open(&image.bytes)?;
     let (w, h, color) = (rows.width(), rows.height(), rows.color());
     let mut pyramid = haar::RowPyramid::new(w, h);
@@ -356,7 +357,7 @@ impl<'a> TextureLevels<'a> {
 
     /// How one tile carries `id` at `level` (as [`Self::fetch`]): a shared file written on first
     /// use, or embedded bytes.
-    pub fn tile_image(&self, id: ImageId, level: usize) -> Result<TileImage, String> {
+    pub fn tile_image(&self, id: ImageId, level: usize) -> Result<TileImage, external::StoreError> {
         let (bytes, mime, level) = self.level_bytes(id, level);
         let ext = match &self.external {
             Some(ext) if bytes.len() >= self.opts.embed_below_bytes => ext,
@@ -376,7 +377,7 @@ impl<'a> TextureLevels<'a> {
         id: ImageId,
         chosen: &TileTextures,
         atlas: Option<&atlas::TileAtlas>,
-    ) -> Result<TileImage, String> {
+    ) -> Result<TileImage, external::StoreError> {
         match atlas.and_then(|a| a.image(id)) {
             Some(im) => Ok(im.clone()),
             None => self.tile_image(id, chosen.0.get(&id).copied().unwrap_or(0)),

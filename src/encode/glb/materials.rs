@@ -41,7 +41,7 @@ impl MaterialTable<'_> {
                 None => {
                     let im = &scene.images[t.image.index()];
                     let image = match self.image_source {
-                        Some(source) => source(t.image).map_err(EncodeError::Image)?,
+                        Some(source) => source(t.image)?,
                         None => TileImage::Embedded {
                             bytes: im.bytes.clone(),
                             mime: im.mime_type.clone(),
