@@ -491,6 +491,12 @@ impl Scene {
         parts.join("/")
     }
 
+    /// Whether `node`'s path holds a repeat number (`#n`) in any of its segments.
+    pub fn path_is_numbered(&self, node: NodeId) -> bool {
+        std::iter::successors(Some(node), |n| self.nodes[n.index()].parent)
+            .any(|n| self.nodes[n.index()].name_repeat != 0)
+    }
+
     /// Appends another scene (a second input file), renumbering its ids.
     pub fn append(&mut self, other: Scene) {
         let (n0, m0, mat0, img0, c0, s0) = (

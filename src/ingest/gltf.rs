@@ -625,41 +625,24 @@ impl Reader<'_> {
                 *guid_uses.entry(g).or_insert(0) += 1;
             }
         }
-        let keys: Vec<(String, bool)> = elements
-            .iter()
-            .map(|(c, info)| match info.guid.as_deref() {
-                Some(g) if guid_uses[g] == 1 => (g.to_string(), false),
+        let mut keys = Vec::with_capacity(elements.len());
+        for (c, info) in &elements {
+            match info.guid.as_deref() {
+                Some(g) if guid_uses[g] == 1 => keys.push(g.to_string()),
                 guid => {
                     let node = c.node.expect("a glTF component has its node");
-                    let path = self.scene.node_path(node);
-                    let renamed = guid.is_some() || path != self.plain_node_path(node);
-                    (path, renamed)
+                    keys.push(self.scene.node_path(node));
+                    let numbered = self.scene.path_is_numbered(node);
+                    self.scene.renamed_ids += usize::from(guid.is_some() || numbered);
                 }
-            })
-            .collect();
+            }
+        }
         drop(guid_uses);
-        for ((component, mut info), (key, renamed)) in elements.into_iter().zip(keys) {
+        self.scene.renamed_ids += crate::scene::ids::make_unique(&mut keys);
+        for ((component, mut info), key) in elements.into_iter().zip(keys) {
             info.key = key;
-            self.scene.renamed_ids += usize::from(renamed);
             self.scene.push_component(component, &info);
         }
-        let table = std::mem::take(&mut self.scene.elements);
-        let (table, renamed) = crate::scene::ids::make_keys_unique(table);
-        self.scene.elements = table;
-        self.scene.renamed_ids += renamed;
-    }
-
-    /// A node's path with no repeat numbers: what its id would be without `scene::ids`.
-    fn plain_node_path(&self, node: NodeId) -> String {
-        let mut parts = Vec::new();
-        let mut cur = Some(node);
-        while let Some(n) = cur {
-            let nd = &self.scene.nodes[n.index()];
-            parts.push(crate::scene::ids::path_segment(nd.name.as_deref(), n.0, 0));
-            cur = nd.parent;
-        }
-        parts.reverse();
-        parts.join("/")
     }
 
     /// Decodes the meshes [`Reader::read_nodes`] listed (`order`: glTF mesh indices) into

@@ -51,40 +51,46 @@ pub fn path_segment(name: Option<&str>, index: u32, repeat: u32) -> String {
     }
 }
 
-/// Step 3 of the module doc: each key already held by an earlier element gets the smallest free
-/// `#k`. Returns the table (unchanged, not re-encoded, when nothing repeats) and how many keys
-/// changed.
-pub fn make_keys_unique(elements: ElementTable) -> (ElementTable, usize) {
-    let mut taken: HashSet<String> = HashSet::with_capacity(elements.len());
+/// Step 3 of the module doc on keys in reading order: each key already held by an earlier one
+/// gets the smallest free `#k`. Returns how many changed.
+pub fn make_unique(keys: &mut [String]) -> usize {
+    let mut taken: HashSet<String> = HashSet::with_capacity(keys.len());
     let mut repeated = false;
-    for info in elements.iter() {
-        if !taken.insert(info.key) {
-            repeated = true;
-        }
+    for key in keys.iter() {
+        repeated |= !taken.insert(key.clone());
     }
     if !repeated {
-        return (elements, 0);
+        return 0;
     }
     // `taken` holds every key once: a later holder must avoid all of them, and the new keys too.
-    let mut first_holder: HashSet<String> = HashSet::with_capacity(taken.len());
+    let mut held: HashSet<String> = HashSet::with_capacity(taken.len());
     let mut renamed = 0;
-    let table = elements.map(|info| {
-        if first_holder.insert(info.key.clone()) {
-            return;
+    for key in keys.iter_mut() {
+        if held.insert(key.clone()) {
+            continue;
         }
-        let mut k = 1u32;
-        let key = loop {
-            let candidate = format!("{}#{k}", info.key);
-            if !taken.contains(&candidate) {
-                break candidate;
-            }
-            k += 1;
-        };
-        taken.insert(key.clone());
-        first_holder.insert(key.clone());
-        info.key = key;
+        let free = (1u32..)
+            .map(|k| format!("{key}#{k}"))
+            .find(|c| !taken.contains(c))
+            .expect("a free suffix");
+        taken.insert(free.clone());
+        held.insert(free.clone());
+        *key = free;
         renamed += 1;
-    });
+    }
+    renamed
+}
+
+/// [`make_unique`] on the keys of a table (re-encoded only when a key changes); returns the table
+/// and how many keys changed.
+pub fn make_keys_unique(elements: ElementTable) -> (ElementTable, usize) {
+    let mut keys: Vec<String> = elements.iter().map(|e| e.key).collect();
+    let renamed = make_unique(&mut keys);
+    if renamed == 0 {
+        return (elements, 0);
+    }
+    let mut keys = keys.into_iter();
+    let table = elements.map(|info| info.key = keys.next().expect("one key per element"));
     (table, renamed)
 }
 
