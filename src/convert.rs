@@ -61,11 +61,11 @@ pub fn convert_scene(
         writer.finish_progress();
         let t_encode = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let stats = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
-        Ok((stats, t_encode, t.elapsed().as_secs_f64()))
+        let records = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
+        Ok((records, t_encode, t.elapsed().as_secs_f64()))
     })();
     // On an error the staging folder is removed when `staging` is dropped.
-    let (facts_bytes, t_encode, t_tileset) = result?;
+    let (records, t_encode, t_tileset) = result?;
     let timings = Timings {
         ingest: t_ingest,
         dedup: prep.t_dedup,
@@ -74,7 +74,7 @@ pub fn convert_scene(
         tileset: t_tileset,
         total: 0.0,
     };
-    let mut report = make_report(prep, &facts_bytes, opts, &tmp, timings, texture_levels);
+    let mut report = make_report(prep, records, opts, &tmp, timings, texture_levels);
     report.timings_s.total = t0.elapsed().as_secs_f64();
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
@@ -131,7 +131,7 @@ pub fn simplify_model(
         input: input.display().to_string(),
         output: output.display().to_string(),
         triangles_in,
-        triangles_out: tile.triangles,
+        triangles_out: tile.figures.triangles,
         error_m,
         seconds: t0.elapsed().as_secs_f64(),
     })

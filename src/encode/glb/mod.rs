@@ -10,7 +10,7 @@
 //! root node's translation. Precision is thus bounded by the tile's size, not the model's.
 
 use super::metadata::{write_property_table, PropertyTable};
-use super::EncodeError;
+use super::{ContentFigures, EncodeError};
 use crate::glb_container::glb_container;
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
@@ -31,24 +31,13 @@ use materials::*;
 use primitives::*;
 use quantization::*;
 
-/// What a written tile holds, for the tileset and the report.
+/// An encoded tile: the GLB and what it holds.
 #[derive(Debug, Clone)]
 pub struct EncodedTile {
     pub glb: Vec<u8>,
-    /// Triangles and vertices drawn (an instanced shape once per instance).
-    pub triangles: usize,
-    pub vertices: usize,
-    /// Triangles stored (an instanced shape once).
-    pub stored_triangles: usize,
-    /// Instanced shapes and the components drawn through them.
-    pub instanced_shapes: usize,
-    pub instances: usize,
-    /// Exact box of the written vertices, in the scene frame.
-    pub bounds: Aabb,
     /// The component of each feature ID (`_FEATURE_ID_0` value = index here).
     pub features: Vec<ComponentId>,
-    /// Bytes of the property table (buffers and its JSON), 0 without metadata.
-    pub metadata_bytes: usize,
+    pub figures: ContentFigures,
 }
 
 /// Geometry compression of tile content.
@@ -154,16 +143,21 @@ fn encode_content_from(
         ..MaterialTable::default()
     };
     let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)?;
-    Ok(EncodedTile {
-        glb,
+    let figures = ContentFigures {
+        bytes: glb.len() as u64,
+        features: content.features.len(),
         triangles: content.triangle_count(),
         vertices: content.vertex_count(),
         stored_triangles: content.stored_triangle_count(),
         instanced_shapes: content.instanced.len(),
         instances: content.instance_count(),
+        metadata_bytes: metadata_bytes as u64,
         bounds,
+    };
+    Ok(EncodedTile {
+        glb,
         features: content.features.clone(),
-        metadata_bytes,
+        figures,
     })
 }
 
@@ -413,7 +407,7 @@ mod tests {
         let s = one_triangle_scene(DMat4::from_translation(far) * Y_UP_TO_Z_UP);
         let center = s.components[0].world_bounds.center();
         let t = encode_tile(&s, &whole(0), center, &plain(), None).unwrap();
-        assert_eq!(t.triangles, 1);
+        assert_eq!(t.figures.triangles, 1);
         let g = gltf::Gltf::from_slice_without_validation(&t.glb).unwrap();
         let node = g.document.nodes().next().unwrap();
         let tr = node.transform().decomposed().0;
@@ -429,7 +423,7 @@ mod tests {
         let max_x = pos.iter().map(|p| p[0]).fold(f32::MIN, f32::max) as f64 + center.x;
         assert!((max_x - (far.x + 1.0)).abs() < 1e-6);
         // glTF (0,0,-1) is north (+y) in the scene frame.
-        assert!((t.bounds.max.y - (far.y + 1.0)).abs() < 1e-9);
+        assert!((t.figures.bounds.max.y - (far.y + 1.0)).abs() < 1e-9);
         assert!(g
             .document
             .extensions_used()
