@@ -54,7 +54,7 @@ pub(crate) fn build_chains(
             let mut below = 0.0;
             for (k, l) in levels.iter().enumerate() {
                 let (position_error, measured) =
-                    with_quantization(opts.compression, l.error.error_m);
+                    with_quantization(opts.compression, l.error.error_m, &l.content);
                 let (ge, paper) =
                     declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
                 below = ge;

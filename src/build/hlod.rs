@@ -1,6 +1,15 @@
 //! HLOD content (paper III.C(3)): every internal tile carries its subtree merged and simplified
 //! with our QEM, built bottom-up with children in parallel; its declared geometricError is
-//! measured against the full detail it stands for (honest), held above its children's.
+//! measured against the full detail it stands for (honest), and at least twice its children's.
+//!
+//! The ladder of levels: a tile's error is kept near its framed error (what a viewer whose screen
+//! it fills accepts), which halves from a cell to its children: coarser tries while the measured
+//! error is well under it, and finer ones (up to the tile budget) while it is over it (a sparse
+//! scene's simplification drops whole buildings hundreds of metres from anything kept). Declaring
+//! at least [`1 / LADDER_CHILD_RATIO`](LADDER_CHILD_RATIO) times the children's error keeps every
+//! step between levels at least a factor of two, so that a client switches levels at distances at
+//! least twice apart; with the octree's extent rule (`partition::octree`) the step to full detail
+//! is bounded too.
 
 use super::gather;
 use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
@@ -47,6 +56,37 @@ pub(crate) struct HlodBuilder<'a> {
     /// results are in `provided`.
     pub(crate) stop: &'a std::collections::BTreeSet<usize>,
     pub(crate) provided: std::sync::Mutex<BTreeMap<usize, BuiltSubtree>>,
+    /// Per plan tile, the error its content is aimed at ([`allowed_errors_m`]).
+    pub(crate) allowed_m: Vec<Option<f64>>,
+}
+
+/// The error each tile of `plan` is allowed (`None` for all when `--hlod-error-fraction` is 0):
+/// `hlod_error_fraction` of its framed error (what a viewer whose screen the tile fills accepts,
+/// with a margin between the view's box distance and the bounding sphere), and at most
+/// [`LADDER_CHILD_RATIO`] of its parent's allowed error, so that tiles that meet theirs form the
+/// ladder without their parents declaring more than they measured. Top-down, from the plan only:
+/// every job of a sharded build finds the same.
+pub(crate) fn allowed_errors_m(plan: &TilePlan, opts: &ConvertOptions) -> Vec<Option<f64>> {
+    let mut allowed = vec![None; plan.tiles.len()];
+    if opts.hlod_error_fraction <= 0.0 || plan.tiles.is_empty() {
+        return allowed;
+    }
+    let own = |i: usize| {
+        opts.hlod_error_fraction
+            * framed_error_m(
+                plan.tiles[i].bounds.diagonal() / 2.0,
+                &ViewOptions::default(),
+            )
+    };
+    allowed[0] = Some(own(0));
+    // Pre-order: a parent comes before its children.
+    for i in 0..plan.tiles.len() {
+        let cap = allowed[i].map(|a: f64| a * LADDER_CHILD_RATIO);
+        for &c in &plan.tiles[i].children {
+            allowed[c] = Some(own(c).min(cap.unwrap_or(f64::INFINITY)));
+        }
+    }
+    allowed
 }
 
 impl HlodBuilder<'_> {
@@ -113,23 +153,29 @@ impl HlodBuilder<'_> {
                 .map(|k| (&k.content, k.coarse_to_full_m))
                 .collect();
             let leaves = self.leaves_below(i);
-            // How coarse the tile may get: its framed error (what a viewer that sees all of it
-            // accepts), a fraction of it for the margin between the view's box distance and the
-            // bounding sphere. `None`: the budget alone.
-            let allowed_m = (self.opts.hlod_error_fraction > 0.0).then(|| {
-                self.opts.hlod_error_fraction
-                    * framed_error_m(tile.bounds.diagonal() / 2.0, &ViewOptions::default())
-            });
+            // How coarse the tile may get (`None`: the budget alone): see [`allowed_errors_m`].
+            let allowed_m = self.allowed_m.get(i).copied().flatten();
             let reference =
                 ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
             // A try over `limit_m` is given up as soon as its measurement shows it (`None`).
+            // Finer tries may keep more than the simplifier's default share of the input.
+            let finer_opts = crate::simplify::SimplifyOptions {
+                target_ratio: 1.0,
+                ..self.opts.simplify.clone()
+            };
             let build_at = |from: &[&TileContent], target: usize, limit_m: f64| -> Result<_> {
+                let input: usize = from.iter().map(|c| c.triangle_count()).sum();
+                let simplify_opts = if 2 * target > input {
+                    &finer_opts
+                } else {
+                    &self.opts.simplify
+                };
                 let r = simplify_children(
                     from,
                     tile.bounds.center(),
                     &continuing,
                     target,
-                    &self.opts.simplify,
+                    simplify_opts,
                 )
                 .map_err(|e| Error::simplify(path(), e))?;
                 let err = reference.measure_within(&r.content, &self.opts.simplify, limit_m);
@@ -143,6 +189,25 @@ impl HlodBuilder<'_> {
                 .min(input_triangles.div_ceil(HLOD_CHILDREN_DIVISOR))
                 .max(1);
             let (mut r, mut err) = build_at(&contents, target, f64::INFINITY)?.expect("no limit");
+            // Finer while over the allowed error: more triangles, up to the budget (or all of the
+            // children's, which then stand as they are). Each try starts again from the children.
+            if let Some(allowed) = allowed_m {
+                let most = self.opts.octree.max_tile_triangles.min(input_triangles);
+                for _ in 0..HLOD_REFINE_TRIES {
+                    if err.error_m <= allowed || target >= most {
+                        break;
+                    }
+                    let predicted = target as f64 * err.error_m / (0.7 * allowed);
+                    let next = (predicted.min(most as f64) as usize)
+                        .max(2 * target)
+                        .min(most);
+                    let (r2, err2) = build_at(&contents, next, f64::INFINITY)?.expect("no limit");
+                    target = next;
+                    if err2.error_m < err.error_m {
+                        (r, err) = (r2, err2);
+                    }
+                }
+            }
             // Coarser while the measured error leaves room: the first view of a model is its root
             // alone, as small as its error allows. Each try costs a simplification and a
             // measurement against all full detail below, so the count is predicted (the error of
@@ -150,16 +215,33 @@ impl HlodBuilder<'_> {
             // and the tries are few. A try simplifies the last accepted content, a quarter or less
             // of the children's (it is measured against full detail all the same): on a
             // 1.9M-triangle campus the tries took as long as the first simplifications.
+            // A rejected try is followed by one between it and the last accepted count (their
+            // geometric mean), once: the halving steps otherwise leave a tile up to twice the
+            // triangles its error allows, and a finer tile below can move the steps.
             if let Some(allowed) = allowed_m {
-                for _ in 0..HLOD_COARSEN_TRIES {
-                    let predicted = target as f64 * err.error_m / (0.7 * allowed);
-                    let next = (predicted as usize).clamp(target / 16, target / 2);
-                    if err.error_m >= allowed || next < HLOD_MIN_TRIANGLES {
+                let mut tries = 0;
+                let mut too_coarse: Option<usize> = None;
+                while tries < HLOD_COARSEN_TRIES || too_coarse.is_some() {
+                    let next = match too_coarse {
+                        Some(rejected) => ((target as f64 * rejected as f64).sqrt() as usize)
+                            .max(HLOD_MIN_TRIANGLES),
+                        None => {
+                            let predicted = target as f64 * err.error_m / (0.7 * allowed);
+                            (predicted as usize).clamp(target / 16, target / 2)
+                        }
+                    };
+                    if err.error_m >= allowed || next < HLOD_MIN_TRIANGLES || next >= target {
                         break;
                     }
+                    tries += 1;
                     let Some((r2, err2)) = build_at(&[&r.content], next, allowed)? else {
-                        break;
+                        if too_coarse.is_some() {
+                            break;
+                        }
+                        too_coarse = Some(next);
+                        continue;
                     };
+                    too_coarse = None;
                     (r, err, target) = (
                         // Figures of the whole chain: children -> last content -> this one.
                         HlodContent {
@@ -174,19 +256,62 @@ impl HlodBuilder<'_> {
                     );
                 }
             }
+            // The coarse grid flattens triangles thinner than about its step, and a flat triangle
+            // draws nothing (LoD3_Railway at 1,000 triangles a tile lost 51 of a tile's 253
+            // triangles, 0.67 m from full detail where 0.43 m was declared). They are dropped
+            // and the rest measured again, kept if that costs no more than the grid's share;
+            // otherwise the grid stays finer than the thinnest triangle.
+            let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
+            if per_axis_m > fine_grid_m(self.opts.compression) {
+                let flattened_m = 2.0 * 3f64.sqrt() * per_axis_m;
+                if let Some(kept) = without_thinner_than(&r.content, flattened_m) {
+                    let kept_err = reference.measure(&kept, &self.opts.simplify);
+                    if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
+                        (r.content, err) = (kept, kept_err);
+                    } else {
+                        per_axis_m =
+                            with_quantization(self.opts.compression, err.error_m, &r.content).0;
+                    }
+                }
+            }
+            let (position_error, measured) = (per_axis_m, err.error_m + per_axis_m * 3f64.sqrt());
             // The measurement's reference (children's BVHs) and inputs are not needed to write.
             drop(reference);
             drop((contents, children, leaves));
-            let (position_error, measured) = with_quantization(self.opts.compression, err.error_m);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             let folding = kids
                 .iter()
                 .map(|k| k.max_folding_edge_m)
                 .fold(r.max_collapsed_edge_m, f64::max);
-            // Strictly above the children's, whatever the sampling found.
-            let (ge, paper) =
-                declared_error(self.opts.error_metric, measured, folding, children_max);
+            // At least twice the children's (the ladder), whatever the sampling found.
+            let (mut ge, paper) = declared_error(
+                self.opts.error_metric,
+                measured,
+                folding,
+                children_max / LADDER_CHILD_RATIO,
+            );
             drop(kids);
+            // Content that draws nothing is not written: the tile stands for everything below it
+            // missing, at most its box's diagonal away from anything drawn.
+            let empty = r.content.triangle_count() == 0;
+            if empty {
+                ge = tile
+                    .bounds
+                    .diagonal()
+                    .max(children_max / LADDER_CHILD_RATIO * (1.0 + 1e-6) + 1e-6);
+                let record = TileRecord {
+                    geometric_error_m: ge,
+                    ..Default::default()
+                };
+                *self.slots[i].lock().expect("slot") = Some(record);
+                return Ok(BuiltSubtree {
+                    content: r.content,
+                    geometric_error_m: ge,
+                    coarse_to_full_m: tile.bounds.diagonal(),
+                    max_folding_edge_m: folding,
+                    cut_triangles,
+                });
+            }
             let record = TileRecord {
                 geometric_error_m: ge,
                 simplified_from_triangles: Some(r.input_triangles),
@@ -246,6 +371,14 @@ pub(crate) fn declared_error(
 /// about one child's worth in an octree, so every level costs about the same to draw.
 pub const HLOD_CHILDREN_DIVISOR: usize = 4;
 
+/// A child's declared geometricError is at most this share of its parent's (the ladder: the
+/// parent declares at least its children's error divided by this).
+pub const LADDER_CHILD_RATIO: f64 = 0.5;
+
+/// At most this many finer tries per HLOD tile whose error is over its allowed error (each
+/// simplifies the children again, to more triangles, and measures against full detail).
+pub const HLOD_REFINE_TRIES: usize = 2;
+
 /// Coarsening an HLOD tile below the budget stops at this many triangles.
 pub const HLOD_MIN_TRIANGLES: usize = 500;
 
@@ -261,17 +394,96 @@ pub const HLOD_COARSEN_TRIES: usize = 2;
 pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
 
 /// Quantization of a simplified tile whose content lies within `measured_m` of full detail:
-/// `(per_axis_m, error_m)`, the largest per-axis position error it may add (1 mm, or with Draco a
-/// share of the measured error when that is more; KHR_mesh_quantization keeps 16 bits whatever
-/// the grid, so gains nothing from a coarser one) and the tile's error with it added (decoded
-/// vertices move by up to √3 times the per-axis error).
-pub(crate) fn with_quantization(c: Compression, measured_m: f64) -> (f64, f64) {
-    let per_axis_m = match c {
+/// `(per_axis_m, error_m)`, the largest per-axis position error it may add and the tile's error
+/// with it added (decoded vertices move by up to √3 times the per-axis error). The grid is
+/// [`coarse_grid_m`]'s, kept below the `content`'s thinnest triangle (a triangle the grid
+/// flattens draws nothing, and the full detail it stood for is then farther than the moved
+/// vertices: vertices move by at most √3 times the per-axis error, so a triangle at least twice
+/// that high keeps an area). HLOD tiles first try dropping such triangles and measuring again.
+pub(crate) fn with_quantization(
+    c: Compression,
+    measured_m: f64,
+    content: &TileContent,
+) -> (f64, f64) {
+    let keeps_every_triangle_m = thinnest_triangle_m(content) / (2.0 * 3f64.sqrt());
+    let per_axis_m = coarse_grid_m(c, measured_m)
+        .min(keeps_every_triangle_m)
+        .max(fine_grid_m(c));
+    (per_axis_m, measured_m + per_axis_m * 3f64.sqrt())
+}
+
+/// The finest grid of `c`: 1 mm per axis, none without compression.
+fn fine_grid_m(c: Compression) -> f64 {
+    match c {
+        Compression::Draco | Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M,
+        Compression::None => 0.0,
+    }
+}
+
+/// The per-axis position error a simplified tile measured within `measured_m` of full detail
+/// may add: 1 mm, or with Draco a share of the measured error when that is more
+/// (KHR_mesh_quantization keeps 16 bits whatever the grid, so gains nothing from a coarser one).
+pub(crate) fn coarse_grid_m(c: Compression, measured_m: f64) -> f64 {
+    match c {
         Compression::Draco => {
             DEFAULT_MAX_POSITION_ERROR_M.max(COARSE_QUANTIZATION_SHARE * measured_m / 3f64.sqrt())
         }
-        Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M,
-        Compression::None => 0.0,
+        _ => fine_grid_m(c),
+    }
+}
+
+/// `content` without its triangles thinner than `height_m` (twice the area over the longest
+/// edge), or `None` when it has none.
+fn without_thinner_than(content: &TileContent, height_m: f64) -> Option<TileContent> {
+    let thin = |p: &crate::partition::content::ContentPrimitive, t: &[u32]| {
+        let at = |i: u32| {
+            let v = p.positions[i as usize];
+            glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+        };
+        let [a, b, c] = [at(t[0]), at(t[1]), at(t[2])];
+        let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+        (b - a).cross(c - a).length() < height_m * longest
     };
-    (per_axis_m, measured_m + per_axis_m * 3f64.sqrt())
+    let any = content
+        .primitives
+        .iter()
+        .any(|p| p.indices.chunks_exact(3).any(|t| thin(p, t)));
+    if !any || height_m <= 0.0 {
+        return None;
+    }
+    let mut kept = content.clone();
+    for p in &mut kept.primitives {
+        let indices: Vec<u32> = p
+            .indices
+            .chunks_exact(3)
+            .filter(|t| !thin(p, t))
+            .flatten()
+            .copied()
+            .collect();
+        p.indices = indices;
+    }
+    kept.primitives.retain(|p| !p.indices.is_empty());
+    kept.compact_features();
+    Some(kept)
+}
+
+/// The smallest height of a triangle of `content` (twice its area over its longest edge;
+/// triangles already flat are left out: they draw nothing before quantization either).
+fn thinnest_triangle_m(content: &TileContent) -> f64 {
+    let mut thinnest = f64::INFINITY;
+    for p in &content.primitives {
+        let at = |i: u32| {
+            let v = p.positions[i as usize];
+            glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+        };
+        for t in p.indices.chunks_exact(3) {
+            let [a, b, c] = [at(t[0]), at(t[1]), at(t[2])];
+            let twice_area = (b - a).cross(c - a).length();
+            let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+            if twice_area > 0.0 && longest > 0.0 {
+                thinnest = thinnest.min(twice_area / longest);
+            }
+        }
+    }
+    thinnest
 }

@@ -232,6 +232,7 @@ impl<'a> TileWriter<'a> {
                     slots: &slots,
                     stop,
                     provided: std::sync::Mutex::new(provided),
+                    allowed_m: hlod::allowed_errors_m(plan, opts),
                 };
                 let built = roots
                     .par_iter()

@@ -15,6 +15,15 @@
 //! triangle does (or the depth cap is hit), every input triangle is in exactly one tile, and
 //! per-element models keep their elements whole: only what overflows a tile is cut.
 //!
+//! Extent (the bottom rung of the error ladder): a cell whose content spans more than
+//! `max_leaf_extent_m` also splits, even within the budgets, and what is that wide and cannot descend
+//! whole is cut like an over-budget mesh. The HLOD tiles above then form a ladder: each level's
+//! cells are half its parent's, and so is the error a viewer accepts of them (their framed error,
+//! which caps their simplification); the leaf level's rung is absolute, so that full detail is only
+//! fetched near it. A wide, sparse scene (an airport of 7 km in 73k triangles, which the budgets
+//! alone made a root over five kilometre-wide leaves) gets the levels between; compact models,
+//! smaller than a leaf, keep the tree their budgets give.
+//!
 //! The plan is computed from bounds and counts only, and is a pure function of the scene and the
 //! options (input order, no hashing, no threads): the output is the same on every run.
 
@@ -39,15 +48,25 @@ pub struct OctreeOptions {
     pub max_tile_triangles: usize,
     /// A cell whose content's estimated uncompressed size is over this is split.
     pub max_tile_bytes: usize,
+    /// A cell whose content spans more than this (largest side of its box, metres) is split, and
+    /// meshes wider than this that stay in it are cut: the ladder's bottom rung (module docs).
+    pub max_leaf_extent_m: f64,
     /// No split below this depth (a safety net for coincident components).
     pub max_depth: u32,
 }
+
+/// Default [`OctreeOptions::max_leaf_extent_m`]. A leaf's parent spans at most about twice this,
+/// so its error is capped at about 0.8 of its framed error (`build::hlod`), some 4 m: full detail
+/// is fetched within about 300 m of it. City blocks and airport aprons are tiled; a building (or a
+/// campus of them) is not split for its extent.
+pub const MAX_LEAF_EXTENT_M: f64 = 128.0;
 
 impl Default for OctreeOptions {
     fn default() -> Self {
         OctreeOptions {
             max_tile_triangles: 40_000,
             max_tile_bytes: 4 << 20,
+            max_leaf_extent_m: MAX_LEAF_EXTENT_M,
             max_depth: 16,
         }
     }
@@ -282,9 +301,20 @@ fn build(
     let bytes: usize = items.iter().map(|i| i.bytes).sum();
     let side = cell.size().x;
     let fits_budget = tris <= opts.max_tile_triangles && bytes <= opts.max_tile_bytes;
+    let too_wide = |i: &Item| {
+        i.extent > opts.max_leaf_extent_m && i.triangles > 1 && side > opts.max_leaf_extent_m
+    };
+    let extent_m = items
+        .iter()
+        .fold(Aabb::EMPTY, |b, i| b.union(&i.bounds))
+        .size()
+        .max_element();
+    // A cell no larger than a leaf may span is not split for its extent (its content may stick
+    // out of it: whole triangles, loose octree).
+    let fits_extent = extent_m <= opts.max_leaf_extent_m || side <= opts.max_leaf_extent_m;
     let mut octants: [Vec<Item>; 8] = Default::default();
     let mut stay: Vec<Item> = Vec::new();
-    if fits_budget || depth >= opts.max_depth {
+    if (fits_budget && fits_extent) || depth >= opts.max_depth {
         stay = items;
     } else {
         let c = cell.center();
@@ -294,6 +324,20 @@ fn build(
             } else {
                 octants[octant_of(it.center, c)].push(it);
             }
+        }
+        // What stays but spans more than a leaf may is cut (one triangle cannot be: it stays).
+        if stay.iter().any(too_wide) {
+            let mut kept = Vec::new();
+            for it in stay {
+                if too_wide(&it) {
+                    for (o, part) in cut(scene, &it, &cell) {
+                        octants[o].push(part);
+                    }
+                } else {
+                    kept.push(it);
+                }
+            }
+            stay = kept;
         }
         // What cannot descend whole is still too much: cut the largest meshes until it fits.
         let (mut stay_tris, mut stay_bytes) = (

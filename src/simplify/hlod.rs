@@ -97,8 +97,10 @@ impl<'a> ErrorReference<'a> {
         leaves: &'a [&'a [ContentItem]],
         min_leaf_samples: usize,
     ) -> Self {
+        // A child that draws nothing is no way to full detail.
         let kids = children
             .iter()
+            .filter(|(c, _)| c.triangle_count() > 0)
             .map(|(c, e)| {
                 let moved = TileContent::merge(&[*c], center);
                 let (cp, ci) = soup(&moved);
@@ -131,6 +133,15 @@ impl<'a> ErrorReference<'a> {
         limit_m: f64,
     ) -> Option<TileError> {
         debug_assert_eq!(content.center, self.center, "content centred elsewhere");
+        if content.triangle_count() == 0 {
+            // Nothing drawn: full detail is nowhere near it (the caller writes no content).
+            let error_m = f64::INFINITY;
+            return (limit_m == f64::INFINITY).then_some(TileError {
+                error_m,
+                full_to_coarse_m: error_m,
+                coarse_to_full_m: 0.0,
+            });
+        }
         // Measured distances above these already declare more than `limit_m`.
         let f2c_limit = limit_m / FULL_TO_COARSE_SAFETY;
         let c2f_limit = limit_m / opts.error_safety;
@@ -164,7 +175,11 @@ impl<'a> ErrorReference<'a> {
                 },
             );
         });
-        let full_to_coarse_m = f64::from_bits(run.load(Relaxed));
+        let sampled_m = f64::from_bits(run.load(Relaxed));
+        if sampled_m > f2c_limit {
+            return None;
+        }
+        let full_to_coarse_m = self.faces_within(&p_bvh, sampled_m, opts.error_floor_m);
         if full_to_coarse_m > f2c_limit {
             return None;
         }
@@ -225,6 +240,111 @@ impl<'a> ErrorReference<'a> {
         (error.error_m <= limit_m).then_some(error)
     }
 }
+
+impl ErrorReference<'_> {
+    /// The largest distance from the full detail to `coarse`, given `sampled_m`, the largest
+    /// distance of the samples (every vertex among them). Per full-detail triangle, two bounds of
+    /// the distance anywhere on it: the distance is 1-Lipschitz (at most the largest corner's
+    /// distance plus the longest edge over √3), and the distance to one coarse triangle is convex
+    /// (at most the largest corner's distance to a corner's nearest triangle). A triangle whose
+    /// bound is over [`FULL_TO_COARSE_SAFETY`] times `sampled_m` is split in four at its edge
+    /// midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times), so
+    /// the declared error covers every face, edge and open border. Samples alone missed peaks
+    /// between corners (a tile of LoD3_Railway at 1,000 triangles a tile declared 0.43 m for
+    /// 0.67 m). Exact distances and a threshold fixed before the pass: the same result whatever
+    /// the threads do.
+    fn faces_within(&self, coarse: &MeshBvh, sampled_m: f64, floor_m: f64) -> f64 {
+        type Corner = (DVec3, f64, u32);
+        let certified_m = (FULL_TO_COARSE_SAFETY * sampled_m).max(floor_m);
+        let run = AtomicU64::new(sampled_m.to_bits());
+        let exact = |x: DVec3| -> Corner {
+            coarse
+                .closest(x)
+                .map_or((x, f64::INFINITY, u32::MAX), |c| (x, c.0, c.1))
+        };
+        let bound = |c: &[Corner; 3]| {
+            let far = c.iter().map(|k| k.1).fold(0.0, f64::max);
+            let longest = (0..3)
+                .map(|k| (c[k].0 - c[(k + 1) % 3].0).length())
+                .fold(0.0, f64::max);
+            let lipschitz = far + longest / 3f64.sqrt();
+            let convex = c
+                .iter()
+                .filter(|k| k.2 != u32::MAX)
+                .map(|k| {
+                    c.iter()
+                        .map(|j| {
+                            if j.2 == k.2 {
+                                j.1
+                            } else {
+                                coarse.distance_to_triangle(j.0, k.2)
+                            }
+                        })
+                        .fold(0.0, f64::max)
+                })
+                .fold(f64::INFINITY, f64::min);
+            lipschitz.min(convex)
+        };
+        for items in self.leaves.iter() {
+            let leaf = TileContent::gather(self.scene, items, self.center);
+            let (lp, li) = soup(&leaf);
+            let point = |i: u32| {
+                let v = lp[i as usize];
+                DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+            };
+            // Triangles this small are within the bound whatever their corners (<= sampled).
+            let small_m = (certified_m - sampled_m) * 3f64.sqrt();
+            let large = |t: &[u32]| {
+                (0..3).any(|k| (point(t[k]) - point(t[(k + 1) % 3])).length() > small_m)
+            };
+            let mut on_large = vec![false; lp.len()];
+            for t in li.chunks_exact(3).filter(|t| large(t)) {
+                for &v in t {
+                    on_large[v as usize] = true;
+                }
+            }
+            let corners: Vec<Corner> = (0..lp.len() as u32)
+                .into_par_iter()
+                .with_min_len(256)
+                .map(|v| {
+                    if on_large[v as usize] {
+                        exact(point(v))
+                    } else {
+                        (point(v), 0.0, u32::MAX)
+                    }
+                })
+                .collect();
+            li.par_chunks_exact(3)
+                .with_min_len(64)
+                .for_each_init(Vec::new, |stack, t| {
+                    if !large(t) {
+                        return;
+                    }
+                    stack.push(([t[0], t[1], t[2]].map(|v| corners[v as usize]), 0));
+                    while let Some((c, splits)) = stack.pop() {
+                        if splits >= FACE_SPLITS || bound(&c) <= certified_m {
+                            continue;
+                        }
+                        let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5));
+                        for k in &m {
+                            if k.1.is_finite() {
+                                run.fetch_max(k.1.to_bits(), Relaxed);
+                            }
+                        }
+                        stack.push(([c[0], m[0], m[2]], splits + 1));
+                        stack.push(([m[0], c[1], m[1]], splits + 1));
+                        stack.push(([m[2], m[1], c[2]], splits + 1));
+                        stack.push((m, splits + 1));
+                    }
+                });
+        }
+        f64::from_bits(run.load(Relaxed))
+    }
+}
+
+/// At most this many four-way splits of a full-detail triangle when its distance to a tile's
+/// content is bounded ([`ErrorReference::measure`]): 1/64 of its edges.
+const FACE_SPLITS: u32 = 6;
 
 /// Merges `children` around `center` and simplifies to `target_triangles` (and at most
 /// `opts.target_ratio` of the input). `continuing` lists components that also have triangles
