@@ -679,6 +679,31 @@ mod tests {
     }
 
     #[test]
+    fn wide_content_is_split_to_the_leaf_extent_within_the_budget() {
+        // 1 km of ground in 3,200 triangles of 25 m: far under the budget, far over a leaf's span.
+        let s = grid_scene(40, 1000.0);
+        let opts = OctreeOptions::default();
+        let plan = plan_octree(&s, &opts);
+        check_invariants(&s, &plan, &opts);
+        assert!(plan.tiles.len() > 16, "{} tiles", plan.tiles.len());
+        for t in plan.tiles.iter().filter(|t| t.children.is_empty()) {
+            // A leaf's cell is at most 128 m; its parts reach across its parent's cell at most,
+            // plus a triangle.
+            let span = t.content_bounds.size().max_element();
+            assert!(span <= 2.0 * MAX_LEAF_EXTENT_M + 2.0 * 25.0 * 2f64.sqrt(), "{span}");
+        }
+        // Without the extent rule, the budget alone keeps it one tile.
+        let one = plan_octree(
+            &s,
+            &OctreeOptions {
+                max_leaf_extent_m: f64::INFINITY,
+                ..opts
+            },
+        );
+        assert_eq!(one.tiles.len(), 1);
+    }
+
+    #[test]
     fn whole_elements_stay_whole_when_they_fit() {
         // A big mesh plus small boxes: only the big mesh is cut.
         let mut s = grid_scene(60, 100.0);
