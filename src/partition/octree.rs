@@ -690,7 +690,10 @@ mod tests {
             // A leaf's cell is at most 128 m; its parts reach across its parent's cell at most,
             // plus a triangle.
             let span = t.content_bounds.size().max_element();
-            assert!(span <= 2.0 * MAX_LEAF_EXTENT_M + 2.0 * 25.0 * 2f64.sqrt(), "{span}");
+            assert!(
+                span <= 2.0 * MAX_LEAF_EXTENT_M + 2.0 * 25.0 * 2f64.sqrt(),
+                "{span}"
+            );
         }
         // Without the extent rule, the budget alone keeps it one tile.
         let one = plan_octree(
