@@ -31,7 +31,7 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
 pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
     check_output(&opts.out_dir, opts.force)?;
-    let mut scene = read_scene(inputs)?;
+    let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
     convert_scene(&mut scene, opts, t0, t_ingest)
 }

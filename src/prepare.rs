@@ -34,9 +34,18 @@ pub struct InputReport {
     pub renamed_ids: usize,
 }
 
-/// Reads an input set into one scene; an input without triangles is an error.
-pub(crate) fn read_scene(inputs: &InputSet) -> Result<Scene> {
-    let scene = inputs.read()?;
+/// Reads an input set into one scene; an input without triangles is an error, and so is a
+/// georeference that could not be used under `--strict-georef`.
+pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
+    let scene = inputs.read_in_crs(opts.crs.as_deref())?;
+    if opts.strict_georef {
+        if let Some(w) = scene.georef_warnings.first() {
+            return Err(Error::input(
+                &w.file,
+                format!("{} (--strict-georef)", w.message),
+            ));
+        }
+    }
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -56,6 +65,9 @@ pub(crate) struct Prepared {
     pub anchor_rule: String,
     pub origin: GeoOrigin,
     pub origin_source: &'static str,
+    /// The projected CRSs that placed inputs, and georeferences that could not be used.
+    pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
+    pub georef_warnings: Vec<String>,
     pub dedup: Option<DedupReport>,
     pub textures_prepared: crate::texture::Prepared,
     /// White twin materials added to the scene for merging plain colours per tile.
@@ -102,7 +114,11 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
                 latitude_deg: g.latitude_deg,
                 height_m: g.height_m,
             },
-            "input-site",
+            if g.map_linear.is_some() {
+                "input-crs"
+            } else {
+                "input-site"
+            },
         ),
         (None, None) => (GeoOrigin::DEFAULT, "default"),
     };
@@ -138,6 +154,12 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         anchor_rule,
         origin,
         origin_source,
+        crs_used: scene.crs_used.clone(),
+        georef_warnings: scene
+            .georef_warnings
+            .iter()
+            .map(|w| format!("{}: {}", w.file.display(), w.message))
+            .collect(),
         dedup,
         textures_prepared,
         appearance,

@@ -112,8 +112,14 @@ pub struct LevelReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct GeoReport {
     pub origin: GeoOrigin,
-    /// "option" (from --origin), "input-site" (the input's georeference) or "default".
+    /// "option" (from --origin), "input-crs" (a projected CRS: an IFC map conversion, --crs),
+    /// "input-site" (an IFC site reference, a manifest's origin) or "default".
     pub origin_source: String,
+    /// Every projected CRS that placed an input: which, where it came from, the PROJ operation
+    /// and its accuracy, convergence and scale factor, and how heights were read.
+    pub crs: Vec<crate::geodesy::crs::CrsUse>,
+    /// Georeferences that could not be used (the input was placed without them).
+    pub warnings: Vec<String>,
     /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
     pub anchor_m: [f64; 3],
     pub anchor_rule: String,
@@ -284,6 +290,8 @@ pub(crate) fn make_report(
         georeference: GeoReport {
             origin: prep.origin,
             origin_source: prep.origin_source.into(),
+            crs: prep.crs_used,
+            warnings: prep.georef_warnings,
             anchor_m: prep.anchor.to_array(),
             anchor_rule: prep.anchor_rule,
         },

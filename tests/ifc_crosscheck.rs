@@ -460,7 +460,9 @@ fn read_georef_of(text: &str, tag: &str) -> (Option<IfcGeoref>, IfcReadReport) {
     (g, report)
 }
 
-/// IfcOpenHouse with a site reference and an IfcMapConversion written into it.
+/// IfcOpenHouse with a site reference and an IfcMapConversion written into it: the map
+/// conversion (LoGeoRef 50, a CRS PROJ knows) wins over the site's approximate RefLatitude/Longitude;
+/// with a CRS PROJ does not know, the site reference is used and the report warns.
 #[test]
 fn georef_from_site_and_map_conversion() {
     let Some(text) = open_house_text() else {
@@ -472,29 +474,42 @@ fn georef_from_site_and_map_conversion() {
         eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
         return;
     }
-    let t = with_map_conversion(
-        &text.replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);"),
-        "EPSG:25832",
-        "0.8660254",
+    let with_site = text.replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);");
+    let (g, report) = read_georef_of(
+        &with_map_conversion(&with_site, "EPSG:25832", "0.8660254"),
+        "georef",
     );
-    let (g, report) = read_georef_of(&t, "georef");
     let g = g.expect("georef");
     println!("{g:?}");
-    assert!((g.latitude_deg - (49.0 + 1.0 / 60.0 + 2.5 / 3600.0)).abs() < 1e-9);
-    assert!((g.longitude_deg - (8.0 + 26.0 / 60.0 + 11.0 / 3600.0)).abs() < 1e-9);
-    assert!((g.height_m - 110.0).abs() < 1e-9);
+    assert!(
+        (49.05..49.12).contains(&g.latitude_deg),
+        "the map point: {g:?}"
+    );
     let m = g.map_conversion.as_ref().expect("map conversion");
     assert_eq!(
         (m.eastings, m.northings, m.orthogonal_height),
         (458000.0, 5438000.0, 100.0)
     );
     assert_eq!(m.crs_name.as_deref(), Some("EPSG:25832"));
+    assert_eq!(g.crs.as_ref().unwrap().source, "ifc-name");
     assert_eq!(report.georef, Some(g));
+    assert_eq!(report.georef_warning, None);
+
+    let (g, report) = read_georef_of(
+        &with_map_conversion(&with_site, "EPSG:99999", "0.8660254"),
+        "georef-unknown",
+    );
+    let g = g.expect("the site reference");
+    assert!((g.latitude_deg - (49.0 + 1.0 / 60.0 + 2.5 / 3600.0)).abs() < 1e-9);
+    assert!((g.longitude_deg - (8.0 + 26.0 / 60.0 + 11.0 / 3600.0)).abs() < 1e-9);
+    assert!((g.height_m - 110.0).abs() < 1e-9);
+    let w = report.georef_warning.expect("a warning");
+    assert!(w.contains("EPSG:99999") && !w.contains('\n'), "{w}");
 }
 
 /// IfcOpenHouse with only an IfcMapConversion (no IfcSite reference coordinates), in ETRS89 / UTM
 /// zone 32N: the project origin is placed at the map point, turned by the map's x axis (30°) and
-/// the meridian convergence there; a CRS that is not UTM gives no georeference.
+/// the meridian convergence there; Gauss-Krüger (EPSG:31467) works the same way through PROJ.
 #[test]
 fn georef_from_a_map_conversion_alone() {
     let Some(text) = open_house_text() else {
@@ -508,7 +523,6 @@ fn georef_from_a_map_conversion_alone() {
     let with_crs = |crs: &str| with_map_conversion(&text, crs, "0.8660254037844387");
     let (g, report) = read_georef_of(&with_crs("EPSG:25832"), "mapconv-utm");
     let g = g.expect("a UTM map conversion places the model");
-    let (gauss_krueger, _) = read_georef_of(&with_crs("EPSG:31467"), "mapconv-gk");
     println!("{g:?}");
     // E 458,000 N 5,438,000 in zone 32 (9°E) lies just north of Karlsruhe: a Transverse Mercator
     // point 42 km west of the central meridian, so about 0.57° west of it.
@@ -529,7 +543,14 @@ fn georef_from_a_map_conversion_alone() {
     let north = g.true_north_deg.expect("turned");
     assert!((north - (convergence - 30.0)).abs() < 1e-6, "{north}");
     assert_eq!(report.georef, Some(g));
-    assert_eq!(gauss_krueger, None, "no projection for a non-UTM CRS");
+    // E 3,458,000 in Gauss-Krüger zone 3 (9°E) is the same neighbourhood.
+    let (gk, _) = read_georef_of(
+        &with_map_conversion(&text, "EPSG:31467", "1.").replace("458000.,", "3458000.,"),
+        "mapconv-gk",
+    );
+    let gk = gk.expect("Gauss-Krüger through PROJ");
+    assert!((8.40..8.45).contains(&gk.longitude_deg), "{gk:?}");
+    assert_eq!(gk.crs.unwrap().crs, "EPSG:31467");
 }
 
 /// Moving and turning the site (far away, 30° about z) moves every element with it, to the

@@ -126,6 +126,16 @@ struct ConvertArgs {
     /// Geographic place of the model's anchor: LON,LAT[,HEIGHT] (degrees, degrees, metres on WGS84).
     #[arg(long, value_parser = GeoOrigin::parse, allow_hyphen_values = true)]
     origin: Option<GeoOrigin>,
+    /// Projected CRS of the inputs' map coordinates (EPSG:CODE, a bare code, or a name PROJ
+    /// knows): glTF/GLB positions are easting (+x), northing (-z), height (+y); an IFC
+    /// IfcMapConversion that names no usable CRS is in it.
+    #[arg(long)]
+    crs: Option<String>,
+    /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
+    /// area of use) is an error and nothing is written, instead of a warning and the default
+    /// placement.
+    #[arg(long)]
+    strict_georef: bool,
     /// Split an octree cell while its content has more triangles than this.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_triangles)]
     max_tile_triangles: usize,
@@ -529,6 +539,8 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         out_dir: a.out.clone(),
         force: a.force,
         origin: a.origin,
+        crs: a.crs.clone(),
+        strict_georef: a.strict_georef,
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles.max(1),
             max_tile_bytes: a.max_tile_bytes.max(1),

@@ -273,6 +273,7 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
         height_m: origin.height_m,
         true_north_deg: None,
         anchor: DVec3::ZERO,
+        map_linear: None,
     });
     scene.finish();
     Ok(scene)

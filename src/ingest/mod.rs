@@ -14,6 +14,55 @@ use std::path::Path;
 
 /// Reads any supported input, chosen by content (GLB magic, JSON) and extension.
 pub fn read_input(path: &Path) -> Result<Scene> {
+    read_input_in_crs(path, None)
+}
+
+/// A CRS given for inputs: the text (`EPSG:28992`) and where it came from (`option` for
+/// `--crs`, `manifest` for an entry's `"crs"`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GivenCrs<'a> {
+    pub crs: &'a str,
+    pub source: &'a str,
+}
+
+/// Like [`read_input`], with a CRS for the input's coordinates: an IFC file's IfcMapConversion
+/// that names no usable CRS is in it, and an input with no georeference of its own (glTF, IFC in
+/// map coordinates) has map coordinates of it. A CRS that cannot be used is one warning
+/// ([`Scene::georef_warnings`], stderr) and the default placement.
+pub fn read_input_in_crs(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+    let mut scene = read_input_as_is(path, crs)?;
+    if let (Some(given), None) = (crs, scene.georeference) {
+        if let Err(e) = crate::scene::placement::georeference_map_coordinates(
+            &mut scene,
+            given.crs,
+            given.source,
+        ) {
+            warn_georef(&mut scene, path, format!("--crs {}: {e}", given.crs));
+        }
+    }
+    if let Some(given) = crs {
+        for u in &mut scene.crs_used {
+            if u.source == "option" {
+                u.source = given.source.into();
+            }
+        }
+    }
+    Ok(scene)
+}
+
+/// Records a georeference that could not be used and says so on stderr, once.
+fn warn_georef(scene: &mut Scene, path: &Path, message: String) {
+    eprintln!(
+        "warning: {}: {message}; the model is placed without it",
+        path.display()
+    );
+    scene.georef_warnings.push(crate::scene::GeorefWarning {
+        file: path.to_path_buf(),
+        message,
+    });
+}
+
+fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     if !path.exists() {
         return Err(Error::input(path, "no such file"));
     }
@@ -26,7 +75,7 @@ pub fn read_input(path: &Path) -> Result<Scene> {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     if ext == "ifc" || looks_like_step(path) {
-        return read_ifc(path);
+        return read_ifc(path, crs.map(|c| c.crs));
     }
     gltf::read_gltf(path)
 }
@@ -45,23 +94,33 @@ fn looks_like_step(path: &Path) -> bool {
 }
 
 #[cfg(feature = "ifc")]
-fn read_ifc(path: &Path) -> Result<Scene> {
-    let (mut scene, report) = ifc::read_ifc_with_report(path)?;
+fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
+    let (mut scene, report) = ifc::read_ifc_with_crs(path, crs)?;
     scene.skipped_elements += report.skipped.len();
     // A repeated GlobalId (a broken exporter) must not make two elements one.
     keep_ids_unique(&mut scene);
-    scene.georeference = report.georef.map(|g| crate::scene::SourceGeoreference {
-        longitude_deg: g.longitude_deg,
-        latitude_deg: g.latitude_deg,
-        height_m: g.height_m,
-        true_north_deg: g.true_north_deg,
-        anchor: g.anchor,
-    });
+    scene.georeference = report
+        .georef
+        .as_ref()
+        .map(|g| crate::scene::SourceGeoreference {
+            longitude_deg: g.longitude_deg,
+            latitude_deg: g.latitude_deg,
+            height_m: g.height_m,
+            true_north_deg: g.true_north_deg,
+            anchor: g.anchor,
+            map_linear: g.map_linear,
+        });
+    scene
+        .crs_used
+        .extend(report.georef.and_then(|g| g.crs).into_iter());
+    if let Some(w) = report.georef_warning {
+        warn_georef(&mut scene, path, w);
+    }
     Ok(scene)
 }
 
 #[cfg(not(feature = "ifc"))]
-fn read_ifc(path: &Path) -> Result<Scene> {
+fn read_ifc(path: &Path, _crs: Option<&str>) -> Result<Scene> {
     Err(Error::input(
         path,
         "IFC input needs bimtiles built with the `ifc` feature (cargo build --features ifc)",
@@ -81,11 +140,16 @@ pub fn read_embedded_sample() -> Result<Scene> {
 
 /// Reads several inputs into one scene, in the order given.
 pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
+    read_inputs_in_crs(paths, None)
+}
+
+/// Like [`read_inputs`], every file in `crs` ([`read_input_in_crs`]).
+pub fn read_inputs_in_crs(paths: &[impl AsRef<Path>], crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     // The first scene is taken as it is: appending it to an empty one would copy every vector
     // (briefly twice the metadata of a whole campus).
     let mut scene: Option<Scene> = None;
     for p in paths {
-        let next = read_input(p.as_ref())?;
+        let next = read_input_in_crs(p.as_ref(), crs)?;
         match scene.as_mut() {
             None => scene = Some(next),
             Some(s) => s.append(next),
@@ -125,9 +189,19 @@ impl InputSet {
     }
 
     pub fn read(&self) -> Result<Scene> {
+        self.read_in_crs(None)
+    }
+
+    /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_in_crs`]); a
+    /// manifest's entries name their own.
+    pub fn read_in_crs(&self, crs: Option<&str>) -> Result<Scene> {
+        let given = crs.map(|crs| GivenCrs {
+            crs,
+            source: "option",
+        });
         match self {
             InputSet::Sample => read_embedded_sample(),
-            InputSet::Files(f) => read_inputs(f),
+            InputSet::Files(f) => read_inputs_in_crs(f, given),
             InputSet::Manifest(m) => manifest::read_manifest(m),
         }
     }

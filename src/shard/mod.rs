@@ -186,7 +186,7 @@ pub fn plan(
         }
         std::fs::remove_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     }
-    let mut scene = read_scene(inputs)?;
+    let mut scene = read_scene(inputs, opts)?;
     let prep = prepare(&mut scene, opts);
     let p = &prep.plan;
     let (top, groups) = split(p, jobs);
@@ -261,7 +261,7 @@ struct Loaded {
 fn load(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Loaded> {
     let t0 = Instant::now();
     let file = read_plan(dir)?;
-    let mut scene = read_scene(inputs)?;
+    let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
     let prep = prepare(&mut scene, opts);
     if digest(&prep.plan, opts) != file.plan_digest {

@@ -415,6 +415,12 @@ impl IfcEngine for IfcLite {
                 x_axis_ordinate: g.x_axis_ordinate,
                 scale: g.scale,
                 crs_name: g.crs_name,
+                geodetic_datum: g.geodetic_datum,
+                map_projection: g.map_projection,
+                map_zone: g.map_zone,
+                factors: [g.factor_x, g.factor_y, g.factor_z],
+                map_unit_m: g.map_unit_scale,
+                project_unit_m: scale,
             });
         }
         Ok(out)
