@@ -30,6 +30,16 @@ pub struct TilesetSummary {
     /// From `report.json`, when bimtiles wrote one with levels of detail.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lod_levels: Vec<crate::report::LodLevelReport>,
+    /// Where the tileset was placed (`report.json`'s `georeference`), when bimtiles wrote one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub placement: Option<crate::report::GeoReport>,
+}
+
+/// The `georeference` of the `report.json` in `dir`, if it has a readable one.
+fn read_placement(dir: &Path) -> Option<crate::report::GeoReport> {
+    let text = std::fs::read(dir.join("report.json")).ok()?;
+    let r: Value = serde_json::from_slice(&text).ok()?;
+    serde_json::from_value(r.get("georeference")?.clone()).ok()
 }
 
 /// The `lod_levels` table of the `report.json` in `dir`, empty if there is none (other tools,
@@ -126,6 +136,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         bytes: levels.iter().map(|l| l.bytes).sum(),
         levels,
         lod_levels: read_lod_levels(dir)?,
+        placement: read_placement(dir),
     })
 }
 
@@ -167,6 +178,42 @@ impl std::fmt::Display for TilesetSummary {
                 l.geometric_error_min_m,
                 l.geometric_error_max_m
             )?;
+        }
+        if let Some(g) = &self.placement {
+            writeln!(
+                f,
+                "placed at {:.7}° E, {:.7}° N, {:.3} m (origin: {}); anchor {:.3}, {:.3}, {:.3}: {}",
+                g.origin.longitude_deg,
+                g.origin.latitude_deg,
+                g.origin.height_m,
+                g.origin_source,
+                g.anchor_m[0],
+                g.anchor_m[1],
+                g.anchor_m[2],
+                g.anchor_rule
+            )?;
+            for c in &g.crs {
+                writeln!(
+                    f,
+                    "  {}: {} ({}, from {}) E {:.3} N {:.3} -> {:.7}° E, {:.7}° N; convergence {:.5}°, scale factor {:.7}; PROJ: {} (accuracy {}); height {}",
+                    c.file,
+                    c.crs,
+                    c.crs_name,
+                    c.source,
+                    c.easting,
+                    c.northing,
+                    c.longitude_deg,
+                    c.latitude_deg,
+                    c.convergence_deg,
+                    c.scale_factor,
+                    c.operation,
+                    c.accuracy_m.map_or("unknown".into(), |a| format!("{a} m")),
+                    c.height_reference
+                )?;
+            }
+            for w in &g.warnings {
+                writeln!(f, "  warning: {w}")?;
+            }
         }
         if !self.lod_levels.is_empty() {
             writeln!(

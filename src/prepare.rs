@@ -38,13 +38,18 @@ pub struct InputReport {
 /// georeference that could not be used under `--strict-georef`.
 pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
     let scene = inputs.read_in_crs(opts.crs.as_deref())?;
-    if opts.strict_georef {
-        if let Some(w) = scene.georef_warnings.first() {
-            return Err(Error::input(
-                &w.file,
-                format!("{} (--strict-georef)", w.message),
-            ));
-        }
+    if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
+        return Err(Error::input(
+            &w.file,
+            format!("{} (--strict-georef)", w.message),
+        ));
+    }
+    for w in &scene.georef_warnings {
+        eprintln!(
+            "warning: {}: {}; the model is placed without it",
+            w.file.display(),
+            w.message
+        );
     }
     if scene.triangle_count() == 0 {
         let name = scene

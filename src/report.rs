@@ -109,7 +109,7 @@ pub struct LevelReport {
     pub geometric_error_max_m: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct GeoReport {
     pub origin: GeoOrigin,
     /// "option" (from --origin), "input-crs" (a projected CRS: an IFC map conversion, --crs),
@@ -117,8 +117,10 @@ pub struct GeoReport {
     pub origin_source: String,
     /// Every projected CRS that placed an input: which, where it came from, the PROJ operation
     /// and its accuracy, convergence and scale factor, and how heights were read.
+    #[serde(default)]
     pub crs: Vec<crate::geodesy::crs::CrsUse>,
     /// Georeferences that could not be used (the input was placed without them).
+    #[serde(default)]
     pub warnings: Vec<String>,
     /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
     pub anchor_m: [f64; 3],

@@ -149,7 +149,12 @@ pub fn place_map_point(
     let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
     let created = ctx.create(&definition).map_err(|why| CrsError::Unknown {
         crs: definition.clone(),
-        why,
+        // PROJ says "Unknown error (code 4096)" for a code it does not have.
+        why: if why.starts_with("Unknown error") {
+            "not in its database".into()
+        } else {
+            why
+        },
     })?;
     // A compound CRS (e.g. RD New + NAP height): its horizontal part places the point.
     let crs = match created.kind() {

@@ -31,7 +31,7 @@ pub enum OriginError {
 }
 
 /// A place on WGS84: degrees, degrees, metres above the ellipsoid.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GeoOrigin {
     pub longitude_deg: f64,
     pub latitude_deg: f64,

@@ -28,7 +28,7 @@ pub struct GivenCrs<'a> {
 /// Like [`read_input`], with a CRS for the input's coordinates: an IFC file's IfcMapConversion
 /// that names no usable CRS is in it, and an input with no georeference of its own (glTF, IFC in
 /// map coordinates) has map coordinates of it. A CRS that cannot be used is one warning
-/// ([`Scene::georef_warnings`], stderr) and the default placement.
+/// ([`Scene::georef_warnings`]) and the default placement.
 pub fn read_input_in_crs(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     let mut scene = read_input_as_is(path, crs)?;
     if let (Some(given), None) = (crs, scene.georeference) {
@@ -50,12 +50,9 @@ pub fn read_input_in_crs(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene
     Ok(scene)
 }
 
-/// Records a georeference that could not be used and says so on stderr, once.
+/// Records a georeference that could not be used (`convert` prints it, or fails under
+/// `--strict-georef`).
 fn warn_georef(scene: &mut Scene, path: &Path, message: String) {
-    eprintln!(
-        "warning: {}: {message}; the model is placed without it",
-        path.display()
-    );
     scene.georef_warnings.push(crate::scene::GeorefWarning {
         file: path.to_path_buf(),
         message,
@@ -110,9 +107,7 @@ fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
             anchor: g.anchor,
             map_linear: g.map_linear,
         });
-    scene
-        .crs_used
-        .extend(report.georef.and_then(|g| g.crs).into_iter());
+    scene.crs_used.extend(report.georef.and_then(|g| g.crs));
     if let Some(w) = report.georef_warning {
         warn_georef(&mut scene, path, w);
     }
