@@ -23,6 +23,8 @@ pub struct InputReport {
     pub bytes: u64,
     /// Elements a reader could not use (e.g. IFC elements that failed to triangulate).
     pub skipped_elements: usize,
+    /// IFC products left out because their only geometry is a curve (alignments, footprints).
+    pub curve_only_elements: usize,
     pub triangles: usize,
     pub vertices: usize,
     pub components: usize,
@@ -94,6 +96,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
             .collect(),
         bytes: scene.sources.iter().map(|s| s.bytes).sum(),
         skipped_elements: scene.skipped_elements,
+        curve_only_elements: scene.curve_only_elements,
         triangles: scene.triangle_count(),
         vertices: scene.vertex_count(),
         components: scene.components.len(),

@@ -433,6 +433,8 @@ pub struct Scene {
     pub georef_warnings: Vec<GeorefWarning>,
     /// Elements a reader skipped (broken geometry), counted for the report.
     pub skipped_elements: usize,
+    /// Products left out because their only geometry is a curve (IFC alignments, footprints).
+    pub curve_only_elements: usize,
     pub nodes: Vec<Node>,
     pub components: Vec<Component>,
     /// `elements.get(i)` describes `components[i]` (same length; see [`Scene::push_component`]).
@@ -550,6 +552,7 @@ impl Scene {
             }));
         self.skipped_primitives += other.skipped_primitives;
         self.skipped_elements += other.skipped_elements;
+        self.curve_only_elements += other.curve_only_elements;
         self.renamed_ids += other.renamed_ids;
         self.georeference = self.georeference.or(other.georeference);
         self.crs_used.extend(other.crs_used);

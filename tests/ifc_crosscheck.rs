@@ -19,7 +19,8 @@
 
 mod common;
 use bimtiles::ingest::ifc::{
-    read_ifc_bytes, read_ifc_georef, read_ifc_with_report, IfcGeoref, IfcReadReport,
+    read_ifc_bytes, read_ifc_bytes_with_crs, read_ifc_georef, read_ifc_with_report, IfcGeoref,
+    IfcReadReport,
 };
 use bimtiles::scene::{AlphaMode, PropertyValue, Scene};
 use serde_json::{json, Value};
@@ -726,4 +727,37 @@ fn bad_ifc_input_is_an_error() {
             Ok(Err(e)) => println!("{case}: {e}"),
         }
     }
+}
+
+/// A product whose only representation is a curve (a 1 km road axis, as IfcAlignment's Axis is)
+/// is left out like grids and annotations: no component, no "skipped" warning, counted.
+#[test]
+fn curve_only_products_are_left_out_and_counted() {
+    let Some(text) = open_house_text() else {
+        return;
+    };
+    if !text.contains("#37=IFCLOCALPLACEMENT") || !text.contains("#38=IFCBUILDINGSTOREY") {
+        eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
+        return;
+    }
+    let axis = "#990001=IFCCARTESIANPOINT((0.,0.,0.));\n#990002=IFCCARTESIANPOINT((1000000.,0.,0.));\n\
+        #990003=IFCPOLYLINE((#990001,#990002));\n#990004=IFCSHAPEREPRESENTATION(#11,'Axis','Curve3D',(#990003));\n\
+        #990005=IFCPRODUCTDEFINITIONSHAPE($,$,(#990004));\n\
+        #990006=IFCBUILDINGELEMENTPROXY('0000000000000000000001',#5,'road axis',$,$,#37,#990005,$,$);\n\
+        #990007=IFCRELCONTAINEDINSPATIALSTRUCTURE('0000000000000000000002',#5,$,$,(#990006),#38);\nENDSEC;\nEND-ISO";
+    let with_axis = text.replacen("ENDSEC;\nEND-ISO", axis, 1);
+    let p = Path::new("axis.ifc");
+    let (plain, r0) = read_ifc_bytes_with_crs(p, text.as_bytes(), None).unwrap();
+    let (scene, r1) = read_ifc_bytes_with_crs(p, with_axis.as_bytes(), None).unwrap();
+    assert_eq!(r0.curve_only, 0);
+    assert_eq!(r1.curve_only, 1);
+    assert_eq!(scene.components.len(), plain.components.len());
+    assert!(r1
+        .skipped
+        .iter()
+        .all(|s| s.guid != "0000000000000000000001"));
+    assert!(scene
+        .elements
+        .iter()
+        .all(|e| e.key.as_str() != "0000000000000000000001"));
 }

@@ -94,6 +94,7 @@ fn looks_like_step(path: &Path) -> bool {
 fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
     let (mut scene, report) = ifc::read_ifc_with_crs(path, crs)?;
     scene.skipped_elements += report.skipped.len();
+    scene.curve_only_elements += report.curve_only;
     // A repeated GlobalId (a broken exporter) must not make two elements one.
     keep_ids_unique(&mut scene);
     scene.georeference = report

@@ -91,6 +91,8 @@ pub const SKIPPED_CLASSES: &[(&str, &str)] = &[
     ("IfcGrid", "setting-out lines, not a built object"),
     ("IfcVirtualElement", "an invisible boundary between spaces"),
 ];
+// Products of any class whose only shape representations are curves or points (IfcAlignment's
+// Axis, a FootPrint) are left out too, like grids: counted in `IfcReadReport::curve_only`.
 
 /// Roughness given to every IFC material (IFC surface styles rarely carry PBR data).
 pub const IFC_ROUGHNESS: f32 = 0.85;
@@ -260,6 +262,7 @@ pub fn read_ifc_bytes_with_crs(
         schema: header.schema.clone(),
         georef,
         georef_warning,
+        curve_only: geometry.curve_only.len(),
         ..Default::default()
     };
     let mut scene = assemble(path, bytes.len() as u64, geometry, data, &mut report)?;
