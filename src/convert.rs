@@ -46,7 +46,7 @@ pub fn convert_scene(
     t_ingest: f64,
 ) -> Result<Report> {
     check_output(&opts.out_dir, opts.force)?;
-    let prep = prepare(scene, opts);
+    let prep = prepare(scene, opts)?;
     let plan = &prep.plan;
 
     let staging = StagingDir::beside(&opts.out_dir)?;

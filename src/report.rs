@@ -115,6 +115,10 @@ pub struct Report {
     /// Texture classification, bytes before and per pyramid level, bytes written per level.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub textures: Option<crate::texture::TextureReport>,
+    /// What the user should know although the build succeeded (an image dropped...), one line
+    /// each; the CLI prints them on stderr unless `--quiet`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 pub use crate::memory::peak_memory_bytes;
@@ -248,6 +252,12 @@ pub(crate) fn make_report(
         timings_s: timings,
         peak_memory_bytes: 0,
         memory: None,
+        warnings: prep
+            .textures_prepared
+            .dropped_images
+            .iter()
+            .map(|d| d.to_string())
+            .collect(),
         textures: (prep.textures_prepared.images_bound > 0)
             .then(|| texture_levels.report(prep.textures_prepared)),
     }

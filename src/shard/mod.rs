@@ -187,7 +187,7 @@ pub fn plan(
         std::fs::remove_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     }
     let mut scene = read_scene(inputs)?;
-    let prep = prepare(&mut scene, opts);
+    let prep = prepare(&mut scene, opts)?;
     let p = &prep.plan;
     let (top, groups) = split(p, jobs);
     let tri = |r: &usize| {
@@ -263,7 +263,7 @@ fn load(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Loaded> 
     let file = read_plan(dir)?;
     let mut scene = read_scene(inputs)?;
     let t_ingest = t0.elapsed().as_secs_f64();
-    let prep = prepare(&mut scene, opts);
+    let prep = prepare(&mut scene, opts)?;
     if digest(&prep.plan, opts) != file.plan_digest {
         return Err(Error::input(
             dir.join(PLAN_FILE),
@@ -460,7 +460,7 @@ mod tests {
         let mut scene = crate::ingest::read_embedded_sample().unwrap();
         let mut opts = ConvertOptions::new("unused");
         opts.octree.max_tile_triangles = 1500;
-        let prep = prepare(&mut scene, &opts);
+        let prep = prepare(&mut scene, &opts).unwrap();
         let plan = &prep.plan;
         assert!(plan.tiles.len() > 10);
         for n in 1..=7 {
