@@ -78,7 +78,8 @@ pub fn convert_scene(
     report.timings_s.total = t0.elapsed().as_secs_f64();
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
-    let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
+    let report_json = serde_json::to_vec_pretty(&report)
+        .map_err(|e| Error::output_from(&tmp, "cannot serialize report.json", e))?;
     staging.commit(&[("report.json", &report_json)])?;
     Ok(report)
 }
@@ -125,8 +126,10 @@ pub fn simplify_model(
     let tile =
         encode_tile(&out, &items, center, &enc, None).map_err(|e| Error::encode(output, e))?;
     let tmp = output.with_extension("glb.tmp");
-    std::fs::write(&tmp, &tile.glb).map_err(|e| Error::output(&tmp, e))?;
-    std::fs::rename(&tmp, output).map_err(|e| Error::output(output, e))?;
+    std::fs::write(&tmp, &tile.glb).map_err(|e| Error::output_from(&tmp, "cannot write", e))?;
+    std::fs::rename(&tmp, output).map_err(|e| {
+        Error::output_from(output, "cannot rename the written file to this name", e)
+    })?;
     Ok(SimplifyReport {
         input: input.display().to_string(),
         output: output.display().to_string(),
