@@ -46,7 +46,7 @@ pub fn convert_scene(
     t_ingest: f64,
 ) -> Result<Report> {
     check_output(&opts.out_dir, opts.force)?;
-    let prep = prepare(scene, opts);
+    let prep = prepare(scene, opts)?;
     let plan = &prep.plan;
 
     let staging = StagingDir::beside(&opts.out_dir)?;
@@ -61,11 +61,11 @@ pub fn convert_scene(
         writer.finish_progress();
         let t_encode = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let stats = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
-        Ok((stats, t_encode, t.elapsed().as_secs_f64()))
+        let records = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
+        Ok((records, t_encode, t.elapsed().as_secs_f64()))
     })();
     // On an error the staging folder is removed when `staging` is dropped.
-    let (facts_bytes, t_encode, t_tileset) = result?;
+    let (records, t_encode, t_tileset) = result?;
     let timings = Timings {
         ingest: t_ingest,
         dedup: prep.t_dedup,
@@ -74,11 +74,12 @@ pub fn convert_scene(
         tileset: t_tileset,
         total: 0.0,
     };
-    let mut report = make_report(prep, &facts_bytes, opts, &tmp, timings, texture_levels);
+    let mut report = make_report(prep, records, opts, &tmp, timings, texture_levels);
     report.timings_s.total = t0.elapsed().as_secs_f64();
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
-    let report_json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(&tmp, e))?;
+    let report_json = serde_json::to_vec_pretty(&report)
+        .map_err(|e| Error::output_from(&tmp, "cannot serialize report.json", e))?;
     staging.commit(&[("report.json", &report_json)])?;
     Ok(report)
 }
@@ -125,13 +126,15 @@ pub fn simplify_model(
     let tile =
         encode_tile(&out, &items, center, &enc, None).map_err(|e| Error::encode(output, e))?;
     let tmp = output.with_extension("glb.tmp");
-    std::fs::write(&tmp, &tile.glb).map_err(|e| Error::output(&tmp, e))?;
-    std::fs::rename(&tmp, output).map_err(|e| Error::output(output, e))?;
+    std::fs::write(&tmp, &tile.glb).map_err(|e| Error::output_from(&tmp, "cannot write", e))?;
+    std::fs::rename(&tmp, output).map_err(|e| {
+        Error::output_from(output, "cannot rename the written file to this name", e)
+    })?;
     Ok(SimplifyReport {
         input: input.display().to_string(),
         output: output.display().to_string(),
         triangles_in,
-        triangles_out: tile.triangles,
+        triangles_out: tile.figures.triangles,
         error_m,
         seconds: t0.elapsed().as_secs_f64(),
     })

@@ -49,20 +49,20 @@ fn read_lod_levels(dir: &Path) -> Result<Vec<crate::report::LodLevelReport>> {
     let Ok(text) = std::fs::read(&path) else {
         return Ok(Vec::new());
     };
-    let r: Value = serde_json::from_slice(&text)
-        .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+    let r: Value =
+        serde_json::from_slice(&text).map_err(|e| Error::input_from(&path, "invalid JSON", e))?;
     match r.get("lod_levels") {
         None => Ok(Vec::new()),
         Some(l) => serde_json::from_value(l.clone())
-            .map_err(|e| Error::input(&path, format!("unreadable lod_levels: {e}"))),
+            .map_err(|e| Error::input_from(&path, "unreadable lod_levels", e)),
     }
 }
 
 /// Triangle count of a GLB: sum of index counts (or vertex counts) / 3 over triangle primitives.
 pub fn glb_triangle_count(path: &Path) -> Result<u64> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     let g = gltf::Gltf::from_slice_without_validation(&bytes)
-        .map_err(|e| Error::input(path, format!("not a valid GLB: {e}")))?;
+        .map_err(|e| Error::input_from(path, "not a valid GLB", e))?;
     let mut tris = 0u64;
     for m in g.document.meshes() {
         for p in m.primitives() {
@@ -82,9 +82,9 @@ pub fn glb_triangle_count(path: &Path) -> Result<u64> {
 pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
     let ts_path = dir.join("tileset.json");
     let text =
-        std::fs::read(&ts_path).map_err(|e| Error::input(&ts_path, format!("cannot read: {e}")))?;
+        std::fs::read(&ts_path).map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
     let ts: Value = serde_json::from_slice(&text)
-        .map_err(|e| Error::input(&ts_path, format!("invalid JSON: {e}")))?;
+        .map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
     let root = ts
         .get("root")
         .ok_or_else(|| Error::input(&ts_path, "no root tile"))?;
@@ -111,7 +111,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
             let p = dir.join(uri);
             l.tiles_with_content += 1;
             l.bytes += std::fs::metadata(&p)
-                .map_err(|e| Error::input(&p, e.to_string()))?
+                .map_err(|e| Error::input_from(&p, "cannot read", e))?
                 .len();
             l.triangles += glb_triangle_count(&p)?;
         }
@@ -346,10 +346,10 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
 pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let summary_tiles = {
         let ts_path = dir.join("tileset.json");
-        let text = std::fs::read(&ts_path)
-            .map_err(|e| Error::input(&ts_path, format!("cannot read: {e}")))?;
+        let text =
+            std::fs::read(&ts_path).map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
         let ts: Value = serde_json::from_slice(&text)
-            .map_err(|e| Error::input(&ts_path, format!("invalid JSON: {e}")))?;
+            .map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
         let mut uris = Vec::new();
         let mut stack = vec![ts["root"].clone()];
         while let Some(t) = stack.pop() {
@@ -366,12 +366,11 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
     for uri in summary_tiles {
         let path = dir.join(&uri);
-        let bytes =
-            std::fs::read(&path).map_err(|e| Error::input(&path, format!("cannot read: {e}")))?;
+        let bytes = std::fs::read(&path).map_err(|e| Error::input_from(&path, "cannot read", e))?;
         let glb = gltf::binary::Glb::from_slice(&bytes)
-            .map_err(|e| Error::input(&path, format!("not a GLB: {e}")))?;
+            .map_err(|e| Error::input_from(&path, "not a GLB", e))?;
         let doc: Value = serde_json::from_slice(&glb.json)
-            .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+            .map_err(|e| Error::input_from(&path, "invalid JSON", e))?;
         let Some(ext) = doc.pointer("/extensions/EXT_structural_metadata") else {
             continue;
         };
@@ -383,10 +382,10 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
             (None, Some(u)) => {
                 let p = path.parent().unwrap_or(dir).join(u);
                 if !schemas.contains_key(&p) {
-                    let t = std::fs::read(&p)
-                        .map_err(|e| Error::input(&p, format!("cannot read: {e}")))?;
+                    let t =
+                        std::fs::read(&p).map_err(|e| Error::input_from(&p, "cannot read", e))?;
                     let v: Value = serde_json::from_slice(&t)
-                        .map_err(|e| Error::input(&p, format!("invalid JSON: {e}")))?;
+                        .map_err(|e| Error::input_from(&p, "invalid JSON", e))?;
                     schemas.insert(p.clone(), v);
                 }
                 schemas[&p].clone()

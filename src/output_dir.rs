@@ -21,7 +21,7 @@ pub(crate) fn check_output(out: &Path, force: bool) -> Result<()> {
         return Err(Error::output(out, "output path exists and is not a folder"));
     }
     let empty = std::fs::read_dir(out)
-        .map_err(|e| Error::output(out, e))?
+        .map_err(|e| Error::output_from(out, "cannot list the folder", e))?
         .next()
         .is_none();
     if !empty && !out.join("tileset.json").exists() {
@@ -45,7 +45,7 @@ pub(crate) fn write_renamed(path: &Path, bytes: &[u8]) -> Result<()> {
         .and_then(|()| std::fs::rename(&tmp, path))
         .map_err(|e| {
             let _ = std::fs::remove_file(&tmp);
-            Error::output(path, e)
+            Error::output_from(path, "cannot write", e)
         })
 }
 
@@ -67,10 +67,12 @@ impl StagingDir {
             .to_string_lossy()
             .to_string();
         let parent = parent_of(out);
-        std::fs::create_dir_all(parent).map_err(|e| Error::output(parent, e))?;
+        std::fs::create_dir_all(parent)
+            .map_err(|e| Error::output_from(parent, "cannot create the folder", e))?;
         let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
         if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(|e| Error::output(&tmp, e))?;
+            std::fs::remove_dir_all(&tmp)
+                .map_err(|e| Error::output_from(&tmp, "cannot remove a stale build folder", e))?;
         }
         Ok(StagingDir {
             out: out.to_path_buf(),
@@ -106,7 +108,7 @@ impl StagingDir {
             }
             Ok(())
         };
-        finish().map_err(|e| Error::output(&out, e))?;
+        finish().map_err(|e| Error::output_from(&out, "cannot put the tileset in place", e))?;
         self.committed = true;
         Ok(())
     }

@@ -12,6 +12,7 @@ use crate::partition::{plan_octree, TilePlan};
 use crate::scene::placement::Placement;
 use crate::scene::Scene;
 use crate::simplify::lod_chain::with_lod_chains;
+use crate::texture::admit::ImageLimits;
 use glam::DVec3;
 use serde::Serialize;
 use std::time::Instant;
@@ -86,8 +87,9 @@ pub(crate) struct Prepared {
     pub t_partition: f64,
 }
 
-/// Place, dedup, texture preparation and the octree plan.
-pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
+/// Place, dedup, texture preparation and the octree plan. Fails on an image over the limits
+/// (`crate::texture::admit`).
+pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepared> {
     let input = InputReport {
         files: scene
             .sources
@@ -136,7 +138,9 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
     let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
     let t_dedup = t_dedup_start.elapsed().as_secs_f64();
 
-    let textures_prepared = crate::texture::prepare(scene, &opts.texture);
+    let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes as u64));
+    let textures_prepared = crate::texture::prepare(scene, &opts.texture, &limits)
+        .map_err(|(file, refused)| Error::input(file, refused.to_string()))?;
     let merge_materials = opts
         .merge_plain_materials
         .unwrap_or_else(|| default_merge_plain_materials(opts.compression));
@@ -156,7 +160,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         LodMode::None => {}
     }
     let t_partition = t1.elapsed().as_secs_f64();
-    Prepared {
+    Ok(Prepared {
         input,
         anchor,
         anchor_rule,
@@ -175,5 +179,5 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         chain_level,
         t_dedup,
         t_partition,
-    }
+    })
 }

@@ -2,8 +2,8 @@
 //! georeference, timings, memory, textures) and how a finished build's figures become it.
 //! `inspect` reads it back.
 
-use crate::build::TileStats;
 use crate::dedup::DedupReport;
+use crate::encode::TileRecord;
 use crate::geodesy::GeoOrigin;
 use crate::options::{default_min_instanced_triangles_saved, ConvertOptions, ErrorMetric, LodMode};
 use crate::prepare::{InputReport, Prepared};
@@ -30,47 +30,6 @@ pub struct OutputReport {
     pub instances: usize,
     /// Bytes of the property tables (EXT_structural_metadata) over all tiles.
     pub metadata_bytes: u64,
-}
-
-/// One tile, for scripts that want more than the per-level summary.
-#[derive(Debug, Clone, Serialize)]
-pub struct TileReport {
-    pub path: String,
-    pub depth: u32,
-    pub content: Option<String>,
-    pub features: usize,
-    pub triangles: usize,
-    pub stored_triangles: usize,
-    pub instances: usize,
-    pub bytes: u64,
-    pub metadata_bytes: u64,
-    pub geometric_error_m: f64,
-    /// HLOD tiles: the triangles their content was simplified from (their children's content).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub simplified_from_triangles: Option<usize>,
-    /// HLOD tiles: largest distance measured from full detail to this tile's content (metres).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub full_to_coarse_m: Option<f64>,
-    /// HLOD tiles: bound of the distance from this tile's content to full detail (metres).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub coarse_to_full_bound_m: Option<f64>,
-    /// Simplified tiles: the measured error (the geometricError under `--error-metric measured`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub measured_error_m: Option<f64>,
-    /// Simplified tiles: longest edge collapsed between full detail and this content (metres).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub max_folding_edge_m: Option<f64>,
-    /// Simplified tiles: the paper's error of that edge (the geometricError under
-    /// `--error-metric paper-sse`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub paper_error_m: Option<f64>,
-    /// Simplified tiles: the largest per-axis position error quantization may add (metres; full
-    /// detail has 1 mm with `draco` and `quantized`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub max_position_error_m: Option<f64>,
-    /// Discrete chains: the tile's LOD (0 = full detail).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub lod_level: Option<usize>,
 }
 
 /// One level of detail, as the paper's Table I (LOD level, patches, maximum folding edge length,
@@ -147,7 +106,8 @@ pub struct Report {
     /// The levels of detail as the paper's Table I (absent without LOD).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lod_levels: Vec<LodLevelReport>,
-    pub tiles: Vec<TileReport>,
+    /// Every tile, for scripts that want more than the per-level summary.
+    pub tiles: Vec<TileRecord>,
     pub georeference: GeoReport,
     /// What dedup found (absent when it was turned off).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -163,6 +123,10 @@ pub struct Report {
     /// Texture classification, bytes before and per pyramid level, bytes written per level.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub textures: Option<crate::texture::TextureReport>,
+    /// What the user should know although the build succeeded (an image dropped...), one line
+    /// each; the CLI prints them on stderr unless `--quiet`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 pub use crate::memory::peak_memory_bytes;
@@ -197,10 +161,10 @@ impl MemoryReport {
 }
 
 /// The report of a finished build in `dir` (tileset.json and schema.json written), from the tiles'
-/// figures; timings and peak memory are the caller's.
+/// records (in plan order); timings and peak memory are the caller's.
 pub(crate) fn make_report(
     prep: Prepared,
-    facts_bytes: &[TileStats],
+    tiles: Vec<TileRecord>,
     opts: &ConvertOptions,
     dir: &Path,
     timings: Timings,
@@ -211,40 +175,15 @@ pub(crate) fn make_report(
     let (mut out_tris, mut out_verts, mut out_stored, mut out_shapes, mut out_instances) =
         (0, 0, 0, 0, 0);
     let mut out_bytes = 0u64;
-    let mut tiles = Vec::new();
-    for (t, st) in plan.tiles.iter().zip(facts_bytes) {
-        let (ge, bytes, tris, verts) = (
-            &st.geometric_error_m,
-            &st.bytes,
-            &st.triangles,
-            &st.vertices,
-        );
+    for t in &tiles {
+        let c = &t.content;
+        let (ge, bytes, tris) = (&t.geometric_error_m, &c.bytes, &c.triangles);
         out_tris += tris;
-        out_verts += verts;
-        out_stored += st.stored_triangles;
-        out_shapes += st.instanced_shapes;
-        out_instances += st.instances;
+        out_verts += c.vertices;
+        out_stored += c.stored_triangles;
+        out_shapes += c.instanced_shapes;
+        out_instances += c.instances;
         out_bytes += bytes;
-        tiles.push(TileReport {
-            path: t.path.clone(),
-            depth: t.depth,
-            content: st.uri.clone(),
-            features: st.features,
-            triangles: st.triangles,
-            stored_triangles: st.stored_triangles,
-            instances: st.instances,
-            bytes: st.bytes,
-            metadata_bytes: st.metadata_bytes,
-            geometric_error_m: st.geometric_error_m,
-            simplified_from_triangles: st.simplified_from_triangles,
-            full_to_coarse_m: st.full_to_coarse_m,
-            coarse_to_full_bound_m: st.coarse_to_full_bound_m,
-            measured_error_m: st.measured_error_m,
-            max_folding_edge_m: st.max_folding_edge_m,
-            paper_error_m: st.paper_error_m,
-            max_position_error_m: st.max_position_error_m,
-            lod_level: prep.chain_level.get(tiles.len()).copied().flatten(),
-        });
         let d = t.depth as usize;
         while levels.len() <= d {
             levels.push(LevelReport {
@@ -273,14 +212,14 @@ pub(crate) fn make_report(
         output: OutputReport {
             bytes: out_bytes + tileset_bytes,
             tiles: plan.tiles.len(),
-            tiles_with_content: tiles.iter().filter(|t| t.content.is_some()).count(),
+            tiles_with_content: tiles.iter().filter(|t| t.uri.is_some()).count(),
             max_depth: plan.max_depth(),
             triangles: out_tris,
             vertices: out_verts,
             stored_triangles: out_stored,
             instanced_shapes: out_shapes,
             instances: out_instances,
-            metadata_bytes: tiles.iter().map(|t| t.metadata_bytes).sum(),
+            metadata_bytes: tiles.iter().map(|t| t.content.metadata_bytes).sum(),
         },
         levels,
         lod_levels: if opts.lod == LodMode::None {
@@ -293,7 +232,7 @@ pub(crate) fn make_report(
             origin: prep.origin,
             origin_source: prep.origin_source.into(),
             crs: prep.crs_used,
-            warnings: prep.georef_warnings,
+            warnings: prep.georef_warnings.clone(),
             anchor_m: prep.anchor.to_array(),
             anchor_rule: prep.anchor_rule,
         },
@@ -323,6 +262,17 @@ pub(crate) fn make_report(
         timings_s: timings,
         peak_memory_bytes: 0,
         memory: None,
+        warnings: prep
+            .georef_warnings
+            .iter()
+            .cloned()
+            .chain(
+                prep.textures_prepared
+                    .dropped_images
+                    .iter()
+                    .map(|d| d.to_string()),
+            )
+            .collect(),
         textures: (prep.textures_prepared.images_bound > 0)
             .then(|| texture_levels.report(prep.textures_prepared)),
     }
@@ -348,10 +298,10 @@ distance bound: compare measured_error_m (the honest value) per tile and measure
 
 /// The paper's Table I from the tile reports: one row for full detail, then one per chain level
 /// (chains) or per HLOD depth, deepest first.
-pub(crate) fn lod_levels(tiles: &[TileReport], lod: &LodMode) -> Vec<LodLevelReport> {
+pub(crate) fn lod_levels(tiles: &[TileRecord], lod: &LodMode) -> Vec<LodLevelReport> {
     let v = ViewOptions::default();
     let mut rows: BTreeMap<(i64, String), LodLevelReport> = BTreeMap::new();
-    for t in tiles.iter().filter(|t| t.content.is_some()) {
+    for t in tiles.iter().filter(|t| t.uri.is_some()) {
         let key = match (lod, t.lod_level, t.measured_error_m) {
             (LodMode::Ratios(r), Some(k), _) if k > 0 => {
                 (k as i64, format!("LOD{k} (ratio {:.2})", r[k - 1]))
@@ -374,7 +324,7 @@ pub(crate) fn lod_levels(tiles: &[TileReport], lod: &LodMode) -> Vec<LodLevelRep
             measured_sse_px: 0.0,
         });
         row.tiles += 1;
-        row.patches += t.triangles;
+        row.patches += t.content.triangles;
         row.max_folding_edge_m = row
             .max_folding_edge_m
             .max(t.max_folding_edge_m.unwrap_or(0.0));

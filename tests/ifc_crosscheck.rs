@@ -713,7 +713,8 @@ fn bad_ifc_input_is_an_error() {
         let r = r.unwrap_or_else(|_| panic!("{case}: panicked"));
         let e = match r {
             Ok(_) => panic!("{case}: read without error"),
-            Err(e) => e.to_string(),
+            // The one line the CLI prints: the error and its sources (the STEP or IFC error).
+            Err(e) => bimtiles::error::chain_text(&e),
         };
         println!("{case}: {e}");
         assert!(e.starts_with("bad.ifc: "), "{case}: names the file: {e}");
@@ -724,7 +725,7 @@ fn bad_ifc_input_is_an_error() {
         match r {
             Err(_) => panic!("{case}: panicked"),
             Ok(Ok(s)) => println!("{case}: read, {} elements", s.components.len()),
-            Ok(Err(e)) => println!("{case}: {e}"),
+            Ok(Err(e)) => println!("{case}: {}", bimtiles::error::chain_text(&e)),
         }
     }
 }

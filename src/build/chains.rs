@@ -1,12 +1,13 @@
 //! The paper's discrete LOD chains (III.C, Table IV; `--lod-ratios`): every leaf becomes a chain
 //! of tiles with its bounds, coarsest first, full detail last.
 
+use super::gather;
 use super::hlod::{continuing, declared_error, with_quantization, WriteTile};
-use super::{gather, TileStats};
+use crate::encode::TileRecord;
 use crate::error::{Error, Result};
 use crate::options::ConvertOptions;
 use crate::partition::TilePlan;
-use crate::scene::{Aabb, Scene};
+use crate::scene::Scene;
 use crate::simplify::lod_chain::chain_levels;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -21,21 +22,18 @@ pub(crate) fn build_chains(
     ratios: &[f32],
     opts: &ConvertOptions,
     write: &WriteTile<'_>,
-) -> Result<Vec<(usize, Aabb, TileStats)>> {
+) -> Result<Vec<(usize, TileRecord)>> {
     let n = ratios.len();
     let fulls: Vec<usize> = (0..plan.tiles.len())
         .filter(|&i| chain_level[i] == Some(0))
         .collect();
-    let built: Vec<Vec<(usize, Aabb, TileStats)>> = fulls
+    let built: Vec<Vec<(usize, TileRecord)>> = fulls
         .par_iter()
-        .map(|&i| -> Result<Vec<(usize, Aabb, TileStats)>> {
+        .map(|&i| -> Result<Vec<(usize, TileRecord)>> {
             let tile = &plan.tiles[i];
             let center = tile.content_bounds.center();
             let content = gather(scene, opts, &tile.content, center);
-            let mut out = vec![{
-                let (b, st) = write(i, &content, TileStats::default())?;
-                (i, b, st)
-            }];
+            let mut out = vec![(i, write(i, &content, TileRecord::default())?)];
             let full = content.expand();
             let mut cut = BTreeMap::new();
             for item in &tile.content {
@@ -60,7 +58,7 @@ pub(crate) fn build_chains(
                 let (ge, paper) =
                     declared_error(opts.error_metric, measured, l.max_collapsed_edge_m, below);
                 below = ge;
-                let st = TileStats {
+                let record = TileRecord {
                     geometric_error_m: ge,
                     simplified_from_triangles: Some(full.triangle_count()),
                     full_to_coarse_m: Some(l.error.full_to_coarse_m),
@@ -73,16 +71,15 @@ pub(crate) fn build_chains(
                 };
                 let at = i - (k + 1);
                 debug_assert_eq!(chain_level[at], Some(k + 1));
-                let (b, st) = write(at, &l.content, st)?;
-                out.push((at, b, st));
+                out.push((at, write(at, &l.content, record)?));
             }
             debug_assert_eq!(levels.len(), n);
             Ok(out)
         })
         .collect::<Result<_>>()?;
-    let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
-    for (i, b, st) in built.into_iter().flatten() {
-        slots[i] = Some((b, st));
+    let mut slots: Vec<Option<TileRecord>> = vec![None; plan.tiles.len()];
+    for (i, record) in built.into_iter().flatten() {
+        slots[i] = Some(record);
     }
     // Internal tiles (pre-order: children after parents).
     for i in (0..plan.tiles.len()).rev() {
@@ -93,27 +90,18 @@ pub(crate) fn build_chains(
         let children_max = t
             .children
             .iter()
-            .filter_map(|&c| slots[c].as_ref().map(|s| s.1.geometric_error_m))
+            .filter_map(|&c| slots[c].as_ref().map(|s| s.geometric_error_m))
             .fold(0.0, f64::max);
         let ge = if t.children.is_empty() {
             0.0
         } else {
             t.bounds.diagonal().max(children_max * (1.0 + 1e-6) + 1e-6)
         };
-        slots[i] = Some((
-            Aabb::EMPTY,
-            TileStats {
-                geometric_error_m: ge,
-                ..Default::default()
-            },
-        ));
+        slots[i] = Some(TileRecord::with_error(ge));
     }
     Ok(slots
         .into_iter()
         .enumerate()
-        .map(|(i, s)| {
-            let (b, st) = s.expect("every tile built");
-            (i, b, st)
-        })
+        .map(|(i, s)| (i, s.expect("every tile built")))
         .collect())
 }

@@ -2,14 +2,15 @@
 //! with our QEM, built bottom-up with children in parallel; its declared geometricError is
 //! measured against the full detail it stands for (honest), held above its children's.
 
-use super::{gather, TileStats};
+use super::gather;
 use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
 use crate::encode::Compression;
+use crate::encode::TileRecord;
 use crate::error::{Error, Result};
 use crate::options::{ConvertOptions, ErrorMetric};
 use crate::partition::content::TileContent;
 use crate::partition::TilePlan;
-use crate::scene::{Aabb, ComponentId, Scene};
+use crate::scene::{ComponentId, Scene};
 use crate::simplify::hlod::{simplify_children, ErrorReference, HlodContent};
 use crate::tileset::view::{
     framed_error_m, paper_geometric_error_m, ViewOptions, PAPER_MAX_DELTA_PX,
@@ -32,7 +33,7 @@ pub(crate) struct BuiltSubtree {
 }
 
 pub(crate) type WriteTile<'a> =
-    dyn Fn(usize, &TileContent, TileStats) -> Result<(Aabb, TileStats)> + Sync + 'a;
+    dyn Fn(usize, &TileContent, TileRecord) -> Result<TileRecord> + Sync + 'a;
 
 /// Builds HLOD content bottom-up, children in parallel; each tile is written as soon as it is made
 /// and only its content travels up to its parent.
@@ -41,7 +42,7 @@ pub(crate) struct HlodBuilder<'a> {
     pub(crate) plan: &'a TilePlan,
     pub(crate) opts: &'a ConvertOptions,
     pub(crate) write: &'a WriteTile<'a>,
-    pub(crate) slots: &'a [std::sync::Mutex<Option<(Aabb, TileStats)>>],
+    pub(crate) slots: &'a [std::sync::Mutex<Option<TileRecord>>],
     /// Tiles not to build: their subtrees were built elsewhere (sharded jobs) and their roots'
     /// results are in `provided`.
     pub(crate) stop: &'a std::collections::BTreeSet<usize>,
@@ -83,7 +84,7 @@ impl HlodBuilder<'_> {
                     *cut_triangles.entry(item.component).or_default() += t.len();
                 }
             }
-            let written = (self.write)(i, &content, TileStats::default())?;
+            let written = (self.write)(i, &content, TileRecord::default())?;
             *self.slots[i].lock().expect("slot") = Some(written);
             BuiltSubtree {
                 // Parents simplify one surface: instances go up as plain geometry.
@@ -186,7 +187,7 @@ impl HlodBuilder<'_> {
             let (ge, paper) =
                 declared_error(self.opts.error_metric, measured, folding, children_max);
             drop(kids);
-            let st = TileStats {
+            let record = TileRecord {
                 geometric_error_m: ge,
                 simplified_from_triangles: Some(r.input_triangles),
                 full_to_coarse_m: Some(err.full_to_coarse_m),
@@ -197,7 +198,7 @@ impl HlodBuilder<'_> {
                 max_position_error_m: Some(position_error),
                 ..Default::default()
             };
-            let written = (self.write)(i, &r.content, st)?;
+            let written = (self.write)(i, &r.content, record)?;
             *self.slots[i].lock().expect("slot") = Some(written);
             BuiltSubtree {
                 content: r.content,

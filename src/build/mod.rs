@@ -7,7 +7,7 @@ pub mod chains;
 pub mod hlod;
 
 use crate::encode::glb::encode_content_with_images;
-use crate::encode::TileEncoding;
+use crate::encode::{TileEncoding, TileRecord};
 use crate::error::{Error, Result};
 use crate::geodesy::GeoOrigin;
 use crate::options::{
@@ -17,9 +17,9 @@ use crate::output_dir::write_renamed;
 use crate::partition::content::{AppearanceClasses, TileContent};
 use crate::partition::{ContentItem, TilePlan};
 use crate::prepare::Prepared;
-use crate::scene::{Aabb, Scene};
+use crate::scene::Scene;
 use crate::tileset::metadata::{MetadataSchema, TableScope};
-use crate::tileset::{tileset_json, Refine, TileFacts};
+use crate::tileset::{tileset_json, Refine};
 use chains::build_chains;
 use glam::DVec3;
 use hlod::{BuiltSubtree, HlodBuilder};
@@ -59,29 +59,6 @@ pub(crate) fn gather(
     }
 }
 
-/// What writing one tile gave.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub(crate) struct TileStats {
-    pub uri: Option<String>,
-    pub geometric_error_m: f64,
-    pub bytes: u64,
-    pub triangles: usize,
-    pub vertices: usize,
-    pub stored_triangles: usize,
-    pub instanced_shapes: usize,
-    pub instances: usize,
-    pub features: usize,
-    pub metadata_bytes: u64,
-    pub simplified_from_triangles: Option<usize>,
-    pub full_to_coarse_m: Option<f64>,
-    pub coarse_to_full_bound_m: Option<f64>,
-    pub measured_error_m: Option<f64>,
-    pub max_folding_edge_m: Option<f64>,
-    pub paper_error_m: Option<f64>,
-    /// Largest per-axis position error quantization may add (`None`: the encoding's default).
-    pub max_position_error_m: Option<f64>,
-}
-
 /// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
 /// renamed, so a killed process leaves no tile under its final name half-written), and assembles
 /// the tileset from the tiles' figures. Used by `convert` (one job over the whole tree) and by the
@@ -100,11 +77,11 @@ pub(crate) struct TileWriter<'a> {
     pb: indicatif::ProgressBar,
 }
 
-/// What building some subtrees gave: the figures of every tile written, and (HLOD) what each
-/// subtree root hands its parent.
+/// What building some subtrees gave: the record of every tile written (with its plan index), and
+/// (HLOD) what each subtree root hands its parent.
 #[derive(Debug, Default, PartialEq)]
 pub(crate) struct JobOutput {
-    pub tiles: Vec<(usize, Aabb, TileStats)>,
+    pub tiles: Vec<(usize, TileRecord)>,
     pub roots: Vec<(usize, BuiltSubtree)>,
 }
 
@@ -120,7 +97,8 @@ impl<'a> TileWriter<'a> {
     ) -> Result<Self> {
         let (plan, appearance, chain_level) = (&prep.plan, &prep.appearance, &prep.chain_level);
         let tiles_dir = dir.join("tiles");
-        std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
+        std::fs::create_dir_all(&tiles_dir)
+            .map_err(|e| Error::output_from(&tiles_dir, "cannot create the folder", e))?;
         Ok(TileWriter {
             scene,
             plan,
@@ -143,19 +121,14 @@ impl<'a> TileWriter<'a> {
         self.pb.finish_and_clear();
     }
 
-    fn write(
-        &self,
-        i: usize,
-        content: &TileContent,
-        mut st: TileStats,
-    ) -> Result<(Aabb, TileStats)> {
+    fn write(&self, i: usize, content: &TileContent, mut record: TileRecord) -> Result<TileRecord> {
         let (scene, opts, textures) = (self.scene, self.opts, self.textures);
         let tile = &self.plan.tiles[i];
         let uri = format!("tiles/{}.glb", tile.path);
         let path = self.dir.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
         let texture_error = if opts.lod != LodMode::None {
-            st.geometric_error_m
+            record.geometric_error_m
         } else {
             0.0
         };
@@ -169,7 +142,10 @@ impl<'a> TileWriter<'a> {
         let content = atlas.as_ref().map_or(content, |a| &a.content);
         let image = |id| textures.image_for(id, &chosen, atlas.as_ref());
         let sampled_px = atlas.as_ref().map(|a| a.texels_px()).unwrap_or_default();
-        let scope = match (st.simplified_from_triangles, opts.coarse_tile_properties) {
+        let scope = match (
+            record.simplified_from_triangles,
+            opts.coarse_tile_properties,
+        ) {
             (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
             _ => TableScope::All,
         };
@@ -179,7 +155,7 @@ impl<'a> TileWriter<'a> {
         };
         let coarse_encoding;
         // Simplified content: its own position grid, its normals from the faces as drawn.
-        let encoding = match st.max_position_error_m {
+        let encoding = match record.max_position_error_m {
             Some(e) => {
                 coarse_encoding = TileEncoding {
                     max_position_error_m: e,
@@ -201,16 +177,9 @@ impl<'a> TileWriter<'a> {
         .map_err(|e| Error::encode(&path, e))?;
         write_renamed(&path, &enc.glb)?;
         self.pb.inc(1);
-        st.uri = Some(uri);
-        st.bytes = enc.glb.len() as u64;
-        st.triangles = enc.triangles;
-        st.vertices = enc.vertices;
-        st.stored_triangles = enc.stored_triangles;
-        st.instanced_shapes = enc.instanced_shapes;
-        st.instances = enc.instances;
-        st.features = enc.features.len();
-        st.metadata_bytes = enc.metadata_bytes as u64;
-        Ok((enc.bounds, st))
+        record.uri = Some(uri);
+        record.content = enc.figures;
+        Ok(record)
     }
 
     /// Builds and writes the subtrees under `roots`, not descending into tiles of `stop`, whose
@@ -222,7 +191,8 @@ impl<'a> TileWriter<'a> {
         provided: BTreeMap<usize, BuiltSubtree>,
     ) -> Result<JobOutput> {
         let (scene, plan, opts) = (self.scene, self.plan, self.opts);
-        let write = |i: usize, content: &TileContent, st: TileStats| self.write(i, content, st);
+        let write =
+            |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
         match &opts.lod {
             LodMode::None => {
                 let mut owned = Vec::new();
@@ -237,18 +207,14 @@ impl<'a> TileWriter<'a> {
                     .par_iter()
                     .map(|&i| {
                         let tile = &plan.tiles[i];
-                        let st = TileStats {
-                            geometric_error_m: tile.omitted_size_m,
-                            ..Default::default()
-                        };
+                        let record = TileRecord::with_error(tile.omitted_size_m);
                         if tile.content.is_empty() {
                             self.pb.inc(1);
-                            return Ok((i, Aabb::EMPTY, st));
+                            return Ok((i, record));
                         }
                         let content =
                             gather(scene, opts, &tile.content, tile.content_bounds.center());
-                        let (b, st) = write(i, &content, st)?;
-                        Ok((i, b, st))
+                        Ok((i, write(i, &content, record)?))
                     })
                     .collect::<Result<Vec<_>>>()?;
                 Ok(JobOutput {
@@ -257,7 +223,7 @@ impl<'a> TileWriter<'a> {
                 })
             }
             LodMode::Hlod => {
-                let slots: Vec<std::sync::Mutex<Option<(Aabb, TileStats)>>> =
+                let slots: Vec<std::sync::Mutex<Option<TileRecord>>> =
                     plan.tiles.iter().map(|_| Default::default()).collect();
                 let hlod = HlodBuilder {
                     scene,
@@ -278,7 +244,7 @@ impl<'a> TileWriter<'a> {
                     .filter_map(|(i, m)| {
                         m.into_inner()
                             .expect("no poisoned slot")
-                            .map(|(b, st)| (i, b, st))
+                            .map(|record| (i, record))
                     })
                     .collect();
                 Ok(JobOutput {
@@ -314,39 +280,33 @@ impl<'a> TileWriter<'a> {
         roots: &[usize],
         origin: GeoOrigin,
         anchor: DVec3,
-    ) -> Result<Vec<TileStats>> {
+    ) -> Result<Vec<TileRecord>> {
         let (plan, opts, tmp) = (self.plan, self.opts, self.dir);
-        let mut slots: Vec<Option<(Aabb, TileStats)>> = vec![None; plan.tiles.len()];
+        let mut slots: Vec<Option<TileRecord>> = vec![None; plan.tiles.len()];
         let mut provided = BTreeMap::new();
         for job in jobs {
-            for (i, b, st) in job.tiles {
-                slots[i] = Some((b, st));
+            for (i, record) in job.tiles {
+                slots[i] = Some(record);
             }
             provided.extend(job.roots);
         }
         let stop: std::collections::BTreeSet<usize> = roots.iter().copied().collect();
         let top = self.build_subtrees(&[0], &stop, provided)?;
-        for (i, b, st) in top.tiles {
-            slots[i] = Some((b, st));
+        for (i, record) in top.tiles {
+            slots[i] = Some(record);
         }
-        let mut facts = Vec::with_capacity(slots.len());
-        let mut tile_stats = Vec::with_capacity(slots.len());
-        for (i, s) in slots.into_iter().enumerate() {
-            let (content_bounds, st) = s.ok_or_else(|| {
-                Error::output(
-                    tmp,
-                    format!("tile {} was built by no job", plan.tiles[i].path),
-                )
+        let mut records = Vec::with_capacity(slots.len());
+        for (s, tile) in slots.into_iter().zip(&plan.tiles) {
+            let mut record = s.ok_or_else(|| {
+                Error::output(tmp, format!("tile {} was built by no job", tile.path))
             })?;
-            facts.push(TileFacts {
-                content_uri: st.uri.clone(),
-                content_bounds,
-                geometric_error_m: st.geometric_error_m,
-            });
-            tile_stats.push(st);
+            record.path = tile.path.clone();
+            record.depth = tile.depth;
+            record.lod_level = self.chain_level.get(records.len()).copied().flatten();
+            records.push(record);
         }
         let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
-            .map_err(|e| Error::output(tmp, e))?;
+            .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
         write_renamed(&tmp.join("schema.json"), &schema_json)?;
         let extras = json!({"bimtiles": {
             "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
@@ -357,10 +317,11 @@ impl<'a> TileWriter<'a> {
             LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
             LodMode::None => Refine::Add,
         };
-        let mut ts = tileset_json(plan, &facts, refine, &origin.enu_to_ecef(), extras);
+        let mut ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
         ts["schemaUri"] = json!("schema.json");
-        let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
+        let bytes = serde_json::to_vec_pretty(&ts)
+            .map_err(|e| Error::output_from(tmp, "cannot serialize tileset.json", e))?;
         write_renamed(&tmp.join("tileset.json"), &bytes)?;
-        Ok(tile_stats)
+        Ok(records)
     }
 }

@@ -324,6 +324,7 @@ pub fn main() -> Result<()> {
             let (inputs, opts) = planned(&dir, quiet)?;
             let r = bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)?;
             if !quiet {
+                print_warnings(&r);
                 emit(&format!(
                     "merged {}: {} tiles, {} triangles, {}\n",
                     dir.display(),
@@ -529,6 +530,7 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
     let inputs = InputSet::new(&a.inputs, a.manifest.as_deref());
     let r = convert_input_set(&inputs, &opts)?;
     if !a.quiet {
+        print_warnings(&r);
         print_summary(&a, &r)?;
     }
     Ok(())
@@ -553,8 +555,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         },
         lod: match (&a.lod_ratios, a.lod) {
             (Some(r), _) => LodMode::Ratios(
-                bimtiles::simplify::lod_chain::chain_ratios(r)
-                    .map_err(|e| anyhow::anyhow!("--lod-ratios: {e}"))?,
+                bimtiles::simplify::lod_chain::chain_ratios(r).context("--lod-ratios")?,
             ),
             (None, LodArg::Hlod) => LodMode::Hlod,
             (None, LodArg::None) => LodMode::None,
@@ -609,6 +610,13 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         );
     }
     Ok(opts)
+}
+
+/// The report's warnings, one `warning:` line each on stderr.
+fn print_warnings(r: &bimtiles::convert::Report) {
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {

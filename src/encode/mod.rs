@@ -3,8 +3,10 @@
 pub mod draco;
 pub mod glb;
 pub mod metadata;
+pub mod record;
 
 pub use glb::{encode_content, encode_tile, Compression, EncodedTile, TableMaker, TileEncoding};
+pub use record::{ContentFigures, TileRecord};
 
 /// Why a tile could not be encoded.
 #[derive(Debug, thiserror::Error)]

@@ -86,16 +86,15 @@ pub struct Placement {
 impl Manifest {
     /// Reads and checks a manifest; every problem is one error naming the manifest.
     pub fn read(path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
-        let bad = |m: String| Error::input(path, m);
         let text = std::fs::read_to_string(path).map_err(|e| {
-            bad(if e.kind() == std::io::ErrorKind::NotFound {
-                "no such manifest file".into()
+            if e.kind() == std::io::ErrorKind::NotFound {
+                Error::input(path, "no such manifest file")
             } else {
-                format!("cannot read the manifest: {e}")
-            })
+                Error::input_from(path, "cannot read the manifest", e)
+            }
         })?;
-        let m: Manifest =
-            serde_json::from_str(&text).map_err(|e| bad(format!("not a valid manifest: {e}")))?;
+        let m: Manifest = serde_json::from_str(&text)
+            .map_err(|e| Error::input_from(path, "not a valid manifest", e))?;
         m.check(path)
     }
 
@@ -107,7 +106,7 @@ impl Manifest {
                 "{},{},{}",
                 o.longitude_deg, o.latitude_deg, o.height_m
             ))
-            .map_err(|e| bad(format!("origin: {e}")))?,
+            .map_err(|e| Error::input_from(path, "origin", e))?,
         };
         if self.models.is_empty() {
             return Err(bad("the manifest lists no models".into()));
@@ -320,7 +319,7 @@ mod tests {
         std::fs::write(&p, json).unwrap();
         Manifest::read(&p)
             .map(|(_, v)| v)
-            .map_err(|e| e.to_string())
+            .map_err(|e| crate::error::chain_text(&e))
     }
 
     #[test]

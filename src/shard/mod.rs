@@ -187,7 +187,7 @@ pub fn plan(
         std::fs::remove_dir_all(dir).map_err(|e| Error::output(dir, e))?;
     }
     let mut scene = read_scene(inputs, opts)?;
-    let prep = prepare(&mut scene, opts);
+    let prep = prepare(&mut scene, opts)?;
     let p = &prep.plan;
     let (top, groups) = split(p, jobs);
     let tri = |r: &usize| {
@@ -263,7 +263,7 @@ fn load(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Loaded> 
     let file = read_plan(dir)?;
     let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
-    let prep = prepare(&mut scene, opts);
+    let prep = prepare(&mut scene, opts)?;
     if digest(&prep.plan, opts) != file.plan_digest {
         return Err(Error::input(
             dir.join(PLAN_FILE),
@@ -405,10 +405,10 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
                 format!("made for another plan or job (run build-job --job {k} again)"),
             ));
         }
-        for (_, _, st) in &f.output.tiles {
-            if let Some(uri) = &st.uri {
+        for (_, record) in &f.output.tiles {
+            if let Some(uri) = &record.uri {
                 let tile = dir.join(uri);
-                if std::fs::metadata(&tile).map(|m| m.len()).ok() != Some(st.bytes) {
+                if std::fs::metadata(&tile).map(|m| m.len()).ok() != Some(record.content.bytes) {
                     return Err(Error::input(
                         &tile,
                         format!(
@@ -429,7 +429,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
     let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
     let t = Instant::now();
     let writer = TileWriter::new(&l.scene, &l.prep, opts, dir, &textures, l.file.top.len())?;
-    let stats = writer.merge(outputs, &all_roots, l.prep.origin, l.prep.anchor)?;
+    let records = writer.merge(outputs, &all_roots, l.prep.origin, l.prep.anchor)?;
     writer.finish_progress();
     let timings = Timings {
         ingest: l.t_ingest,
@@ -440,7 +440,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         total: 0.0,
     };
     let memory = MemoryReport::of(&l.scene);
-    let mut report = make_report(l.prep, &stats, opts, dir, timings, textures);
+    let mut report = make_report(l.prep, records, opts, dir, timings, textures);
     report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = memory;
@@ -460,7 +460,7 @@ mod tests {
         let mut scene = crate::ingest::read_embedded_sample().unwrap();
         let mut opts = ConvertOptions::new("unused");
         opts.octree.max_tile_triangles = 1500;
-        let prep = prepare(&mut scene, &opts);
+        let prep = prepare(&mut scene, &opts).unwrap();
         let plan = &prep.plan;
         assert!(plan.tiles.len() > 10);
         for n in 1..=7 {

@@ -2,10 +2,12 @@
 //! wrote and, for HLOD, what each of its subtree roots hands its parent (content, errors, cut
 //! triangle counts). Floats are stored as their bits, so `merge` gets exactly what the job had and
 //! the merged tileset is byte-identical to `convert`'s. Little-endian; a magic at the start and an
-//! end mark, so a truncated file is refused.
+//! end mark, so a truncated file is refused. A tile's plan path, depth and LOD level are not
+//! stored: `merge` sets them from the plan.
 
 use crate::build::hlod::BuiltSubtree;
-use crate::build::{JobOutput, TileStats};
+use crate::build::JobOutput;
+use crate::encode::{ContentFigures, TileRecord};
 use crate::partition::content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
 use glam::{DMat4, DVec3};
@@ -99,21 +101,23 @@ impl W {
             }
         }
     }
-    fn stats(&mut self, s: &TileStats) {
+    fn record(&mut self, s: &TileRecord) {
+        let c = &s.content;
+        self.aabb(&c.bounds);
         self.opt(&s.uri, |w, u| w.str(u));
         self.f64(s.geometric_error_m);
-        self.u64(s.bytes);
+        self.u64(c.bytes);
         for v in [
-            s.triangles,
-            s.vertices,
-            s.stored_triangles,
-            s.instanced_shapes,
-            s.instances,
-            s.features,
+            c.triangles,
+            c.vertices,
+            c.stored_triangles,
+            c.instanced_shapes,
+            c.instances,
+            c.features,
         ] {
             self.n(v);
         }
-        self.u64(s.metadata_bytes);
+        self.u64(c.metadata_bytes);
         self.opt(&s.simplified_from_triangles, |w, &v| w.n(v));
         self.opt(&s.full_to_coarse_m, |w, &v| w.f64(v));
         self.opt(&s.coarse_to_full_bound_m, |w, &v| w.f64(v));
@@ -132,10 +136,9 @@ pub(crate) fn encode(f: &JobFile) -> Vec<u8> {
     w.n(f.job);
     w.f64(f.seconds);
     w.n(f.output.tiles.len());
-    for (i, b, st) in &f.output.tiles {
+    for (i, record) in &f.output.tiles {
         w.n(*i);
-        w.aabb(b);
-        w.stats(st);
+        w.record(record);
     }
     w.n(f.output.roots.len());
     for (i, r) in &f.output.roots {
@@ -156,12 +159,29 @@ pub(crate) fn encode(f: &JobFile) -> Vec<u8> {
 
 struct R<'a>(&'a [u8]);
 
-type Res<T> = std::result::Result<T, String>;
+/// What is wrong with the bytes of a job's result.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub(crate) enum WireError {
+    #[error("not a bimtiles job result")]
+    NotAJobResult,
+    #[error("truncated")]
+    Truncated,
+    #[error("truncated (count beyond the end)")]
+    CountBeyondEnd,
+    #[error("truncated or trailing bytes")]
+    NoEndMark,
+    #[error("bad option flag {0}")]
+    BadFlag(u8),
+    #[error("a string is not UTF-8")]
+    NotUtf8(#[from] std::string::FromUtf8Error),
+}
+
+type Res<T> = std::result::Result<T, WireError>;
 
 impl R<'_> {
     fn take(&mut self, n: usize) -> Res<&[u8]> {
         if self.0.len() < n {
-            return Err("truncated".into());
+            return Err(WireError::Truncated);
         }
         let (a, b) = self.0.split_at(n);
         self.0 = b;
@@ -181,7 +201,7 @@ impl R<'_> {
     fn n(&mut self, min_bytes: usize) -> Res<usize> {
         let n = self.u64()? as usize;
         if n.saturating_mul(min_bytes) > self.0.len() {
-            return Err("truncated (count beyond the end)".into());
+            return Err(WireError::CountBeyondEnd);
         }
         Ok(n)
     }
@@ -199,12 +219,12 @@ impl R<'_> {
         match self.take(1)?[0] {
             0 => Ok(false),
             1 => Ok(true),
-            b => Err(format!("bad option flag {b}")),
+            b => Err(WireError::BadFlag(b)),
         }
     }
     fn str(&mut self) -> Res<String> {
         let n = self.n(1)?;
-        String::from_utf8(self.take(n)?.to_vec()).map_err(|e| e.to_string())
+        Ok(String::from_utf8(self.take(n)?.to_vec())?)
     }
     fn dvec3(&mut self) -> Res<DVec3> {
         Ok(DVec3::new(self.f64()?, self.f64()?, self.f64()?))
@@ -265,22 +285,35 @@ impl R<'_> {
             None
         })
     }
-    fn stats(&mut self) -> Res<TileStats> {
-        Ok(TileStats {
-            uri: if self.flag()? {
-                Some(self.str()?)
-            } else {
-                None
-            },
-            geometric_error_m: self.f64()?,
-            bytes: self.u64()?,
-            triangles: self.u64()? as usize,
-            vertices: self.u64()? as usize,
-            stored_triangles: self.u64()? as usize,
-            instanced_shapes: self.u64()? as usize,
-            instances: self.u64()? as usize,
-            features: self.u64()? as usize,
+    fn record(&mut self) -> Res<TileRecord> {
+        let bounds = self.aabb()?;
+        let uri = if self.flag()? {
+            Some(self.str()?)
+        } else {
+            None
+        };
+        let geometric_error_m = self.f64()?;
+        let bytes = self.u64()?;
+        let mut counts = [0usize; 6];
+        for c in &mut counts {
+            *c = self.u64()? as usize;
+        }
+        let [triangles, vertices, stored_triangles, instanced_shapes, instances, features] = counts;
+        let content = ContentFigures {
+            bytes,
+            features,
+            triangles,
+            vertices,
+            stored_triangles,
+            instanced_shapes,
+            instances,
             metadata_bytes: self.u64()?,
+            bounds,
+        };
+        Ok(TileRecord {
+            uri,
+            geometric_error_m,
+            content,
             simplified_from_triangles: if self.flag()? {
                 Some(self.u64()? as usize)
             } else {
@@ -292,6 +325,7 @@ impl R<'_> {
             max_folding_edge_m: self.opt_f64()?,
             paper_error_m: self.opt_f64()?,
             max_position_error_m: self.opt_f64()?,
+            ..Default::default()
         })
     }
 }
@@ -300,12 +334,12 @@ impl R<'_> {
 pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
     let mut r = R(bytes);
     if r.take(8)? != MAGIC {
-        return Err("not a bimtiles job result".into());
+        return Err(WireError::NotAJobResult);
     }
     let plan_digest = r.str()?;
     let job = r.u64()? as usize;
     let seconds = r.f64()?;
-    let tiles = r.vec(57, |r| Ok((r.u64()? as usize, r.aabb()?, r.stats()?)))?;
+    let tiles = r.vec(57, |r| Ok((r.u64()? as usize, r.record()?)))?;
     let roots = r.vec(8, |r| {
         let i = r.u64()? as usize;
         let content = r.content()?;
@@ -328,7 +362,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
         ))
     })?;
     if r.0 != END {
-        return Err("truncated or trailing bytes".into());
+        return Err(WireError::NoEndMark);
     }
     Ok(JobFile {
         plan_digest,
@@ -373,10 +407,19 @@ mod tests {
             output: JobOutput {
                 tiles: vec![(
                     7,
-                    Aabb::EMPTY,
-                    TileStats {
+                    TileRecord {
                         uri: Some("tiles/r0.glb".into()),
                         geometric_error_m: 0.1 + 0.2,
+                        content: ContentFigures {
+                            bytes: 1234,
+                            triangles: 5,
+                            metadata_bytes: 77,
+                            bounds: Aabb {
+                                min: DVec3::new(-1.0, 0.25, 1e-9),
+                                max: DVec3::new(2.0, 0.5, 3.0),
+                            },
+                            ..Default::default()
+                        },
                         full_to_coarse_m: Some(1.0 / 3.0),
                         paper_error_m: Some(0.7),
                         max_position_error_m: Some(0.02),
@@ -400,5 +443,9 @@ mod tests {
         for cut in [1, 9, bytes.len() / 2, bytes.len() - 1] {
             assert!(decode(&bytes[..cut]).is_err(), "cut at {cut}");
         }
+        assert_eq!(decode(b"BIMTJOB2"), Err(WireError::NotAJobResult));
+        let mut trailing = bytes.clone();
+        trailing.push(0);
+        assert_eq!(decode(&trailing), Err(WireError::NoEndMark));
     }
 }

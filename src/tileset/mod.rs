@@ -4,21 +4,11 @@
 pub mod metadata;
 pub mod view;
 
+use crate::encode::TileRecord;
 use crate::partition::octree::TilePlan;
 use crate::scene::Aabb;
 use glam::DMat4;
 use serde_json::{json, Value};
-
-/// Per-tile facts the tileset needs besides the plan.
-#[derive(Debug, Clone)]
-pub struct TileFacts {
-    /// Content URI relative to tileset.json, if the tile has content.
-    pub content_uri: Option<String>,
-    /// Box of what the content really holds once decoded (quantization included), scene frame.
-    pub content_bounds: Aabb,
-    /// The tile's geometric error in metres.
-    pub geometric_error_m: f64,
-}
 
 /// Grows a box just enough to absorb the f32 rounding of vertices written relative to a tile
 /// centre (a few ulps of the tile size) and to never be degenerate.
@@ -51,43 +41,43 @@ pub enum Refine {
 /// drawn once it spans about 16/4 = 4 pixels at CesiumJS's default maximumScreenSpaceError of 16.
 pub const TOP_ERROR_PER_DIAGONAL: f64 = 4.0;
 
-/// Builds the tileset JSON. `facts[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
+/// Builds the tileset JSON. `records[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
 /// frame to ECEF; `extras` is stored under `asset.extras`.
 pub fn tileset_json(
     plan: &TilePlan,
-    facts: &[TileFacts],
+    records: &[TileRecord],
     refine: Refine,
     root_transform: &DMat4,
     extras: Value,
 ) -> Value {
     // Bounding volumes from the written content, children first (tiles are in pre-order), so
     // every child's volume lies inside its parent's.
-    let mut bounds: Vec<Aabb> = facts.iter().map(|f| f.content_bounds).collect();
+    let mut bounds: Vec<Aabb> = records.iter().map(|r| r.content.bounds).collect();
     for i in (0..plan.tiles.len()).rev() {
         for &c in &plan.tiles[i].children {
             bounds[i] = bounds[i].union(&bounds[c]);
         }
     }
-    fn tile(plan: &TilePlan, facts: &[TileFacts], bounds: &[Aabb], i: usize) -> Value {
+    fn tile(plan: &TilePlan, records: &[TileRecord], bounds: &[Aabb], i: usize) -> Value {
         let t = &plan.tiles[i];
         let mut v = json!({
             "boundingVolume": {"box": box_volume(&bounds[i])},
-            "geometricError": facts[i].geometric_error_m,
+            "geometricError": records[i].geometric_error_m,
         });
-        if let Some(uri) = &facts[i].content_uri {
+        if let Some(uri) = &records[i].uri {
             v["content"] = json!({"uri": uri});
         }
         if !t.children.is_empty() {
             v["children"] = Value::Array(
                 t.children
                     .iter()
-                    .map(|&c| tile(plan, facts, bounds, c))
+                    .map(|&c| tile(plan, records, bounds, c))
                     .collect(),
             );
         }
         v
     }
-    let mut root = tile(plan, facts, &bounds, 0);
+    let mut root = tile(plan, records, &bounds, 0);
     root["refine"] = json!(match refine {
         Refine::Add => "ADD",
         Refine::Replace => "REPLACE",
@@ -95,7 +85,8 @@ pub fn tileset_json(
     root["transform"] = json!(root_transform.to_cols_array());
     // The whole model is what goes missing when the root is not drawn: it should appear once it
     // covers a few pixels.
-    let top_error = (bounds[0].diagonal() * TOP_ERROR_PER_DIAGONAL).max(facts[0].geometric_error_m);
+    let top_error =
+        (bounds[0].diagonal() * TOP_ERROR_PER_DIAGONAL).max(records[0].geometric_error_m);
     json!({
         "asset": {"version": "1.1", "generator": concat!("bimtiles ", env!("CARGO_PKG_VERSION")), "extras": extras},
         "geometricError": top_error,

@@ -3,7 +3,7 @@
 //! `ifc-lite-processing`. Porting to another ifc-lite major (or another IFC kernel) means
 //! rewriting `IfcLite` only.
 
-use super::IfcMapConversion;
+use super::{IfcError, IfcMapConversion};
 use glam::{DMat4, DVec3};
 use std::collections::{BTreeMap, HashMap, HashSet};
 
@@ -109,9 +109,9 @@ pub struct RawGeoref {
 
 /// What bimtiles needs from an IFC kernel.
 pub trait IfcEngine {
-    fn geometry(&self, content: &[u8]) -> Result<RawGeometry, String>;
-    fn data_model(&self, content: &[u8]) -> Result<RawData, String>;
-    fn georef(&self, content: &[u8]) -> Result<RawGeoref, String>;
+    fn geometry(&self, content: &[u8]) -> Result<RawGeometry, IfcError>;
+    fn data_model(&self, content: &[u8]) -> Result<RawData, IfcError>;
+    fn georef(&self, content: &[u8]) -> Result<RawGeoref, IfcError>;
 }
 
 /// ifc-lite-processing / -core 28.2.0.
@@ -149,13 +149,11 @@ fn frame_matrix(frame: lite::MeshFrame) -> DMat4 {
 }
 
 impl IfcEngine for IfcLite {
-    fn geometry(&self, content: &[u8]) -> Result<RawGeometry, String> {
+    fn geometry(&self, content: &[u8]) -> Result<RawGeometry, IfcError> {
         let req = lite::ProcessingRequest::full_pass();
         let res = lite::process(content, &req, &mut ());
         if let Some(unit) = res.metadata.length_unit_refused {
-            return Err(format!(
-                "unusable length unit (#{unit}): no geometry can be scaled"
-            ));
+            return Err(IfcError::UnusableLengthUnit { entity: unit });
         }
         let frame_to_world = frame_matrix(res.frame);
         let curve_only = curve_only_products(content);
@@ -233,7 +231,7 @@ impl IfcEngine for IfcLite {
         })
     }
 
-    fn data_model(&self, content: &[u8]) -> Result<RawData, String> {
+    fn data_model(&self, content: &[u8]) -> Result<RawData, IfcError> {
         let dm = lite::data_model::extract_data_model(content);
         let mut entities = HashMap::new();
         for e in dm.entities {
@@ -343,7 +341,7 @@ impl IfcEngine for IfcLite {
         })
     }
 
-    fn georef(&self, content: &[u8]) -> Result<RawGeoref, String> {
+    fn georef(&self, content: &[u8]) -> Result<RawGeoref, IfcError> {
         let index = std::sync::Arc::new(core::build_entity_index(content));
         let mut dec = core::EntityDecoder::with_arc_index(content, index);
         let scale = dec.length_unit_scale();

@@ -55,7 +55,7 @@ mod step;
 use assembly::assemble;
 pub use assembly::parse_loose;
 use georef::georef_from_raw;
-pub use step::{check_step, StepSummary};
+pub use step::{check_step, RecordProblem, StepError, StepSummary};
 
 /// IFC classes never turned into components, with the reason (exact class names; subtypes such as
 /// IfcOpeningStandardCase are listed on their own).
@@ -201,7 +201,7 @@ pub fn read_ifc_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
 
 /// Reads one IFC file and reports skipped elements, georeference and timings.
 pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     read_ifc_bytes_with_report(path, &bytes)
 }
 
@@ -213,9 +213,10 @@ pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
     let bytes = std::fs::read(path).ok()?;
     check_step(&bytes).ok()?;
     let engine = engine::IfcLite;
-    let raw = guarded(|| engine::IfcEngine::georef(&engine, &bytes))
-        .ok()?
-        .ok()?;
+    let raw = guarded(IfcStage::Georef, || {
+        engine::IfcEngine::georef(&engine, &bytes)
+    })
+    .ok()?;
     georef_from_raw(raw, path, None).0
 }
 
@@ -238,26 +239,30 @@ pub fn read_ifc_bytes_with_crs(
     crs_option: Option<&str>,
 ) -> Result<(Scene, IfcReadReport)> {
     let t0 = Instant::now();
-    let header = check_step(bytes).map_err(|m| Error::input(path, m))?;
+    // The STEP and IFC errors name the problem themselves: "<file>: <problem>".
+    let header = check_step(bytes).map_err(|e| Error::input_from(path, "", e))?;
     let check_s = t0.elapsed().as_secs_f64();
 
     let engine = engine::IfcLite;
     let t1 = Instant::now();
-    let geometry = guarded(|| engine::IfcEngine::geometry(&engine, bytes))
-        .map_err(|m| Error::input(path, format!("IFC geometry failed: {m}")))?
-        .map_err(|m| Error::input(path, m))?;
+    let geometry = guarded(IfcStage::Geometry, || {
+        engine::IfcEngine::geometry(&engine, bytes)
+    })
+    .map_err(|e| Error::input_from(path, "", e))?;
     let geometry_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let data = guarded(|| engine::IfcEngine::data_model(&engine, bytes))
-        .map_err(|m| Error::input(path, format!("IFC property extraction failed: {m}")))?
-        .map_err(|m| Error::input(path, m))?;
+    let data = guarded(IfcStage::DataModel, || {
+        engine::IfcEngine::data_model(&engine, bytes)
+    })
+    .map_err(|e| Error::input_from(path, "", e))?;
     let data_model_s = t2.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
-    let (georef, georef_warning) = guarded(|| engine::IfcEngine::georef(&engine, bytes))
-        .ok()
-        .and_then(|r| r.ok())
-        .map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
+    let (georef, georef_warning) = guarded(IfcStage::Georef, || {
+        engine::IfcEngine::georef(&engine, bytes)
+    })
+    .ok()
+    .map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
     let mut report = IfcReadReport {
         schema: header.schema.clone(),
         georef,
@@ -287,16 +292,48 @@ pub fn read_ifc_bytes_with_crs(
     Ok((scene, report))
 }
 
-/// Runs `f`, turning a panic into an error message (ifc-lite is not guaranteed panic-free on
-/// malformed input).
-fn guarded<T>(f: impl FnOnce() -> T) -> std::result::Result<T, String> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
-        let msg = p
+/// The IFC kernel failed on a file that passed the STEP check.
+#[derive(Debug, thiserror::Error)]
+pub enum IfcError {
+    /// The project's length unit cannot be turned into metres.
+    #[error("unusable length unit (#{entity}): no geometry can be scaled")]
+    UnusableLengthUnit { entity: u32 },
+    /// ifc-lite panicked during `stage`; `message` is the panic's text.
+    #[error("{stage} failed: the IFC library crashed on this file ({message})")]
+    Crashed { stage: IfcStage, message: String },
+}
+
+/// A call into the IFC kernel, to say which one failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IfcStage {
+    Geometry,
+    DataModel,
+    Georef,
+}
+
+impl std::fmt::Display for IfcStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(match self {
+            IfcStage::Geometry => "IFC geometry",
+            IfcStage::DataModel => "IFC property extraction",
+            IfcStage::Georef => "IFC georeference",
+        })
+    }
+}
+
+/// Runs the kernel call `f`, turning a panic into [`IfcError::Crashed`] (ifc-lite is not
+/// guaranteed panic-free on malformed input).
+fn guarded<T>(
+    stage: IfcStage,
+    f: impl FnOnce() -> std::result::Result<T, IfcError>,
+) -> std::result::Result<T, IfcError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
+        let message = p
             .downcast_ref::<&str>()
             .map(|s| s.to_string())
             .or_else(|| p.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown panic".into());
-        format!("the IFC library crashed on this file ({msg})")
+        Err(IfcError::Crashed { stage, message })
     })
 }
 
@@ -315,22 +352,44 @@ mod tests {
         let trunc = &MINI[..MINI.len() / 2 + 40];
         assert!(check_step(trunc.as_bytes())
             .unwrap_err()
+            .to_string()
             .contains("truncated"));
-        assert!(check_step(b"").unwrap_err().contains("empty"));
+        assert!(check_step(b"").unwrap_err().to_string().contains("empty"));
         assert!(check_step(b"hello world")
             .unwrap_err()
+            .to_string()
             .contains("not an IFC"));
         let unk = MINI.replace("'IFC4'", "'IFC9X9'");
-        assert!(check_step(unk.as_bytes())
-            .unwrap_err()
-            .contains("unknown IFC schema"));
+        assert!(matches!(
+            check_step(unk.as_bytes()).unwrap_err(),
+            StepError::UnknownSchema { schema } if schema == "IFC9X9"
+        ));
         let broken = MINI.replace("#2=IFCAXIS2PLACEMENT3D(#1", "#2=IFCAXIS2PLACEMENT3D(#42");
-        let e = check_step(broken.as_bytes()).unwrap_err();
+        let e = check_step(broken.as_bytes()).unwrap_err().to_string();
         assert!(e.contains("#2 refers to #42"), "{e}");
         let garbage = MINI.replace("#3=IFCLABEL", "garbage #3=IFCLABEL");
         assert!(check_step(garbage.as_bytes())
             .unwrap_err()
+            .to_string()
             .contains("malformed"));
+    }
+
+    #[test]
+    fn a_kernel_panic_becomes_a_typed_error() {
+        let e = guarded::<()>(IfcStage::Geometry, || panic!("boom")).unwrap_err();
+        assert!(
+            matches!(&e, IfcError::Crashed { stage: IfcStage::Geometry, message } if message == "boom")
+        );
+        assert_eq!(
+            e.to_string(),
+            "IFC geometry failed: the IFC library crashed on this file (boom)"
+        );
+        let e = Error::input_from("a.ifc", "", e);
+        assert_eq!(
+            crate::error::chain_text(&e),
+            "a.ifc: IFC geometry failed: the IFC library crashed on this file (boom)"
+        );
+        assert_eq!(guarded(IfcStage::Georef, || Ok(3)).unwrap(), 3);
     }
 
     #[test]
