@@ -243,19 +243,29 @@ def with_map_conversion(src, dst, crs, e, n, h, theta_deg, scale, projection=Non
     f.write(str(dst))
 
 
-@pytest.fixture(scope="module")
-def house():
-    src = data_file("IfcOpenHouse_IFC4.ifc")
+_MESHES = {}
+
+
+def shared_model(name):
+    """(path, IfcOpenShell mesh) of a shared IFC file, triangulated once per session."""
+    src = data_file(name)
     if src is None:
         pytest.skip("shared data not found (set BIMTILES_SHARED)")
     if not BIN.is_file():
         pytest.skip(f"{BIN} not built (cargo build --release)")
-    return src, ifcopenshell_world_mesh(src)
+    if name not in _MESHES:
+        _MESHES[name] = ifcopenshell_world_mesh(src)
+    return src, _MESHES[name]
+
+
+@pytest.fixture(scope="module")
+def house():
+    return shared_model("IfcOpenHouse_IFC4.ifc")
 
 
 # (CRS name, E, N, OrthogonalHeight m, x-axis angle °, Scale, MapProjection, MapZone, GeodeticDatum, expected CRS)
 # IfcOpenHouse is in millimetres: Scale 0.001 converts to the map's metres (IFC4: Scale converts
-# project length units to map units).
+# project length units to map units). The last case is AC20-FZK-Haus (metres).
 CASES = [
     ("EPSG:28992", 155000.0, 463000.0, 5.0, 30.0, 0.001, None, None, None, "EPSG:28992"),
     ("EPSG:2056", 2600000.0, 1200000.0, 540.0, -20.0, 0.001, None, None, None, "EPSG:2056"),
@@ -268,12 +278,16 @@ CASES = [
     ("Site grid", 458000.0, 5438000.0, 110.0, -40.0, 0.001, "UTM", "32N", "ETRS89", "EPSG:25832"),
     # Scale 0.0015: 1.5 map metres per project metre (a scaled engineering grid).
     ("EPSG:28992", 156000.0, 462000.0, 3.0, 120.0, 0.0015, None, None, None, "EPSG:28992"),
+    ("EPSG:2056", 2683000.0, 1248000.0, 410.0, 25.0, 1.0, None, None, None, "EPSG:2056"),
 ]
+FZK_CASE = len(CASES) - 1
 
 
-@pytest.mark.parametrize("case", CASES, ids=[f"{c[9]}-{c[5]}-{c[6] or 'name'}" for c in CASES])
-def test_ifc_map_conversion_vertices_land_where_pyproj_puts_them(house, case, tmp_path):
-    src, (world, faces) = house
+@pytest.mark.parametrize("index", range(len(CASES)), ids=[f"{c[9]}-{c[5]}-{c[6] or 'name'}" for c in CASES])
+def test_ifc_map_conversion_vertices_land_where_pyproj_puts_them(index, tmp_path):
+    case = CASES[index]
+    fzk = index == FZK_CASE
+    src, (world, faces) = shared_model("AC20-FZK-Haus.ifc" if fzk else "IfcOpenHouse_IFC4.ifc")
     name, e0, n0, h0, theta, scale, projection, zone, datum, expected = case
     ifc = tmp_path / "georef.ifc"
     with_map_conversion(src, ifc, name, e0, n0, h0, theta, scale, projection, zone, datum)
@@ -290,8 +304,8 @@ def test_ifc_map_conversion_vertices_land_where_pyproj_puts_them(house, case, tm
     accuracy = used["accuracy_m"] or 0.0
     tol = max(TOL_M, accuracy)
 
-    # Independent: IfcOpenShell world metres -> project units (mm) -> map (IfcMapConversion) -> pyproj.
-    unit_m = 0.001
+    # Independent: IfcOpenShell world metres -> project units -> map (IfcMapConversion) -> pyproj.
+    unit_m = 1.0 if fzk else 0.001
     a, b = math.cos(math.radians(theta)), math.sin(math.radians(theta))
     x, y, z = (world / unit_m).T
     e = e0 + scale * (a * x - b * y)
@@ -307,7 +321,7 @@ def test_ifc_map_conversion_vertices_land_where_pyproj_puts_them(house, case, tm
         d_ours[far] = point_triangle_distances(ours[far], theirs[faces])
     d_theirs = nearest_distances(theirs, ours)
     print(
-        f"\n{expected} ({name}, scale {scale}, x axis {theta}°): {len(ours)} output vertices, "
+        f"\n{src.name} in {expected} ({name}, scale {scale}, x axis {theta}°): {len(ours)} output vertices, "
         f"worst {d_ours.max() * 1000:.1f} mm (to IfcOpenShell+pyproj; {far.sum()} off its vertices), "
         f"back {d_theirs.max() * 1000:.1f} mm; "
         f"PROJ operation '{used['operation']}', accuracy {used['accuracy_m']} m, tolerance {tol} m"

@@ -207,3 +207,63 @@ fn georef_from_map_conversion(
 // ------------------------------------------------------------------------------------------------
 // STEP check (ours, independent of the IFC library)
 // ------------------------------------------------------------------------------------------------
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn conversion(crs: Option<&str>) -> IfcMapConversion {
+        IfcMapConversion {
+            eastings: 155_000.0,
+            northings: 463_000.0,
+            orthogonal_height: 4.0,
+            x_axis_abscissa: 0.0,
+            x_axis_ordinate: 1.0,
+            scale: 1.0,
+            crs_name: crs.map(str::to_string),
+            geodetic_datum: None,
+            map_projection: None,
+            map_zone: None,
+            factors: [2.0, 1.0, 0.5],
+            map_unit_m: None,
+            project_unit_m: 1.0,
+        }
+    }
+
+    /// IFC4X3 IfcMapConversionScaled: FactorX/Y/Z scale the project axes before the rotation; the
+    /// x axis at 90° points to grid north, which at RD's origin is true north.
+    #[test]
+    fn scaled_conversion_scales_each_axis_then_turns() {
+        let g =
+            georef_from_map_conversion(&conversion(Some("EPSG:28992")), Path::new("t.ifc"), None)
+                .unwrap()
+                .unwrap();
+        let k = g.crs.as_ref().unwrap().scale_factor;
+        let l = g.map_linear.unwrap();
+        let x = l * DVec3::X;
+        assert!((x - DVec3::new(0.0, 2.0 / k, 0.0)).length() < 1e-5, "{x}");
+        let y = l * DVec3::Y;
+        assert!((y - DVec3::new(-1.0 / k, 0.0, 0.0)).length() < 1e-5, "{y}");
+        assert_eq!(l * DVec3::Z, DVec3::new(0.0, 0.0, 0.5));
+        assert_eq!(g.crs.unwrap().source, "ifc-name");
+    }
+
+    #[test]
+    fn crs_from_map_projection_and_from_the_option() {
+        let mut m = conversion(Some("Local grid"));
+        m.map_projection = Some("UTM".into());
+        m.map_zone = Some("32N".into());
+        m.geodetic_datum = Some("ETRS89".into());
+        assert_eq!(crs_of_map_projection(&m).as_deref(), Some("EPSG:25832"));
+        m.geodetic_datum = None;
+        assert_eq!(crs_of_map_projection(&m).as_deref(), Some("EPSG:32632"));
+        // No CRS in the file: --crs names it.
+        let g = georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), Some("28992"))
+            .unwrap()
+            .unwrap();
+        assert_eq!(g.crs.unwrap().source, "option");
+        let w =
+            georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), None).unwrap_err();
+        assert!(w.contains("--crs"), "{w}");
+    }
+}
