@@ -140,7 +140,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
 
     let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes));
     let textures_prepared = crate::texture::prepare(scene, &opts.texture, &limits)
-        .map_err(|(file, refused)| Error::input(file, refused.to_string()))?;
+        .map_err(|(file, refused)| Error::input_from(file, "", refused))?;
     let merge_materials = opts
         .merge_plain_materials
         .unwrap_or_else(|| default_merge_plain_materials(opts.compression));

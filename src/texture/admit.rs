@@ -9,6 +9,7 @@
 
 use super::classify::bound_images;
 use super::codec::{self, Rows};
+use crate::error::chain_text;
 use crate::scene::{ImageId, Scene};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -105,7 +106,7 @@ pub fn admit_images(
         let image = &scene.images[id.index()];
         let name = image.name.clone();
         let problem = match codec::dimensions(&image.bytes) {
-            Err(e) => Some(e.to_string()),
+            Err(e) => Some(chain_text(&e)),
             Ok((width_px, height_px)) => {
                 if width_px.max(height_px) > limits.max_side_px {
                     let refused = ImageRefused::TooLarge {
@@ -152,8 +153,8 @@ pub fn admit_images(
 
 /// Whether every row of the image decodes (row by row: no whole image is held for PNG).
 fn decodes(bytes: &[u8]) -> Result<(), String> {
-    let mut rows = Rows::open(bytes).map_err(|e| e.to_string())?;
-    while rows.next_row().map_err(|e| e.to_string())?.is_some() {}
+    let mut rows = Rows::open(bytes).map_err(|e| chain_text(&e))?;
+    while rows.next_row().map_err(|e| chain_text(&e))?.is_some() {}
     Ok(())
 }
 
@@ -204,30 +205,13 @@ mod tests {
 
     /// A PNG whose header (IHDR) claims `w` x `h`, followed by the pixel data of a 1 x 1 image.
     fn png_header_only(w: u32, h: u32) -> Vec<u8> {
-        let full = png(1, 1);
-        let mut b = full[..33].to_vec();
-        b[16..20].copy_from_slice(&w.to_be_bytes());
-        b[20..24].copy_from_slice(&h.to_be_bytes());
-        // IHDR's CRC over its type and data.
-        let crc = crc32(&b[12..29]);
-        b[29..33].copy_from_slice(&crc.to_be_bytes());
-        b.extend_from_slice(&full[33..]); // IDAT, IEND
+        let mut head = Vec::new();
+        let mut e = png::Encoder::new(&mut head, w, h);
+        e.set_color(png::ColorType::Rgba);
+        drop(e.write_header().unwrap());
+        let mut b = head[..33].to_vec(); // signature, IHDR
+        b.extend_from_slice(&png(1, 1)[33..]); // IDAT, IEND
         b
-    }
-
-    fn crc32(bytes: &[u8]) -> u32 {
-        let mut c = !0u32;
-        for &x in bytes {
-            c ^= x as u32;
-            for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-            }
-        }
-        !c
     }
 
     fn scene_with(images: Vec<Vec<u8>>) -> Scene {
