@@ -108,7 +108,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         l.geometric_error_min_m = l.geometric_error_min_m.min(ge);
         l.geometric_error_max_m = l.geometric_error_max_m.max(ge);
         if let Some(uri) = tile.pointer("/content/uri").and_then(Value::as_str) {
-            let p = dir.join(uri);
+            let p = inside_tileset(dir, dir, uri)?;
             l.tiles_with_content += 1;
             l.bytes += std::fs::metadata(&p)
                 .map_err(|e| Error::input_from(&p, "cannot read", e))?
@@ -342,6 +342,45 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
     }
 }
 
+/// The file a URI of the tileset at `dir` names, relative to `base` (a folder of the tileset),
+/// refused unless it stays inside the tileset's folder, by its text and through symlinks: a
+/// tileset from elsewhere must not make `inspect` read other files.
+fn inside_tileset(dir: &Path, base: &Path, uri: &str) -> Result<std::path::PathBuf> {
+    use std::path::Component;
+    let refuse = || {
+        Error::input(
+            dir.join("tileset.json"),
+            format!("URI '{uri}' leads outside the tileset's folder (refused)"),
+        )
+    };
+    let decoded = percent_encoding::percent_decode_str(uri)
+        .decode_utf8()
+        .map_err(|_| refuse())?;
+    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
+        return Err(refuse());
+    }
+    let mut path = base.to_path_buf();
+    for c in Path::new(decoded.as_ref()).components() {
+        match c {
+            Component::Normal(n) => path.push(n),
+            Component::CurDir => {}
+            Component::ParentDir if path != dir => {
+                path.pop();
+            }
+            _ => return Err(refuse()),
+        }
+    }
+    if !path.starts_with(dir) {
+        return Err(refuse());
+    }
+    if let (Ok(canon), Ok(root)) = (path.canonicalize(), dir.canonicalize()) {
+        if !canon.starts_with(root) {
+            return Err(refuse());
+        }
+    }
+    Ok(path)
+}
+
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
 pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let summary_tiles = {
@@ -365,7 +404,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let mut found: Option<FeatureSummary> = None;
     let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
     for uri in summary_tiles {
-        let path = dir.join(&uri);
+        let path = inside_tileset(dir, dir, &uri)?;
         let bytes = std::fs::read(&path).map_err(|e| Error::input_from(&path, "cannot read", e))?;
         let glb = gltf::binary::Glb::from_slice(&bytes)
             .map_err(|e| Error::input_from(&path, "not a GLB", e))?;
@@ -380,7 +419,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
         ) {
             (Some(s), _) => s.clone(),
             (None, Some(u)) => {
-                let p = path.parent().unwrap_or(dir).join(u);
+                let p = inside_tileset(dir, path.parent().unwrap_or(dir), u)?;
                 if !schemas.contains_key(&p) {
                     let t =
                         std::fs::read(&p).map_err(|e| Error::input_from(&p, "cannot read", e))?;

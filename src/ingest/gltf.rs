@@ -38,7 +38,7 @@ const SUPPORTED_REQUIRED: &[&str] = &[
 /// counts whole towards peak memory.
 pub fn read_gltf(path: &Path) -> Result<Scene> {
     let cannot_read = |e: std::io::Error| Error::input_from(path, "cannot read", e);
-    let file = std::fs::File::open(path).map_err(cannot_read)?;
+    let file = super::open_regular(path).map_err(cannot_read)?;
     let len = file.metadata().map_err(cannot_read)?.len();
     // SAFETY: the map is read-only and private. A file truncated by another process while it is
     // read would fault, as with any memory-mapped reader; inputs do not change during a run.
@@ -48,7 +48,7 @@ pub fn read_gltf(path: &Path) -> Result<Scene> {
     };
     let bytes = match mapped {
         Some(m) => FileBytes::Mapped(m),
-        None => FileBytes::Owned(std::fs::read(path).map_err(cannot_read)?),
+        None => FileBytes::Owned(super::read_regular(path).map_err(cannot_read)?),
     };
     read_gltf_from(path, &bytes)
 }
@@ -307,7 +307,7 @@ fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, UriError
         return data;
     }
     let path = resolve_relative_uri(base_dir, uri)?;
-    std::fs::read(&path).map_err(|source| UriError::Read { path, source })
+    super::read_regular(&path).map_err(|source| UriError::Read { path, source })
 }
 
 /// A buffer's bytes: the GLB BIN chunk (borrowed from the file) or loaded from a URI.

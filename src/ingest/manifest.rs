@@ -86,14 +86,14 @@ pub struct Placement {
 impl Manifest {
     /// Reads and checks a manifest; every problem is one error naming the manifest.
     pub fn read(path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
+        let text = super::read_regular(path).map_err(|e| {
             if e.kind() == std::io::ErrorKind::NotFound {
                 Error::input(path, "no such manifest file")
             } else {
                 Error::input_from(path, "cannot read the manifest", e)
             }
         })?;
-        let m: Manifest = serde_json::from_str(&text)
+        let m: Manifest = serde_json::from_slice(&text)
             .map_err(|e| Error::input_from(path, "not a valid manifest", e))?;
         m.check(path)
     }
@@ -131,11 +131,28 @@ impl Manifest {
                 )));
             }
             let file = folder.join(rel);
-            if !file.is_file() {
-                return Err(bad(format!(
-                    "{what}: no such model file {}",
-                    file.display()
-                )));
+            // Inside by its text, but a symlink could still lead out of the folder.
+            let base = if folder.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                folder
+            };
+            if let (Ok(canon), Ok(base)) = (file.canonicalize(), base.canonicalize()) {
+                if !canon.starts_with(&base) {
+                    return Err(bad(format!(
+                        "{what}: a symlink leads outside the manifest's folder (refused)"
+                    )));
+                }
+            }
+            match super::open_regular(&file) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(bad(format!(
+                        "{what}: no such model file {}",
+                        file.display()
+                    )))
+                }
+                Err(e) => return Err(bad(format!("{what}: {}: {e}", file.display()))),
+                Ok(_) => {}
             }
             let name = match &e.name {
                 Some(n) if n.trim().is_empty() || n.contains('/') => {

@@ -12,6 +12,41 @@ use crate::error::{Error, Result};
 use crate::scene::Scene;
 use std::path::Path;
 
+/// Opens an input file for reading, refusing what is not a regular file: a FIFO would hold the
+/// run forever and a device such as `/dev/zero` never ends. Opened non-blocking, so a FIFO is
+/// refused without waiting for a writer (the flag changes nothing for regular files).
+pub fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)?;
+    let kind = file.metadata()?.file_type();
+    let what = if kind.is_file() {
+        return Ok(file);
+    } else if kind.is_dir() {
+        "a folder"
+    } else if kind.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if kind.is_char_device() || kind.is_block_device() {
+        "a device"
+    } else {
+        "a socket"
+    };
+    Err(std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("{what}, not a regular file"),
+    ))
+}
+
+/// Reads a whole input file ([`open_regular`]).
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    open_regular(path)?.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
 /// Reads any supported input, chosen by content (GLB magic, JSON) and extension.
 pub fn read_input(path: &Path) -> Result<Scene> {
     read_input_in_crs(path, None)
@@ -60,11 +95,14 @@ fn warn_georef(scene: &mut Scene, path: &Path, message: String) {
 }
 
 fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
-    if !path.exists() {
+    if std::fs::symlink_metadata(path).is_err() {
         return Err(Error::input(path, "no such file"));
     }
     if path.is_dir() {
         return Err(Error::input(path, "is a folder, not a model file"));
+    }
+    if let Err(e) = open_regular(path) {
+        return Err(Error::input_from(path, "cannot read", e));
     }
     let ext = path
         .extension()
@@ -81,7 +119,7 @@ fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
 fn looks_like_step(path: &Path) -> bool {
     use std::io::Read;
     let mut head = [0u8; 64];
-    let n = std::fs::File::open(path)
+    let n = open_regular(path)
         .and_then(|mut f| f.read(&mut head))
         .unwrap_or(0);
     let text = String::from_utf8_lossy(&head[..n]);

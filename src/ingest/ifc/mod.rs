@@ -201,7 +201,7 @@ pub fn read_ifc_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
 
 /// Reads one IFC file and reports skipped elements, georeference and timings.
 pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
+    let bytes = super::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     read_ifc_bytes_with_report(path, &bytes)
 }
 
@@ -210,7 +210,7 @@ pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
 /// read. An IfcMapConversion whose CRS PROJ knows wins over the site reference
 /// ([`crate::geodesy::crs`]); one that cannot be used is a warning in the result.
 pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
-    let bytes = std::fs::read(path).ok()?;
+    let bytes = super::read_regular(path).ok()?;
     check_step(&bytes).ok()?;
     let engine = engine::IfcLite;
     let raw = guarded(IfcStage::Georef, || {
