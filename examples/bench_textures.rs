@@ -155,7 +155,11 @@ fn main() {
     );
     for (input, scene) in &scenes {
         let mut s = scene.clone();
-        let prepared = texture::prepare(&mut s, &TextureOptions::default());
+        let limits = texture::admit::ImageLimits::under_budget(None);
+        let prepared = match texture::prepare(&mut s, &TextureOptions::default(), &limits) {
+            Ok(p) => p,
+            Err((file, refused)) => panic!("{}: {refused}", file.display()),
+        };
         let mut levels = [0u64; 5];
         for id in texture::classify::bound_images(&s) {
             if let Ok(p) = texture::build_pyramid(&s.images[id.index()], TextureFormat::Auto, 85) {

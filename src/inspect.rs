@@ -30,6 +30,16 @@ pub struct TilesetSummary {
     /// From `report.json`, when bimtiles wrote one with levels of detail.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lod_levels: Vec<crate::report::LodLevelReport>,
+    /// Where the tileset was placed (`report.json`'s `georeference`), when bimtiles wrote one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub placement: Option<crate::report::GeoReport>,
+}
+
+/// The `georeference` of the `report.json` in `dir`, if it has a readable one.
+fn read_placement(dir: &Path) -> Option<crate::report::GeoReport> {
+    let text = std::fs::read(dir.join("report.json")).ok()?;
+    let r: Value = serde_json::from_slice(&text).ok()?;
+    serde_json::from_value(r.get("georeference")?.clone()).ok()
 }
 
 /// The `lod_levels` table of the `report.json` in `dir`, empty if there is none (other tools,
@@ -39,20 +49,20 @@ fn read_lod_levels(dir: &Path) -> Result<Vec<crate::report::LodLevelReport>> {
     let Ok(text) = std::fs::read(&path) else {
         return Ok(Vec::new());
     };
-    let r: Value = serde_json::from_slice(&text)
-        .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+    let r: Value =
+        serde_json::from_slice(&text).map_err(|e| Error::input_from(&path, "invalid JSON", e))?;
     match r.get("lod_levels") {
         None => Ok(Vec::new()),
         Some(l) => serde_json::from_value(l.clone())
-            .map_err(|e| Error::input(&path, format!("unreadable lod_levels: {e}"))),
+            .map_err(|e| Error::input_from(&path, "unreadable lod_levels", e)),
     }
 }
 
 /// Triangle count of a GLB: sum of index counts (or vertex counts) / 3 over triangle primitives.
 pub fn glb_triangle_count(path: &Path) -> Result<u64> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     let g = gltf::Gltf::from_slice_without_validation(&bytes)
-        .map_err(|e| Error::input(path, format!("not a valid GLB: {e}")))?;
+        .map_err(|e| Error::input_from(path, "not a valid GLB", e))?;
     let mut tris = 0u64;
     for m in g.document.meshes() {
         for p in m.primitives() {
@@ -72,9 +82,9 @@ pub fn glb_triangle_count(path: &Path) -> Result<u64> {
 pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
     let ts_path = dir.join("tileset.json");
     let text =
-        std::fs::read(&ts_path).map_err(|e| Error::input(&ts_path, format!("cannot read: {e}")))?;
+        std::fs::read(&ts_path).map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
     let ts: Value = serde_json::from_slice(&text)
-        .map_err(|e| Error::input(&ts_path, format!("invalid JSON: {e}")))?;
+        .map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
     let root = ts
         .get("root")
         .ok_or_else(|| Error::input(&ts_path, "no root tile"))?;
@@ -98,10 +108,10 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         l.geometric_error_min_m = l.geometric_error_min_m.min(ge);
         l.geometric_error_max_m = l.geometric_error_max_m.max(ge);
         if let Some(uri) = tile.pointer("/content/uri").and_then(Value::as_str) {
-            let p = dir.join(uri);
+            let p = inside_tileset(dir, dir, uri)?;
             l.tiles_with_content += 1;
             l.bytes += std::fs::metadata(&p)
-                .map_err(|e| Error::input(&p, e.to_string()))?
+                .map_err(|e| Error::input_from(&p, "cannot read", e))?
                 .len();
             l.triangles += glb_triangle_count(&p)?;
         }
@@ -126,6 +136,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         bytes: levels.iter().map(|l| l.bytes).sum(),
         levels,
         lod_levels: read_lod_levels(dir)?,
+        placement: read_placement(dir),
     })
 }
 
@@ -167,6 +178,42 @@ impl std::fmt::Display for TilesetSummary {
                 l.geometric_error_min_m,
                 l.geometric_error_max_m
             )?;
+        }
+        if let Some(g) = &self.placement {
+            writeln!(
+                f,
+                "placed at {:.7}° E, {:.7}° N, {:.3} m (origin: {}); anchor {:.3}, {:.3}, {:.3}: {}",
+                g.origin.longitude_deg,
+                g.origin.latitude_deg,
+                g.origin.height_m,
+                g.origin_source,
+                g.anchor_m[0],
+                g.anchor_m[1],
+                g.anchor_m[2],
+                g.anchor_rule
+            )?;
+            for c in &g.crs {
+                writeln!(
+                    f,
+                    "  {}: {} ({}, from {}) E {:.3} N {:.3} -> {:.7}° E, {:.7}° N; convergence {:.5}°, scale factor {:.7}; PROJ: {} (accuracy {}); height {}",
+                    c.file,
+                    c.crs,
+                    c.crs_name,
+                    c.source,
+                    c.easting,
+                    c.northing,
+                    c.longitude_deg,
+                    c.latitude_deg,
+                    c.convergence_deg,
+                    c.scale_factor,
+                    c.operation,
+                    c.accuracy_m.map_or("unknown".into(), |a| format!("{a} m")),
+                    c.height_reference
+                )?;
+            }
+            for w in &g.warnings {
+                writeln!(f, "  warning: {w}")?;
+            }
         }
         if !self.lod_levels.is_empty() {
             writeln!(
@@ -295,14 +342,53 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
     }
 }
 
+/// The file a URI of the tileset at `dir` names, relative to `base` (a folder of the tileset),
+/// refused unless it stays inside the tileset's folder, by its text and through symlinks: a
+/// tileset from elsewhere must not make `inspect` read other files.
+fn inside_tileset(dir: &Path, base: &Path, uri: &str) -> Result<std::path::PathBuf> {
+    use std::path::Component;
+    let refuse = || {
+        Error::input(
+            dir.join("tileset.json"),
+            format!("URI '{uri}' leads outside the tileset's folder (refused)"),
+        )
+    };
+    let decoded = percent_encoding::percent_decode_str(uri)
+        .decode_utf8()
+        .map_err(|_| refuse())?;
+    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
+        return Err(refuse());
+    }
+    let mut path = base.to_path_buf();
+    for c in Path::new(decoded.as_ref()).components() {
+        match c {
+            Component::Normal(n) => path.push(n),
+            Component::CurDir => {}
+            Component::ParentDir if path != dir => {
+                path.pop();
+            }
+            _ => return Err(refuse()),
+        }
+    }
+    if !path.starts_with(dir) {
+        return Err(refuse());
+    }
+    if let (Ok(canon), Ok(root)) = (path.canonicalize(), dir.canonicalize()) {
+        if !canon.starts_with(root) {
+            return Err(refuse());
+        }
+    }
+    Ok(path)
+}
+
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
 pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let summary_tiles = {
         let ts_path = dir.join("tileset.json");
-        let text = std::fs::read(&ts_path)
-            .map_err(|e| Error::input(&ts_path, format!("cannot read: {e}")))?;
+        let text =
+            std::fs::read(&ts_path).map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
         let ts: Value = serde_json::from_slice(&text)
-            .map_err(|e| Error::input(&ts_path, format!("invalid JSON: {e}")))?;
+            .map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
         let mut uris = Vec::new();
         let mut stack = vec![ts["root"].clone()];
         while let Some(t) = stack.pop() {
@@ -318,13 +404,12 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let mut found: Option<FeatureSummary> = None;
     let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
     for uri in summary_tiles {
-        let path = dir.join(&uri);
-        let bytes =
-            std::fs::read(&path).map_err(|e| Error::input(&path, format!("cannot read: {e}")))?;
+        let path = inside_tileset(dir, dir, &uri)?;
+        let bytes = std::fs::read(&path).map_err(|e| Error::input_from(&path, "cannot read", e))?;
         let glb = gltf::binary::Glb::from_slice(&bytes)
-            .map_err(|e| Error::input(&path, format!("not a GLB: {e}")))?;
+            .map_err(|e| Error::input_from(&path, "not a GLB", e))?;
         let doc: Value = serde_json::from_slice(&glb.json)
-            .map_err(|e| Error::input(&path, format!("invalid JSON: {e}")))?;
+            .map_err(|e| Error::input_from(&path, "invalid JSON", e))?;
         let Some(ext) = doc.pointer("/extensions/EXT_structural_metadata") else {
             continue;
         };
@@ -334,12 +419,12 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
         ) {
             (Some(s), _) => s.clone(),
             (None, Some(u)) => {
-                let p = path.parent().unwrap_or(dir).join(u);
+                let p = inside_tileset(dir, path.parent().unwrap_or(dir), u)?;
                 if !schemas.contains_key(&p) {
-                    let t = std::fs::read(&p)
-                        .map_err(|e| Error::input(&p, format!("cannot read: {e}")))?;
+                    let t =
+                        std::fs::read(&p).map_err(|e| Error::input_from(&p, "cannot read", e))?;
                     let v: Value = serde_json::from_slice(&t)
-                        .map_err(|e| Error::input(&p, format!("invalid JSON: {e}")))?;
+                        .map_err(|e| Error::input_from(&p, "invalid JSON", e))?;
                     schemas.insert(p.clone(), v);
                 }
                 schemas[&p].clone()

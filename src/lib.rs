@@ -179,3 +179,247 @@ mod layering {
         assert_eq!(found, want);
     }
 }
+
+/// Issue 27: no function longer than [`function_length::MAX_FUNCTION_LINES`] lines.
+///
+/// A function's length counts its lines from `fn` to its closing brace (signature and body; a
+/// nested function counts in its own length and in the enclosing one's). Exempt: test code, i.e.
+/// `tests.rs` files and items under `#[cfg(test)]` (such as `mod tests { ... }`); a long test
+/// reads as a list of cases. The scanner blanks comments, strings and character literals, then
+/// counts braces, so a brace in a string or comment does not end a function.
+#[cfg(test)]
+mod function_length {
+    use std::path::{Path, PathBuf};
+
+    pub const MAX_FUNCTION_LINES: usize = 150;
+
+    /// `text` with comments (line, nested block), string literals (plain, byte, raw) and char
+    /// literals replaced by spaces, newlines kept (so byte offsets and line numbers still hold).
+    /// Lifetimes (`'a`) are left as they are.
+    pub fn blank_non_code(text: &str) -> String {
+        let b = text.as_bytes();
+        let mut out = b.to_vec();
+        let blank = |out: &mut Vec<u8>, from: usize, to: usize| {
+            for c in &mut out[from..to.min(b.len())] {
+                if *c != b'\n' {
+                    *c = b' ';
+                }
+            }
+        };
+        let is_ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
+        let mut i = 0;
+        while i < b.len() {
+            let prev_ident = i > 0 && is_ident(b[i - 1]);
+            match b[i] {
+                b'/' if b.get(i + 1) == Some(&b'/') => {
+                    let end = text[i..].find('\n').map_or(b.len(), |k| i + k);
+                    blank(&mut out, i, end);
+                    i = end;
+                }
+                b'/' if b.get(i + 1) == Some(&b'*') => {
+                    let (mut depth, mut j) = (0usize, i);
+                    while j < b.len() {
+                        if b[j..].starts_with(b"/*") {
+                            depth += 1;
+                            j += 2;
+                        } else if b[j..].starts_with(b"*/") {
+                            depth -= 1;
+                            j += 2;
+                            if depth == 0 {
+                                break;
+                            }
+                        } else {
+                            j += 1;
+                        }
+                    }
+                    blank(&mut out, i, j);
+                    i = j;
+                }
+                // Raw strings: r"..", r#".."#, br"..". (`r#ident` is a raw identifier.)
+                b'r' if !prev_ident || (i == 1 || !is_ident(b[i - 2])) && b[i - 1] == b'b' => {
+                    let hashes = b[i + 1..].iter().take_while(|&&c| c == b'#').count();
+                    if b.get(i + 1 + hashes) != Some(&b'"') {
+                        i += 1;
+                        continue;
+                    }
+                    let close = format!("\"{}", "#".repeat(hashes));
+                    let start = i + 2 + hashes;
+                    let end = text[start..]
+                        .find(&close)
+                        .map_or(b.len(), |k| start + k + close.len());
+                    blank(&mut out, i, end);
+                    i = end;
+                }
+                b'"' => {
+                    let mut j = i + 1;
+                    while j < b.len() && b[j] != b'"' {
+                        j += if b[j] == b'\\' { 2 } else { 1 };
+                    }
+                    blank(&mut out, i, j + 1);
+                    i = j + 1;
+                }
+                b'\'' => {
+                    // A char literal: an escape, or one character then a quote; else a lifetime.
+                    let rest = &text[i + 1..];
+                    let len = if rest.starts_with('\\') {
+                        rest[2..].find('\'').map(|k| k + 3)
+                    } else {
+                        let mut cs = rest.chars();
+                        match (cs.next(), cs.next()) {
+                            (Some(c), Some('\'')) => Some(c.len_utf8() + 1),
+                            _ => None,
+                        }
+                    };
+                    match len {
+                        Some(n) => {
+                            blank(&mut out, i, i + 1 + n);
+                            i += 1 + n;
+                        }
+                        None => i += 1,
+                    }
+                }
+                _ => i += 1,
+            }
+        }
+        String::from_utf8(out).expect("only ASCII bytes were replaced")
+    }
+
+    /// The byte offset of the `{` opening the item whose signature starts at `from`, or `None`
+    /// when a `;` ends it first (a declaration without a body). `;` and braces inside `()`
+    /// and `[]` (array types `[u32; 3]`) do not count.
+    fn body_start(code: &[u8], from: usize) -> Option<usize> {
+        let mut depth = 0i32;
+        for (k, &c) in code.iter().enumerate().skip(from) {
+            match c {
+                b'(' | b'[' => depth += 1,
+                b')' | b']' => depth -= 1,
+                b'{' if depth == 0 => return Some(k),
+                b';' if depth == 0 => return None,
+                _ => {}
+            }
+        }
+        None
+    }
+
+    /// The byte offset of the `}` matching the `{` at `open`.
+    fn matching_brace(code: &[u8], open: usize) -> usize {
+        let mut depth = 0usize;
+        for (k, &c) in code.iter().enumerate().skip(open) {
+            match c {
+                b'{' => depth += 1,
+                b'}' => {
+                    depth -= 1;
+                    if depth == 0 {
+                        return k;
+                    }
+                }
+                _ => {}
+            }
+        }
+        code.len()
+    }
+
+    /// Every function with a body outside `#[cfg(test)]` items: (name, first line (1-based),
+    /// length in lines).
+    pub fn functions(text: &str) -> Vec<(String, usize, usize)> {
+        let code = blank_non_code(text);
+        let b = code.as_bytes();
+        let line_of = |at: usize| code[..at].matches('\n').count() + 1;
+        let is_ident = |c: u8| c.is_ascii_alphanumeric() || c == b'_';
+        let mut exempt = Vec::new();
+        for (at, _) in code.match_indices("#[cfg(test)]") {
+            if let Some(open) = body_start(b, at + "#[cfg(test)]".len()) {
+                exempt.push(open..=matching_brace(b, open));
+            }
+        }
+        let mut out = Vec::new();
+        for (at, _) in code.match_indices("fn") {
+            let before_ok = at == 0 || !is_ident(b[at - 1]);
+            let after = &code[at + 2..];
+            let name: String = after
+                .trim_start()
+                .chars()
+                .take_while(|&c| c.is_alphanumeric() || c == '_')
+                .collect();
+            // `fn(u32) -> u32` (a pointer type) has no name; `fnord` is another word.
+            if !before_ok || !after.starts_with(char::is_whitespace) || name.is_empty() {
+                continue;
+            }
+            if exempt.iter().any(|r| r.contains(&at)) {
+                continue;
+            }
+            let Some(open) = body_start(b, at) else {
+                continue;
+            };
+            let (first, last) = (line_of(at), line_of(matching_brace(b, open)));
+            out.push((name, first, last - first + 1));
+        }
+        out
+    }
+
+    fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                sources(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+
+    #[test]
+    fn no_function_is_longer_than_the_limit() {
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+        let mut files = Vec::new();
+        sources(&src, &mut files);
+        files.sort();
+        let mut long = Vec::new();
+        for f in files.iter().filter(|f| !f.ends_with("tests.rs")) {
+            let text = std::fs::read_to_string(f).unwrap();
+            for (name, line, len) in functions(&text) {
+                if len > MAX_FUNCTION_LINES {
+                    let rel = f.strip_prefix(&src).unwrap().display();
+                    long.push(format!("src/{rel}:{line}: fn {name} is {len} lines"));
+                }
+            }
+        }
+        assert!(
+            long.is_empty(),
+            "functions over {MAX_FUNCTION_LINES} lines (issue 27):\n{}",
+            long.join("\n")
+        );
+    }
+
+    #[test]
+    fn the_scanner_skips_strings_comments_chars_and_test_code() {
+        let text = r####"
+/// Doc with a brace {
+fn a<'x>(s: &'x str) -> [u8; 3] {
+    let _ = "}}} \" }";
+    let _ = r#"}"#;
+    let _ = b'}';
+    let _ = '{';
+    /* { nested /* } */ { */
+    // }
+    let f: fn(u32) -> u32 = |x| x;
+    fn inner() {
+    }
+}
+trait T {
+    fn declared(&self) -> [u32; 2];
+}
+#[cfg(test)]
+mod tests {
+    fn skipped() {
+    }
+}
+fn last() {}
+"####;
+        let found = functions(text);
+        let want = [("a", 3, 11), ("inner", 11, 2), ("last", 22, 1)]
+            .map(|(n, l, k)| (n.to_string(), l, k));
+        assert_eq!(found, want);
+        assert_eq!(blank_non_code("x = 'a'; y"), "x =    ; y");
+    }
+}

@@ -12,6 +12,7 @@ use crate::partition::{plan_octree, TilePlan};
 use crate::scene::placement::Placement;
 use crate::scene::Scene;
 use crate::simplify::lod_chain::with_lod_chains;
+use crate::texture::admit::ImageLimits;
 use glam::DVec3;
 use serde::Serialize;
 use std::time::Instant;
@@ -23,6 +24,8 @@ pub struct InputReport {
     pub bytes: u64,
     /// Elements a reader could not use (e.g. IFC elements that failed to triangulate).
     pub skipped_elements: usize,
+    /// IFC products left out because their only geometry is a curve (alignments, footprints).
+    pub curve_only_elements: usize,
     pub triangles: usize,
     pub vertices: usize,
     pub components: usize,
@@ -34,9 +37,23 @@ pub struct InputReport {
     pub renamed_ids: usize,
 }
 
-/// Reads an input set into one scene; an input without triangles is an error.
-pub(crate) fn read_scene(inputs: &InputSet) -> Result<Scene> {
-    let scene = inputs.read()?;
+/// Reads an input set into one scene; an input without triangles is an error, and so is a
+/// georeference that could not be used under `--strict-georef`.
+pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
+    let scene = inputs.read_in_crs(opts.crs.as_deref())?;
+    if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
+        return Err(Error::input(
+            &w.file,
+            format!("{} (--strict-georef)", w.message),
+        ));
+    }
+    for w in &scene.georef_warnings {
+        eprintln!(
+            "warning: {}: {}; the model is placed without it",
+            w.file.display(),
+            w.message
+        );
+    }
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -56,6 +73,9 @@ pub(crate) struct Prepared {
     pub anchor_rule: String,
     pub origin: GeoOrigin,
     pub origin_source: &'static str,
+    /// The projected CRSs that placed inputs, and georeferences that could not be used.
+    pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
+    pub georef_warnings: Vec<String>,
     pub dedup: Option<DedupReport>,
     pub textures_prepared: crate::texture::Prepared,
     /// White twin materials added to the scene for merging plain colours per tile.
@@ -67,8 +87,9 @@ pub(crate) struct Prepared {
     pub t_partition: f64,
 }
 
-/// Place, dedup, texture preparation and the octree plan.
-pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
+/// Place, dedup, texture preparation and the octree plan. Fails on an image over the limits
+/// (`crate::texture::admit`).
+pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepared> {
     let input = InputReport {
         files: scene
             .sources
@@ -77,6 +98,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
             .collect(),
         bytes: scene.sources.iter().map(|s| s.bytes).sum(),
         skipped_elements: scene.skipped_elements,
+        curve_only_elements: scene.curve_only_elements,
         triangles: scene.triangle_count(),
         vertices: scene.vertex_count(),
         components: scene.components.len(),
@@ -102,7 +124,11 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
                 latitude_deg: g.latitude_deg,
                 height_m: g.height_m,
             },
-            "input-site",
+            if g.map_linear.is_some() {
+                "input-crs"
+            } else {
+                "input-site"
+            },
         ),
         (None, None) => (GeoOrigin::DEFAULT, "default"),
     };
@@ -112,7 +138,9 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
     let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
     let t_dedup = t_dedup_start.elapsed().as_secs_f64();
 
-    let textures_prepared = crate::texture::prepare(scene, &opts.texture);
+    let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes));
+    let textures_prepared = crate::texture::prepare(scene, &opts.texture, &limits)
+        .map_err(|(file, refused)| Error::input_from(file, "", refused))?;
     let merge_materials = opts
         .merge_plain_materials
         .unwrap_or_else(|| default_merge_plain_materials(opts.compression));
@@ -132,12 +160,18 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         LodMode::None => {}
     }
     let t_partition = t1.elapsed().as_secs_f64();
-    Prepared {
+    Ok(Prepared {
         input,
         anchor,
         anchor_rule,
         origin,
         origin_source,
+        crs_used: scene.crs_used.clone(),
+        georef_warnings: scene
+            .georef_warnings
+            .iter()
+            .map(|w| format!("{}: {}", w.file.display(), w.message))
+            .collect(),
         dedup,
         textures_prepared,
         appearance,
@@ -145,5 +179,5 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Prepared {
         chain_level,
         t_dedup,
         t_partition,
-    }
+    })
 }

@@ -7,15 +7,22 @@ use std::path::{Path, PathBuf};
 
 /// Runs convert on `input` and checks the failure contract; returns stderr.
 fn expect_failure(input: &Path, case: &str, must_mention: &[&str]) -> String {
+    expect_failure_with(input, case, &[], must_mention)
+}
+
+/// [`expect_failure`] with extra options.
+fn expect_failure_with(input: &Path, case: &str, extra: &[&str], must_mention: &[&str]) -> String {
     let dir = input.parent().unwrap();
     let out = dir.join(format!("out-{case}"));
-    let o = run(&[
+    let mut args = vec![
         "convert",
         input.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
         "--quiet",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = run(&args);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(!o.status.success(), "{case}: must fail");
     assert_eq!(
@@ -234,4 +241,78 @@ fn broken_ifc_files() {
         String::from_utf8_lossy(&full).replace("FILE_SCHEMA(('IFC4'))", "FILE_SCHEMA(('IFC9'))");
     let p = write(&d, "schema.ifc", text.as_bytes());
     expect_failure(&p, "ifc-schema", &[]);
+}
+
+/// Image sizes are checked from the header before anything is allocated: a PNG of a few dozen
+/// bytes claiming 65535 x 65535 px, or an image whose decoded pixels exceed a quarter of the
+/// memory budget, is refused with the file and the image named.
+#[test]
+fn image_bombs_are_refused_before_decoding() {
+    let dir = tmpdir("bad-image-bomb");
+    let bomb = png_claiming(65535, 65535);
+    assert!(bomb.len() < 100, "{} bytes", bomb.len());
+    let input = write(&dir, "bomb.glb", &textured_quad_glb(&bomb));
+    expect_failure(&input, "bomb", &["image 0 'photo'", "65535x65535 px"]);
+    let input = write(
+        &dir,
+        "big.glb",
+        &textured_quad_glb(&png_claiming(8000, 8000)),
+    );
+    expect_failure_with(
+        &input,
+        "budget",
+        &["--memory-budget", "512M"],
+        &["image 0 'photo'", "8000x8000 px", "--memory-budget"],
+    );
+}
+
+/// An image that does not decode is dropped from its material with one warning naming it (not
+/// under --quiet), recorded in report.json; the tiles carry no image.
+#[test]
+fn undecodable_images_are_dropped_with_a_warning() {
+    let dir = tmpdir("bad-image-undecodable");
+    let mut cut = png_image(64, 64, [200, 10, 10, 255]);
+    cut.truncate(cut.len() - 30);
+    let input = write(&dir, "cut.glb", &textured_quad_glb(&cut));
+    let out = dir.join("out");
+    let o = run(&[
+        "convert",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains("cut.glb: image 0 'photo' cannot be decoded"),
+        "{err}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["warnings"].as_array().unwrap().len(), 1);
+    assert_eq!(report["textures"]["dropped_images"][0]["name"], "photo");
+    let tiles: Vec<_> = std::fs::read_dir(out.join("tiles")).unwrap().collect();
+    assert!(!tiles.is_empty());
+    for t in tiles {
+        let path = t.unwrap().path();
+        let json = glb_json(&std::fs::read(&path).unwrap());
+        assert!(json.get("images").is_none(), "{}: an image", path.display());
+    }
+    assert!(!out.join("textures").exists());
+    let quiet = dir.join("out-quiet");
+    let o = run(&[
+        "convert",
+        input.to_str().unwrap(),
+        "--out",
+        quiet.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success());
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }

@@ -97,7 +97,8 @@ impl<'a> TileWriter<'a> {
     ) -> Result<Self> {
         let (plan, appearance, chain_level) = (&prep.plan, &prep.appearance, &prep.chain_level);
         let tiles_dir = dir.join("tiles");
-        std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::output(&tiles_dir, e))?;
+        std::fs::create_dir_all(&tiles_dir)
+            .map_err(|e| Error::output_from(&tiles_dir, "cannot create the folder", e))?;
         Ok(TileWriter {
             scene,
             plan,
@@ -306,7 +307,7 @@ impl<'a> TileWriter<'a> {
             records.push(record);
         }
         let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
-            .map_err(|e| Error::output(tmp, e))?;
+            .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
         write_renamed(&tmp.join("schema.json"), &schema_json)?;
         let extras = json!({"bimtiles": {
             "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
@@ -319,7 +320,8 @@ impl<'a> TileWriter<'a> {
         };
         let mut ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
         ts["schemaUri"] = json!("schema.json");
-        let bytes = serde_json::to_vec_pretty(&ts).map_err(|e| Error::output(tmp, e))?;
+        let bytes = serde_json::to_vec_pretty(&ts)
+            .map_err(|e| Error::output_from(tmp, "cannot serialize tileset.json", e))?;
         write_renamed(&tmp.join("tileset.json"), &bytes)?;
         Ok(records)
     }

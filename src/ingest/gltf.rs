@@ -12,7 +12,9 @@
 //! references (it rejects extensions 3D Tiles content needs), then read every accessor ourselves
 //! with explicit bounds checks, so malformed input gives an error and never a panic.
 
-use super::gltf_index::{AccessorDesc, GltfIndex, IndexNode, MeshDesc, PrimitiveDesc, ViewDesc};
+use super::gltf_index::{
+    AccessorDesc, GltfIndex, GltfIndexError, IndexNode, MeshDesc, PrimitiveDesc, ViewDesc,
+};
 use crate::error::{Error, Result};
 use crate::scene::*;
 use base64::Engine;
@@ -35,8 +37,8 @@ const SUPPORTED_REQUIRED: &[&str] = &[
 /// and each decoded run of the BIN chunk are handed back as the reader moves on: the file never
 /// counts whole towards peak memory.
 pub fn read_gltf(path: &Path) -> Result<Scene> {
-    let cannot_read = |e: std::io::Error| Error::input(path, format!("cannot read: {e}"));
-    let file = std::fs::File::open(path).map_err(cannot_read)?;
+    let cannot_read = |e: std::io::Error| Error::input_from(path, "cannot read", e);
+    let file = super::open_regular(path).map_err(cannot_read)?;
     let len = file.metadata().map_err(cannot_read)?.len();
     // SAFETY: the map is read-only and private. A file truncated by another process while it is
     // read would fault, as with any memory-mapped reader; inputs do not change during a run.
@@ -46,7 +48,7 @@ pub fn read_gltf(path: &Path) -> Result<Scene> {
     };
     let bytes = match mapped {
         Some(m) => FileBytes::Mapped(m),
-        None => FileBytes::Owned(std::fs::read(path).map_err(cannot_read)?),
+        None => FileBytes::Owned(super::read_regular(path).map_err(cannot_read)?),
     };
     read_gltf_from(path, &bytes)
 }
@@ -105,7 +107,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     // (JSON text, BIN chunk's byte range inside `bytes`).
     let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
         let glb = gltf::binary::Glb::from_slice(bytes)
-            .map_err(|e| err(format!("invalid or truncated GLB: {e}")))?;
+            .map_err(|e| Error::input_from(path, "invalid or truncated GLB", e))?;
         let json: &[u8] = match glb.json {
             std::borrow::Cow::Borrowed(j) => j,
             std::borrow::Cow::Owned(_) => return Err(err("invalid GLB JSON chunk".into())),
@@ -122,11 +124,11 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         (bytes, None)
     };
     let index: GltfIndex = serde_json::from_slice(json_text).map_err(|e| {
-        err(if is_glb {
-            format!("invalid GLB JSON chunk: {e}")
-        } else {
-            format!("invalid glTF JSON: {e}")
-        })
+        let what = match is_glb {
+            true => "invalid GLB JSON chunk",
+            false => "invalid glTF JSON",
+        };
+        Error::input_from(path, what, e)
     })?;
     let file_bytes = bytes.len() as u64;
     let json_start = json_text.as_ptr() as usize - bytes.as_ptr() as usize;
@@ -146,8 +148,9 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         views,
     } = index;
     let doc = gltf::Document::from_json_without_validation(root);
-    check_references(&doc, &err)?;
-    index_check.map_err(|m| err(format!("invalid glTF: {m}")))?;
+    check_references(&doc)
+        .and(index_check)
+        .map_err(|e| Error::input_from(path, "invalid glTF", e))?;
     for ext in doc.extensions_required() {
         if !SUPPORTED_REQUIRED.contains(&ext) {
             return Err(err(format!(
@@ -203,44 +206,67 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
 /// Broken indices (an accessor naming a missing bufferView, a node naming a missing mesh...) are
 /// fatal; "unsupported extension" and "missing data" reports are not (3D Tiles content relies on
 /// both), since the accessor reader checks data on its own.
-fn check_references(doc: &gltf::Document, err: &dyn Fn(String) -> Error) -> Result<()> {
+fn check_references(doc: &gltf::Document) -> std::result::Result<(), GltfIndexError> {
     let root = doc.as_json();
-    let mut first: Option<String> = None;
+    let mut first: Option<GltfIndexError> = None;
     root.validate(root, gltf::json::Path::new, &mut |path, e| {
         use gltf::json::validation::Error as E;
         if matches!(e, E::IndexOutOfBounds | E::Invalid | E::Oversize) && first.is_none() {
-            first = Some(format!("{}: {e}", path()));
+            first = Some(GltfIndexError::Validation {
+                path: path().to_string(),
+                source: e,
+            });
         }
     });
-    match first {
-        Some(m) => Err(err(format!("invalid glTF: {m}"))),
-        None => Ok(()),
-    }
+    first.map_or(Ok(()), Err)
+}
+
+/// An external or embedded (data URI) buffer or image that cannot be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum UriError {
+    #[error("URI '{uri}' is not valid percent-encoding")]
+    BadPercentEncoding { uri: String },
+    #[error("URI '{uri}' is absolute or has a scheme (refused)")]
+    Absolute { uri: String },
+    /// `..` (or a root) in the path.
+    #[error("URI '{uri}' escapes the input folder (refused)")]
+    Escapes { uri: String },
+    /// The path stays inside the folder by its text, but a symlink leads out of it.
+    #[error("URI '{uri}' leads outside the input folder (refused)")]
+    LeadsOutside { uri: String },
+    #[error("data URI is not base64")]
+    DataNotBase64,
+    #[error("bad base64 in data URI")]
+    BadBase64 { source: base64::DecodeError },
+    #[error("cannot read '{}'", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Resolves a relative URI inside `base_dir`, refusing anything that could escape it (absolute
 /// paths, `..`, schemes, and their percent-encoded forms): a tileset service must never be made to
 /// read arbitrary files.
-pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<PathBuf, String> {
+pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<PathBuf, UriError> {
+    let uri_text = || uri.to_string();
     let decoded =
-        percent_decode(uri).ok_or_else(|| format!("URI '{uri}' is not valid percent-encoding"))?;
+        percent_decode(uri).ok_or_else(|| UriError::BadPercentEncoding { uri: uri_text() })?;
     if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
-        return Err(format!("URI '{uri}' is absolute or has a scheme (refused)"));
+        return Err(UriError::Absolute { uri: uri_text() });
     }
     let rel = Path::new(&decoded);
     if rel
         .components()
         .any(|c| !matches!(c, PathPart::Normal(_) | PathPart::CurDir))
     {
-        return Err(format!("URI '{uri}' escapes the input folder (refused)"));
+        return Err(UriError::Escapes { uri: uri_text() });
     }
     let full = base_dir.join(rel);
     // A symlink inside the folder could still point out of it.
     if let (Ok(canon), Ok(base)) = (full.canonicalize(), base_dir.canonicalize()) {
         if !canon.starts_with(&base) {
-            return Err(format!(
-                "URI '{uri}' leads outside the input folder (refused)"
-            ));
+            return Err(UriError::LeadsOutside { uri: uri_text() });
         }
     }
     Ok(full)
@@ -263,25 +289,25 @@ fn percent_decode(s: &str) -> Option<String> {
     String::from_utf8(out).ok()
 }
 
-fn decode_data_uri(uri: &str) -> Option<std::result::Result<Vec<u8>, String>> {
+fn decode_data_uri(uri: &str) -> Option<std::result::Result<Vec<u8>, UriError>> {
     let rest = uri.strip_prefix("data:")?;
     let (_, data) = match rest.split_once(";base64,") {
         Some(x) => x,
-        None => return Some(Err("data URI is not base64".into())),
+        None => return Some(Err(UriError::DataNotBase64)),
     };
     Some(
         base64::engine::general_purpose::STANDARD
             .decode(data)
-            .map_err(|e| format!("bad base64 in data URI: {e}")),
+            .map_err(|source| UriError::BadBase64 { source }),
     )
 }
 
-fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, String> {
+fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, UriError> {
     if let Some(data) = decode_data_uri(uri) {
         return data;
     }
-    let p = resolve_relative_uri(base_dir, uri)?;
-    std::fs::read(&p).map_err(|e| format!("cannot read '{}': {e}", p.display()))
+    let path = resolve_relative_uri(base_dir, uri)?;
+    super::read_regular(&path).map_err(|source| UriError::Read { path, source })
 }
 
 /// A buffer's bytes: the GLB BIN chunk (borrowed from the file) or loaded from a URI.
@@ -310,7 +336,7 @@ fn load_buffers(
             }
             gltf::buffer::Source::Uri(uri) => {
                 let v = load_uri(base_dir, uri)
-                    .map_err(|m| Error::input(path, format!("buffer {}: {m}", b.index())))?;
+                    .map_err(|e| Error::input_from(path, format!("buffer {}", b.index()), e))?;
                 let n = v.len();
                 (BufferData::Owned(v), n)
             }
@@ -458,8 +484,9 @@ impl Reader<'_> {
             let declared = json.mime_type.as_ref().map(|m| m.0.as_str());
             let bytes = match (image_views.get(img.index()).copied().flatten(), &json.uri) {
                 (Some(view), _) => self.view_bytes(view)?.to_vec(),
-                (None, Some(uri)) => load_uri(base_dir, uri)
-                    .map_err(|m| self.err(format!("image {}: {m}", img.index())))?,
+                (None, Some(uri)) => load_uri(base_dir, uri).map_err(|e| {
+                    Error::input_from(self.path, format!("image {}", img.index()), e)
+                })?,
                 (None, None) => {
                     return Err(self.err(format!(
                         "image {} has neither a uri nor a bufferView",
@@ -1017,6 +1044,41 @@ mod tests {
         }
         assert!(resolve_relative_uri(base, "textures/a%20b.png").is_ok());
         assert!(resolve_relative_uri(base, "./buf.bin").is_ok());
+        // Each refusal says why.
+        let e = |uri| resolve_relative_uri(base, uri).unwrap_err();
+        assert!(matches!(e("a/../../x"), UriError::Escapes { uri } if uri == "a/../../x"));
+        assert!(matches!(e("%2e%2e/x"), UriError::Escapes { .. }));
+        assert!(matches!(e("/etc/passwd"), UriError::Absolute { .. }));
+        assert!(matches!(e("http://host/x"), UriError::Absolute { .. }));
+        assert!(matches!(e("%zz.bin"), UriError::BadPercentEncoding { .. }));
+    }
+
+    #[test]
+    fn data_uri_and_file_errors_are_typed() {
+        let dir = Path::new("/nonexistent-bimtiles-dir");
+        let ok = load_uri(dir, "data:application/octet-stream;base64,AAEC").unwrap();
+        assert_eq!(ok, vec![0, 1, 2]);
+        let e = load_uri(dir, "data:application/octet-stream;base64,@@@").unwrap_err();
+        assert!(matches!(e, UriError::BadBase64 { .. }), "{e}");
+        assert!(std::error::Error::source(&e).is_some());
+        let e = load_uri(dir, "data:text/plain,hello").unwrap_err();
+        assert!(matches!(e, UriError::DataNotBase64), "{e}");
+        let e = load_uri(dir, "missing.bin").unwrap_err();
+        match &e {
+            UriError::Read { path, source } => {
+                assert_eq!(path, &dir.join("missing.bin"));
+                assert_eq!(source.kind(), std::io::ErrorKind::NotFound);
+            }
+            other => panic!("expected a read error, got {other}"),
+        }
+        // The reader's line: "<file>: buffer 0: cannot read '<path>': <io error>".
+        let line = crate::error::chain_text(&Error::input_from("m.gltf", "buffer 0", e));
+        assert!(
+            line.starts_with(
+                "m.gltf: buffer 0: cannot read '/nonexistent-bimtiles-dir/missing.bin': "
+            ),
+            "{line}"
+        );
     }
 
     #[test]

@@ -19,6 +19,35 @@ use serde_json::{Map, Value};
 use std::fmt;
 use std::marker::PhantomData;
 
+/// A glTF JSON that parses but does not hold together: each names the JSON path of the problem
+/// (`accessors[3].componentType`). Inside the streaming parse it reaches the reader through
+/// serde's error (which keeps only its text); the reference checks return it whole.
+#[derive(Debug, thiserror::Error)]
+pub enum GltfIndexError {
+    /// An enum field holds a value glTF does not define.
+    #[error("{path}: invalid value")]
+    InvalidValue { path: String },
+    /// A sparse accessor's indices are not of an index type (u8, u16, u32).
+    #[error("{path}: {found} is not an index type")]
+    NotIndexType { path: String, found: String },
+    /// A primitive's attribute name is not a glTF semantic.
+    #[error("{path}: invalid semantic")]
+    InvalidSemantic { path: String },
+    /// A problem the `gltf` crate's validator found in the rest of the JSON.
+    #[error("{path}")]
+    Validation {
+        path: String,
+        source: gltf::json::validation::Error,
+    },
+    /// An index into another array that is past its end.
+    #[error("{path}: index {index} out of bounds (of {len})")]
+    OutOfBounds {
+        path: String,
+        index: usize,
+        len: usize,
+    },
+}
+
 /// The reduced glTF JSON.
 pub struct GltfIndex {
     /// The rest of the JSON: no nodes, scenes, meshes, accessors or bufferViews, and images
@@ -177,14 +206,14 @@ fn usize_of(v: gltf::json::validation::USize64) -> usize {
     usize::try_from(v.0).unwrap_or(usize::MAX)
 }
 
-fn checked<T: Copy>(c: &Checked<T>, what: impl FnOnce() -> String) -> Result<T, String> {
+fn checked<T: Copy>(c: &Checked<T>, what: impl FnOnce() -> String) -> Result<T, GltfIndexError> {
     match c {
         Checked::Valid(v) => Ok(*v),
-        Checked::Invalid => Err(format!("{}: invalid value", what())),
+        Checked::Invalid => Err(GltfIndexError::InvalidValue { path: what() }),
     }
 }
 
-fn view_of(_: usize, v: gltf::json::buffer::View) -> Result<ViewDesc, String> {
+fn view_of(_: usize, v: gltf::json::buffer::View) -> Result<ViewDesc, GltfIndexError> {
     Ok(ViewDesc {
         buffer: v.buffer.value(),
         offset: v.byte_offset.map_or(0, usize_of),
@@ -193,7 +222,7 @@ fn view_of(_: usize, v: gltf::json::buffer::View) -> Result<ViewDesc, String> {
     })
 }
 
-fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, String> {
+fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, GltfIndexError> {
     use gltf::json::accessor::IndexComponentType as I;
     let sparse = match &a.sparse {
         None => None,
@@ -208,9 +237,10 @@ fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, String
                 I(DataType::U16) => 2,
                 I(DataType::U32) => 4,
                 I(other) => {
-                    return Err(format!(
-                    "accessors[{i}].sparse.indices.componentType: {other:?} is not an index type"
-                ))
+                    return Err(GltfIndexError::NotIndexType {
+                        path: format!("accessors[{i}].sparse.indices.componentType"),
+                        found: format!("{other:?}"),
+                    })
                 }
             },
             value_view: s.values.buffer_view.value() as u32,
@@ -231,7 +261,7 @@ fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, String
     })
 }
 
-fn mesh_of(i: usize, m: gltf::json::Mesh) -> Result<MeshDesc, String> {
+fn mesh_of(i: usize, m: gltf::json::Mesh) -> Result<MeshDesc, GltfIndexError> {
     use gltf::json::mesh::Semantic;
     let mut primitives = Vec::with_capacity(m.primitives.len());
     for (pi, p) in m.primitives.iter().enumerate() {
@@ -241,9 +271,9 @@ fn mesh_of(i: usize, m: gltf::json::Mesh) -> Result<MeshDesc, String> {
                 .map(|a| a.value() as u32)
         };
         if p.attributes.keys().any(|k| matches!(k, Checked::Invalid)) {
-            return Err(format!(
-                "meshes[{i}].primitives[{pi}].attributes: invalid semantic"
-            ));
+            return Err(GltfIndexError::InvalidSemantic {
+                path: format!("meshes[{i}].primitives[{pi}].attributes"),
+            });
         }
         primitives.push(PrimitiveDesc {
             mode: checked(&p.mode, || format!("meshes[{i}].primitives[{pi}].mode"))?,
@@ -271,7 +301,7 @@ struct Reduce<T, O, F>(F, PhantomData<fn(T) -> O>);
 impl<'de, T, O, F> DeserializeSeed<'de> for Reduce<T, O, F>
 where
     T: Deserialize<'de>,
-    F: FnMut(usize, T) -> Result<O, String>,
+    F: FnMut(usize, T) -> Result<O, GltfIndexError>,
 {
     type Value = Vec<O>;
     fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<Vec<O>, D::Error> {
@@ -282,7 +312,7 @@ where
 impl<'de, T, O, F> Visitor<'de> for Reduce<T, O, F>
 where
     T: Deserialize<'de>,
-    F: FnMut(usize, T) -> Result<O, String>,
+    F: FnMut(usize, T) -> Result<O, GltfIndexError>,
 {
     type Value = Vec<O>;
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
@@ -300,7 +330,7 @@ where
 fn reduce<'de, T, O, F>(f: F) -> Reduce<T, O, F>
 where
     T: Deserialize<'de>,
-    F: FnMut(usize, T) -> Result<O, String>,
+    F: FnMut(usize, T) -> Result<O, GltfIndexError>,
 {
     Reduce(f, PhantomData)
 }
@@ -357,11 +387,15 @@ impl<'de> Visitor<'de> for IndexVisitor {
 
 impl GltfIndex {
     /// Broken indices in the reduced tables, as the `gltf` crate's validator reports them for the
-    /// rest: the first one, as "path: what".
-    pub fn check_references(&self) -> Result<(), String> {
+    /// rest: the first one.
+    pub fn check_references(&self) -> Result<(), GltfIndexError> {
         let bad = |path: String, i: u32, len: usize| match (i as usize) < len {
             true => Ok(()),
-            false => Err(format!("{path}: index {i} out of bounds (of {len})")),
+            false => Err(GltfIndexError::OutOfBounds {
+                path,
+                index: i as usize,
+                len,
+            }),
         };
         let n = self.nodes.len();
         for (i, node) in self.nodes.iter().enumerate() {
@@ -405,11 +439,11 @@ impl GltfIndex {
         }
         for (i, v) in self.views.iter().enumerate() {
             if v.buffer >= self.root.buffers.len() {
-                return Err(format!(
-                    "bufferViews[{i}].buffer: index {} out of bounds (of {})",
-                    v.buffer,
-                    self.root.buffers.len()
-                ));
+                return Err(GltfIndexError::OutOfBounds {
+                    path: format!("bufferViews[{i}].buffer"),
+                    index: v.buffer,
+                    len: self.root.buffers.len(),
+                });
             }
         }
         for (i, v) in self.image_views.iter().enumerate() {
@@ -516,7 +550,11 @@ mod tests {
             let mut j = base();
             edit(&mut j);
             let e = index(j).check_references().unwrap_err();
-            assert!(e.starts_with(path), "{path}: {e}");
+            assert!(
+                matches!(&e, GltfIndexError::OutOfBounds { path: p, .. } if p == path),
+                "{path}: {e}"
+            );
+            assert!(e.to_string().starts_with(path), "{path}: {e}");
         }
     }
 
@@ -536,5 +574,28 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("meshes[0].primitives[0].mode"), "{e}");
+        let mut j = base();
+        j["accessors"][2]["sparse"]["indices"]["componentType"] = 5126.into();
+        let e = serde_json::from_value::<GltfIndex>(j)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("accessors[2].sparse.indices.componentType: invalid value"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_bad_semantic_is_typed() {
+        let m: gltf::json::Mesh = serde_json::from_value(serde_json::json!(
+            {"primitives": [{"attributes": {"POSITION": 0, "NOT_A_SEMANTIC": 1}}]}
+        ))
+        .unwrap();
+        let e = mesh_of(4, m).err().unwrap();
+        assert!(
+            matches!(&e, GltfIndexError::InvalidSemantic { path } if path == "meshes[4].primitives[0].attributes"),
+            "{e}"
+        );
     }
 }

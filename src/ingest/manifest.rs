@@ -66,6 +66,10 @@ pub struct ManifestModel {
     /// Clockwise from north, degrees: the model's +y (north) axis turns to this bearing.
     #[serde(default)]
     pub heading_deg: f64,
+    /// The projected CRS of the model's map coordinates ("EPSG:28992"): the model is placed where
+    /// they are, by its own CRS, instead of by a placement.
+    #[serde(default)]
+    pub crs: Option<String>,
 }
 
 /// A checked manifest entry: the model file and its transform from the model's anchored frame into
@@ -75,21 +79,22 @@ pub struct Placement {
     pub name: String,
     pub file: PathBuf,
     pub transform: DMat4,
+    /// The model's map coordinates are in this CRS: it goes where they are.
+    pub crs: Option<String>,
 }
 
 impl Manifest {
     /// Reads and checks a manifest; every problem is one error naming the manifest.
     pub fn read(path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
-        let bad = |m: String| Error::input(path, m);
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            bad(if e.kind() == std::io::ErrorKind::NotFound {
-                "no such manifest file".into()
+        let text = super::read_regular(path).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::NotFound {
+                Error::input(path, "no such manifest file")
             } else {
-                format!("cannot read the manifest: {e}")
-            })
+                Error::input_from(path, "cannot read the manifest", e)
+            }
         })?;
-        let m: Manifest =
-            serde_json::from_str(&text).map_err(|e| bad(format!("not a valid manifest: {e}")))?;
+        let m: Manifest = serde_json::from_slice(&text)
+            .map_err(|e| Error::input_from(path, "not a valid manifest", e))?;
         m.check(path)
     }
 
@@ -101,7 +106,7 @@ impl Manifest {
                 "{},{},{}",
                 o.longitude_deg, o.latitude_deg, o.height_m
             ))
-            .map_err(|e| bad(format!("origin: {e}")))?,
+            .map_err(|e| Error::input_from(path, "origin", e))?,
         };
         if self.models.is_empty() {
             return Err(bad("the manifest lists no models".into()));
@@ -126,11 +131,28 @@ impl Manifest {
                 )));
             }
             let file = folder.join(rel);
-            if !file.is_file() {
-                return Err(bad(format!(
-                    "{what}: no such model file {}",
-                    file.display()
-                )));
+            // Inside by its text, but a symlink could still lead out of the folder.
+            let base = if folder.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                folder
+            };
+            if let (Ok(canon), Ok(base)) = (file.canonicalize(), base.canonicalize()) {
+                if !canon.starts_with(&base) {
+                    return Err(bad(format!(
+                        "{what}: a symlink leads outside the manifest's folder (refused)"
+                    )));
+                }
+            }
+            match super::open_regular(&file) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(bad(format!(
+                        "{what}: no such model file {}",
+                        file.display()
+                    )))
+                }
+                Err(e) => return Err(bad(format!("{what}: {}: {e}", file.display()))),
+                Ok(_) => {}
             }
             let name = match &e.name {
                 Some(n) if n.trim().is_empty() || n.contains('/') => {
@@ -163,6 +185,11 @@ impl Manifest {
             }
             let geographic = e.longitude_deg.is_some() || e.latitude_deg.is_some();
             let offset = e.east_m.is_some() || e.north_m.is_some() || e.up_m.is_some();
+            if e.crs.is_some() && (geographic || offset || e.height_m.is_some()) {
+                return Err(bad(format!(
+                    "{what}: a model with a \"crs\" is placed by its map coordinates; give no placement with it"
+                )));
+            }
             let heading = DMat4::from_rotation_z(-e.heading_deg.to_radians());
             let transform = match (geographic, offset) {
                 (true, true) => {
@@ -201,6 +228,7 @@ impl Manifest {
                 name,
                 file,
                 transform,
+                crs: e.crs.clone(),
             });
         }
         Ok((origin, out))
@@ -213,12 +241,29 @@ impl Manifest {
 pub fn read_manifest(path: &Path) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
+    let ecef_to_origin = origin.enu_to_ecef().inverse();
     for p in &placements {
-        let mut s = super::read_input(&p.file)?;
-        // The model's own anchor goes to its placement (the rule of `convert`).
+        let given = p.crs.as_deref().map(|crs| super::GivenCrs {
+            crs,
+            source: "manifest",
+        });
+        let mut s = super::read_input_in_crs(&p.file, given)?;
+        // The model's own anchor goes to its placement (the rule of `convert`); a model in map
+        // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;
+        let transform = match (&p.crs, s.georeference) {
+            (Some(_), Some(g)) if g.map_linear.is_some() => {
+                let here = GeoOrigin {
+                    longitude_deg: g.longitude_deg,
+                    latitude_deg: g.latitude_deg,
+                    height_m: g.height_m,
+                };
+                ecef_to_origin * here.enu_to_ecef()
+            }
+            _ => p.transform,
+        };
         s.georeference = None;
-        s.apply_transform(&(p.transform * local));
+        s.apply_transform(&(transform * local));
         parts.push(s);
     }
     // Ids used by more than one entry get the entry's name as a prefix, in every entry.
@@ -273,6 +318,7 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
         height_m: origin.height_m,
         true_north_deg: None,
         anchor: DVec3::ZERO,
+        map_linear: None,
     });
     scene.finish();
     Ok(scene)
@@ -290,7 +336,7 @@ mod tests {
         std::fs::write(&p, json).unwrap();
         Manifest::read(&p)
             .map(|(_, v)| v)
-            .map_err(|e| e.to_string())
+            .map_err(|e| crate::error::chain_text(&e))
     }
 
     #[test]

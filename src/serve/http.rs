@@ -22,8 +22,12 @@ pub const MAX_HEADERS: usize = 100;
 #[derive(Debug, Clone, Copy)]
 pub struct ConnConfig {
     /// A kept-alive connection with no new request for this long is closed (the browser opens
-    /// another when it needs one). Also bounds a client that sends half a request.
+    /// another when it needs one).
     pub idle: Duration,
+    /// A whole request head must arrive within this time of its first byte, however the bytes
+    /// trickle in (a client sending one header line every few seconds would otherwise hold its
+    /// connection for as long as it likes): past it, 408 and the connection is closed.
+    pub head: Duration,
     /// A client that reads nothing of a response for this long is dropped.
     pub write: Duration,
 }
@@ -236,8 +240,62 @@ impl Log {
     }
 }
 
-/// Answers the requests of one connection until it closes, goes idle or errs.
-pub fn serve_connection(stream: TcpStream, id: u64, handler: &Handler, cfg: ConnConfig, log: &Log) {
+/// A socket reader whose timeout is [`ConnConfig::idle`] until the first byte of a request head
+/// and then what is left of [`ConnConfig::head`], so the deadline of a head is not reset by each
+/// line that arrives.
+struct HeadTimedReader {
+    stream: TcpStream,
+    idle: Duration,
+    head: Duration,
+    /// When the head being read must be complete; `None` before its first byte.
+    deadline: Option<Instant>,
+}
+
+impl HeadTimedReader {
+    /// The next bytes start a new request head.
+    fn start_head(&mut self) {
+        self.deadline = None;
+    }
+}
+
+impl Read for HeadTimedReader {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let timeout = match self.deadline {
+            None => self.idle,
+            Some(d) => d.saturating_duration_since(Instant::now()),
+        };
+        if timeout.is_zero() {
+            return Err(io::ErrorKind::TimedOut.into());
+        }
+        self.stream.set_read_timeout(Some(timeout))?;
+        let n = self.stream.read(buf)?;
+        if n > 0 && self.deadline.is_none() {
+            self.deadline = Some(Instant::now() + self.head);
+        }
+        Ok(n)
+    }
+}
+
+/// What a connection is doing, for the server's choice of which connection to close when all
+/// slots are taken (see `accept_loop` in mod.rs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Waiting for a request or reading its head: can be closed for a new client.
+    Reading,
+    /// Answering a request.
+    Answering,
+}
+
+/// Answers the requests of one connection until it closes, goes idle or errs; `phase` is told
+/// when it starts reading a request and when it starts answering one.
+pub fn serve_connection(
+    stream: TcpStream,
+    id: u64,
+    handler: &Handler,
+    cfg: ConnConfig,
+    log: &Log,
+    phase: &dyn Fn(Phase),
+) {
     let peer = stream
         .peer_addr()
         .map_or_else(|_| "?".to_string(), |a| a.to_string());
@@ -245,12 +303,16 @@ pub fn serve_connection(stream: TcpStream, id: u64, handler: &Handler, cfg: Conn
         log.line(format_args!("conn {id} open from {peer}"));
     }
     let _ = stream.set_nodelay(true);
-    let timeouts = stream
-        .set_read_timeout(Some(cfg.idle))
-        .and_then(|_| stream.set_write_timeout(Some(cfg.write)));
-    let reader = timeouts.and_then(|_| stream.try_clone());
+    let reader = stream
+        .set_write_timeout(Some(cfg.write))
+        .and_then(|_| stream.try_clone());
     let mut reader = match reader {
-        Ok(r) => BufReader::new(r),
+        Ok(r) => BufReader::new(HeadTimedReader {
+            stream: r,
+            idle: cfg.idle,
+            head: cfg.head,
+            deadline: None,
+        }),
         Err(e) => {
             if log.trace {
                 log.line(format_args!("conn {id} closed: {e}"));
@@ -260,6 +322,8 @@ pub fn serve_connection(stream: TcpStream, id: u64, handler: &Handler, cfg: Conn
     };
     let mut n = 0u64;
     let end: String = loop {
+        phase(Phase::Reading);
+        reader.get_mut().start_head();
         let rq = match read_request(&mut reader) {
             Ok(rq) => rq,
             Err(HeadError::Closed) => break "by the client".into(),
@@ -272,6 +336,7 @@ pub fn serve_connection(stream: TcpStream, id: u64, handler: &Handler, cfg: Conn
             }
         };
         n += 1;
+        phase(Phase::Answering);
         let t = Instant::now();
         if log.trace {
             log.line(format_args!("conn {id} #{n} {} {}", rq.method, rq.target));

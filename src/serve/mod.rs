@@ -10,7 +10,10 @@
 //! single `Range` requests (206/416); gzip for text types and for binaries where it saves at
 //! least 10% (decided per file and cached in memory). Binds to loopback unless told otherwise.
 //! One thread per connection (see `http.rs` for why), kept alive until idle for
-//! [`ServeOptions::idle_timeout`]. `BIMTILES_SERVE_LOG=1` logs every connection and request
+//! [`ServeOptions::idle_timeout`]. Slow clients cannot starve others: a request head must arrive
+//! within [`ServeOptions::head_timeout`] of its first byte, and when every slot is taken a new
+//! connection takes the slot of the connection that has waited longest for a request (idle or
+//! trickling its head in); only when all are answering requests is it refused with 503. `BIMTILES_SERVE_LOG=1` logs every connection and request
 //! with its timing to stderr (for a page load that hangs: was the request read, answered?).
 //!
 //! ```no_run
@@ -58,11 +61,14 @@ pub struct ServeOptions {
     pub host: String,
     /// Port; default 8080; 0 picks a free one (see [`ServerHandle::addr`]).
     pub port: u16,
-    /// Connections served at once (a thread each); past it a new one is answered 503 and
-    /// closed. Default 256 (a browser opens 6 per host).
+    /// Connections served at once (a thread each). Past it, a new one takes the slot of the
+    /// connection that has waited longest for a request; when all are answering, it is answered
+    /// 503 and closed. Default 256 (a browser opens 6 per host).
     pub max_connections: usize,
     /// A kept-alive connection with no request for this long is closed; default 15 s.
     pub idle_timeout: Duration,
+    /// A request head must be complete this long after its first byte; default 10 s.
+    pub head_timeout: Duration,
     /// Print one line per request to stderr.
     pub log_requests: bool,
     /// Also log connections opened / closed and requests started, with times; default: the
@@ -80,6 +86,7 @@ impl ServeOptions {
             port: 8080,
             max_connections: 256,
             idle_timeout: Duration::from_secs(15),
+            head_timeout: Duration::from_secs(10),
             log_requests: false,
             log_connections: std::env::var("BIMTILES_SERVE_LOG").is_ok_and(|v| v == "1"),
         }
@@ -115,13 +122,42 @@ pub struct ServerHandle {
 struct Shared {
     handler: Handler,
     stop: AtomicBool,
-    /// Open connections (a clone of each socket, to end them at shutdown), by id.
-    conns: Mutex<HashMap<u64, TcpStream>>,
+    /// Open connections, by id.
+    conns: Mutex<HashMap<u64, Slot>>,
     /// Signalled when a connection ends.
     conn_ended: Condvar,
     max_connections: usize,
     conn: http::ConnConfig,
     log: http::Log,
+}
+
+/// One open connection.
+struct Slot {
+    /// A clone of its socket, to end it (at shutdown, or to give its slot to a new client).
+    stream: TcpStream,
+    phase: http::Phase,
+    /// When it entered that phase.
+    since: Instant,
+}
+
+impl Shared {
+    fn set_phase(&self, id: u64, phase: http::Phase) {
+        let mut conns = self.conns.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(slot) = conns.get_mut(&id) {
+            slot.phase = phase;
+            slot.since = Instant::now();
+        }
+    }
+}
+
+/// The connection whose slot a new client takes when all are taken: of those waiting for a
+/// request (idle, or trickling a head in), the one waiting longest. `None`: all are answering.
+fn slot_to_reclaim(conns: &HashMap<u64, Slot>) -> Option<u64> {
+    conns
+        .iter()
+        .filter(|(_, s)| s.phase == http::Phase::Reading)
+        .min_by_key(|(id, s)| (s.since, **id))
+        .map(|(id, _)| *id)
 }
 
 impl ServerHandle {
@@ -166,7 +202,7 @@ impl ServerHandle {
         // Ends the reads of idle connections; a response being written is finished first.
         let mut conns = self.shared.conns.lock().unwrap_or_else(|p| p.into_inner());
         for s in conns.values() {
-            let _ = s.shutdown(Shutdown::Read);
+            let _ = s.stream.shutdown(Shutdown::Read);
         }
         let deadline = Instant::now() + Duration::from_secs(10);
         while !conns.is_empty() && Instant::now() < deadline {
@@ -252,6 +288,7 @@ pub fn start(opts: &ServeOptions) -> Result<ServerHandle, ServeError> {
         max_connections: opts.max_connections.max(1),
         conn: http::ConnConfig {
             idle: opts.idle_timeout,
+            head: opts.head_timeout,
             write: Duration::from_secs(60),
         },
         log: http::Log {
@@ -320,17 +357,36 @@ fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
         {
             let mut conns = shared.conns.lock().unwrap_or_else(|p| p.into_inner());
             if conns.len() >= shared.max_connections {
-                drop(conns);
-                refuse_busy(stream, id, &shared.log);
-                continue;
+                let Some(victim) = slot_to_reclaim(&conns) else {
+                    drop(conns);
+                    refuse_busy(stream, id, &shared.log);
+                    continue;
+                };
+                // Its thread sees the closed socket at once and ends.
+                if let Some(v) = conns.remove(&victim) {
+                    let _ = v.stream.shutdown(Shutdown::Both);
+                }
+                if shared.log.trace {
+                    shared.log.line(format_args!(
+                        "conn {victim} closed: its slot was taken by conn {id}"
+                    ));
+                }
             }
-            conns.insert(id, clone);
+            conns.insert(
+                id,
+                Slot {
+                    stream: clone,
+                    phase: http::Phase::Reading,
+                    since: Instant::now(),
+                },
+            );
         }
         let s = shared.clone();
         let spawned = std::thread::Builder::new()
             .name(format!("bimtiles-serve-conn-{id}"))
             .spawn(move || {
-                http::serve_connection(stream, id, &s.handler, s.conn, &s.log);
+                let phase = |p| s.set_phase(id, p);
+                http::serve_connection(stream, id, &s.handler, s.conn, &s.log, &phase);
                 s.conns
                     .lock()
                     .unwrap_or_else(|p| p.into_inner())
@@ -664,18 +720,30 @@ mod tests {
         );
     }
 
+    /// Connections answering a request that the client does not read: the server blocks
+    /// writing a body larger than the socket buffers.
+    fn hold_answering(a: SocketAddr, o: &ServeOptions, n: usize) -> Vec<TcpStream> {
+        std::fs::write(o.tileset_dir.join("tiles/big.bin"), vec![1u8; 64 << 20]).unwrap();
+        let held: Vec<TcpStream> = (0..n)
+            .map(|_| {
+                let mut s = TcpStream::connect(a).unwrap();
+                s.write_all(b"GET /tileset/tiles/big.bin HTTP/1.1\r\nHost: x\r\n\r\n")
+                    .unwrap();
+                s
+            })
+            .collect();
+        // Give the server time to take the requests and fill the buffers.
+        std::thread::sleep(Duration::from_millis(300));
+        held
+    }
+
     #[test]
-    fn too_many_connections_get_503() {
+    fn too_many_answering_connections_get_503() {
         let (_t, mut o) = setup();
         o.max_connections = 2;
         let h = start(&o).unwrap();
         let a = h.addr();
-        let mut held: Vec<TcpStream> = (0..2).map(|_| TcpStream::connect(a).unwrap()).collect();
-        for s in &mut held {
-            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-            s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
-            read_response(s).unwrap();
-        }
+        let held = hold_answering(a, &o, 2);
         let (head, _) = raw(a, &req("GET", "/", ""));
         assert!(head.starts_with("HTTP/1.1 503"), "{head}");
         drop(held);
@@ -690,5 +758,78 @@ mod tests {
             std::thread::sleep(Duration::from_millis(20));
         }
         h.shutdown();
+    }
+
+    /// A client sending its head one line at a time, a line every 100 ms: each read is well
+    /// within the idle timeout, but the whole head is not within the head timeout.
+    fn trickle(a: SocketAddr, lines: usize) -> std::thread::JoinHandle<(String, usize)> {
+        use std::io::ErrorKind::{TimedOut, WouldBlock};
+        std::thread::spawn(move || {
+            let mut s = TcpStream::connect(a).unwrap();
+            s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+            let mut sent = 0;
+            let mut answer = Vec::new();
+            if s.write_all(b"GET / HTTP/1.1\r\n").is_ok() {
+                while sent < lines {
+                    std::thread::sleep(Duration::from_millis(100));
+                    if s.write_all(b"X-Slow: y\r\n").is_err() {
+                        break;
+                    }
+                    sent += 1;
+                    match s.read_to_end(&mut answer) {
+                        // Still open: go on trickling.
+                        Err(e) if matches!(e.kind(), WouldBlock | TimedOut) => {}
+                        // Closed by the server (after its answer, if any).
+                        _ => break,
+                    }
+                }
+            }
+            (String::from_utf8_lossy(&answer).into_owned(), sent)
+        })
+    }
+
+    #[test]
+    fn a_head_trickled_in_is_cut_at_the_head_timeout() {
+        let (_t, mut o) = setup();
+        o.idle_timeout = Duration::from_secs(5);
+        o.head_timeout = Duration::from_millis(600);
+        let h = start(&o).unwrap();
+        let (answer, sent) = trickle(h.addr(), 40).join().unwrap();
+        assert!(answer.starts_with("HTTP/1.1 408"), "{answer:?}");
+        // 600 ms at a line per 100 ms: cut after about 6 lines, far before 40 (4 s).
+        assert!(sent < 20, "{sent} lines sent before the cut");
+        h.shutdown();
+    }
+
+    /// Slow clients holding every slot do not starve a normal one: it takes the slot of the
+    /// connection that has waited longest for a complete request.
+    #[test]
+    fn slow_clients_do_not_starve_others() {
+        let (_t, mut o) = setup();
+        o.max_connections = 4;
+        o.idle_timeout = Duration::from_secs(30);
+        o.head_timeout = Duration::from_secs(30);
+        let h = start(&o).unwrap();
+        let a = h.addr();
+        let slow: Vec<_> = (0..4).map(|_| trickle(a, 30)).collect();
+        std::thread::sleep(Duration::from_millis(300));
+        for _ in 0..5 {
+            let (head, _) = raw(a, &req("GET", "/", ""));
+            assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+        }
+        // Idle kept-alive connections give up their slots the same way.
+        let mut idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(a).unwrap()).collect();
+        for s in &mut idle {
+            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+            read_response(s).unwrap();
+        }
+        let (head, _) = raw(a, &req("GET", "/", ""));
+        assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+        h.shutdown();
+        for t in slow {
+            let (_, sent) = t.join().unwrap();
+            assert!(sent < 30, "a slow client was closed to make room");
+        }
     }
 }

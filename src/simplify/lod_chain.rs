@@ -20,19 +20,30 @@ use crate::scene::{ComponentId, Scene};
 /// miss up to 3 % of the largest distance on the sample).
 pub const CHAIN_LEAF_SAMPLES: usize = 20_000;
 
+/// Unusable LOD-chain ratios (an options error: the user's `--lod-ratios`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RatiosError {
+    #[error("give at least one ratio")]
+    Empty,
+    #[error("every ratio must be in (0, 1), got {ratio}")]
+    OutOfRange { ratio: f32 },
+    #[error("ratios must be distinct")]
+    Repeated,
+}
+
 /// The chain levels, finest first, from the user's ratios: each in (0, 1), distinct; sorted
 /// decreasing (LOD1 is the largest ratio).
-pub fn chain_ratios(ratios: &[f32]) -> Result<Vec<f32>, String> {
+pub fn chain_ratios(ratios: &[f32]) -> Result<Vec<f32>, RatiosError> {
     if ratios.is_empty() {
-        return Err("give at least one ratio".into());
+        return Err(RatiosError::Empty);
     }
     let mut r = ratios.to_vec();
-    if let Some(bad) = r.iter().find(|x| !(**x > 0.0 && **x < 1.0)) {
-        return Err(format!("every ratio must be in (0, 1), got {bad}"));
+    if let Some(&ratio) = r.iter().find(|x| !(**x > 0.0 && **x < 1.0)) {
+        return Err(RatiosError::OutOfRange { ratio });
     }
     r.sort_by(|a, b| b.total_cmp(a));
     if r.windows(2).any(|w| w[0] == w[1]) {
-        return Err("ratios must be distinct".into());
+        return Err(RatiosError::Repeated);
     }
     Ok(r)
 }
@@ -171,11 +182,20 @@ mod tests {
             chain_ratios(&[0.5, 0.85, 0.7]).unwrap(),
             vec![0.85, 0.7, 0.5]
         );
-        assert!(chain_ratios(&[]).is_err());
-        assert!(chain_ratios(&[0.5, 1.0]).is_err());
-        assert!(chain_ratios(&[0.0]).is_err());
-        assert!(chain_ratios(&[0.5, 0.5]).is_err());
-        assert!(chain_ratios(&[f32::NAN]).is_err());
+        assert_eq!(chain_ratios(&[]), Err(RatiosError::Empty));
+        assert_eq!(
+            chain_ratios(&[0.5, 1.0]),
+            Err(RatiosError::OutOfRange { ratio: 1.0 })
+        );
+        assert_eq!(
+            chain_ratios(&[0.0]),
+            Err(RatiosError::OutOfRange { ratio: 0.0 })
+        );
+        assert_eq!(chain_ratios(&[0.5, 0.5]), Err(RatiosError::Repeated));
+        assert!(matches!(
+            chain_ratios(&[f32::NAN]),
+            Err(RatiosError::OutOfRange { ratio }) if ratio.is_nan()
+        ));
     }
 
     #[test]

@@ -363,6 +363,48 @@ fn validate(m: &MeshInput, o: &SimplifyOptions) -> Result<(), SimplifyError> {
 pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMesh, SimplifyError> {
     validate(mesh, opts)?;
     let input_triangles = mesh.indices.len() / 3;
+    let group = |i: usize| mesh.groups.map_or(0, |g| g[i]);
+    let w = weld_mesh(mesh, opts, &group);
+    let layout = AttrLayout::of(mesh);
+    let attr = layout.wedge_attributes(mesh, &w.wedge_src);
+    let ptris: Vec<[u32; 3]> = w
+        .tris
+        .iter()
+        .map(|t| t.map(|x| w.wedge_pos[x as usize]))
+        .collect();
+    let curv = curvature::vertex_curvature(&w.pos, &ptris);
+    let params = qem_params(mesh, opts, input_triangles);
+    let out = parts::run(
+        qem::QemInput {
+            pos: w.pos,
+            locked: w.locked,
+            curv,
+            wedge_pos: w.wedge_pos,
+            tris: w.tris,
+            attr,
+            stride: layout.stride,
+            normal_offset: layout.normal_offset,
+            quadrics: None,
+        },
+        &params,
+    );
+    let mut res = compact_output(mesh, &out, &w.wedge_src, &layout, &group, input_triangles);
+    // Interpolated normals drift from the coarsened faces, and the two sides of a sheet can end
+    // up sharing vertices (see `normals.rs`).
+    if res.normals.is_some() {
+        normals::take_normals_from_faces(&mut res);
+    }
+    measure_error(mesh, opts, input_triangles, &mut res);
+    Ok(res)
+}
+
+/// Welds the input: vertices of a group within the weld tolerance share a position vertex, and
+/// those with the same attribute bits (normal, UV, colour) a wedge.
+fn weld_mesh(
+    mesh: &MeshInput,
+    opts: &SimplifyOptions,
+    group: &dyn Fn(usize) -> u32,
+) -> weld::Welded {
     let bits3 = |a: [f32; 3]| a.map(f32::to_bits);
     let attr_key = |i: usize| {
         let mut k = [0u32; 9];
@@ -380,56 +422,75 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
         }
         k
     };
-    let group = |i: usize| mesh.groups.map_or(0, |g| g[i]);
     let locked = |i: usize| mesh.locked.is_some_and(|l| l[i]);
-    let w = weld::weld(
+    weld::weld(
         mesh.positions,
-        &group,
+        group,
         &locked,
         &attr_key,
         mesh.indices,
         opts.weld_tolerance_m as f64,
-    );
+    )
+}
 
-    // Flat attribute array per wedge.
-    let mut stride = 0;
-    let normal_offset = mesh.normals.map(|_| {
-        stride += 3;
-        0
-    });
-    let uv_offset = mesh.uvs.map(|_| {
-        stride += 2;
-        stride - 2
-    });
-    let color_offset = mesh.colors.map(|_| {
-        stride += 4;
-        stride - 4
-    });
-    let mut attr = Vec::with_capacity(w.wedge_src.len() * stride);
-    for &s in &w.wedge_src {
-        let s = s as usize;
-        if let Some(n) = mesh.normals {
-            attr.extend_from_slice(&n[s]);
-        }
-        if let Some(t) = mesh.uvs {
-            attr.extend_from_slice(&t[s]);
-        }
-        if let Some(c) = mesh.colors {
-            attr.extend_from_slice(&c[s]);
+/// Layout of the flat attribute array of the wedges: `stride` floats per wedge, the normal, UV
+/// and colour (those the input has) at their offsets.
+struct AttrLayout {
+    stride: usize,
+    normal_offset: Option<usize>,
+    uv_offset: Option<usize>,
+    color_offset: Option<usize>,
+}
+
+impl AttrLayout {
+    fn of(mesh: &MeshInput) -> AttrLayout {
+        let mut stride = 0;
+        let normal_offset = mesh.normals.map(|_| {
+            stride += 3;
+            0
+        });
+        let uv_offset = mesh.uvs.map(|_| {
+            stride += 2;
+            stride - 2
+        });
+        let color_offset = mesh.colors.map(|_| {
+            stride += 4;
+            stride - 4
+        });
+        AttrLayout {
+            stride,
+            normal_offset,
+            uv_offset,
+            color_offset,
         }
     }
 
-    let ptris: Vec<[u32; 3]> = w
-        .tris
-        .iter()
-        .map(|t| t.map(|x| w.wedge_pos[x as usize]))
-        .collect();
-    let curv = curvature::vertex_curvature(&w.pos, &ptris);
+    /// The flat attribute array of the wedges, each taken from its source input vertex.
+    fn wedge_attributes(&self, mesh: &MeshInput, wedge_src: &[u32]) -> Vec<f32> {
+        let mut attr = Vec::with_capacity(wedge_src.len() * self.stride);
+        for &s in wedge_src {
+            let s = s as usize;
+            if let Some(n) = mesh.normals {
+                attr.extend_from_slice(&n[s]);
+            }
+            if let Some(t) = mesh.uvs {
+                attr.extend_from_slice(&t[s]);
+            }
+            if let Some(c) = mesh.colors {
+                attr.extend_from_slice(&c[s]);
+            }
+        }
+        attr
+    }
+}
+
+/// The QEM core's parameters from the options.
+fn qem_params(mesh: &MeshInput, opts: &SimplifyOptions, input_triangles: usize) -> qem::QemParams {
     let ratio_target = (opts.target_ratio as f64 * input_triangles as f64).round() as usize;
     let target_tris = opts
         .target_triangles
         .map_or(ratio_target, |t| t.min(ratio_target));
-    let params = qem::QemParams {
+    qem::QemParams {
         target_tris,
         target_error2: opts.target_error_m.map_or(f64::INFINITY, |e| e * e),
         curvature_weight: opts.curvature_weight as f64,
@@ -442,23 +503,21 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
         lock_borders: opts.lock_borders,
         boundary_weight: opts.border_weight as f64,
         strict_wedges: mesh.uvs.is_some() || mesh.colors.is_some(),
-    };
-    let out = parts::run(
-        qem::QemInput {
-            pos: w.pos,
-            locked: w.locked,
-            curv,
-            wedge_pos: w.wedge_pos,
-            tris: w.tris,
-            attr,
-            stride,
-            normal_offset,
-            quadrics: None,
-        },
-        &params,
-    );
+    }
+}
 
-    // Compact the wedges in order of first use.
+/// The simplified mesh from the QEM output: the wedges compacted in order of first use, each
+/// with its position, source vertex, group and attributes. The error is left to
+/// [`measure_error`].
+fn compact_output(
+    mesh: &MeshInput,
+    out: &qem::QemOutput,
+    wedge_src: &[u32],
+    layout: &AttrLayout,
+    group: &dyn Fn(usize) -> u32,
+    input_triangles: usize,
+) -> SimplifiedMesh {
+    let stride = layout.stride;
     let mut remap = vec![u32::MAX; out.wedge_pos.len()];
     let mut res = SimplifiedMesh {
         normals: mesh.normals.map(|_| Vec::new()),
@@ -477,29 +536,34 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
                 remap[wi] = res.positions.len() as u32;
                 let p = out.pos[out.wedge_pos[wi] as usize];
                 res.positions.push([p.x as f32, p.y as f32, p.z as f32]);
-                let src = w.wedge_src[wi];
+                let src = wedge_src[wi];
                 res.source_vertex.push(src);
                 res.groups.push(group(src as usize));
                 let a = &out.attr[wi * stride..(wi + 1) * stride];
-                if let (Some(o), Some(v)) = (normal_offset, res.normals.as_mut()) {
+                if let (Some(o), Some(v)) = (layout.normal_offset, res.normals.as_mut()) {
                     v.push([a[o], a[o + 1], a[o + 2]]);
                 }
-                if let (Some(o), Some(v)) = (uv_offset, res.uvs.as_mut()) {
+                if let (Some(o), Some(v)) = (layout.uv_offset, res.uvs.as_mut()) {
                     v.push([a[o], a[o + 1]]);
                 }
-                if let (Some(o), Some(v)) = (color_offset, res.colors.as_mut()) {
+                if let (Some(o), Some(v)) = (layout.color_offset, res.colors.as_mut()) {
                     v.push([a[o], a[o + 1], a[o + 2], a[o + 3]]);
                 }
             }
             res.indices.push(remap[wi]);
         }
     }
-    // Interpolated normals drift from the coarsened faces, and the two sides of a sheet can end
-    // up sharing vertices (see `normals.rs`).
-    if res.normals.is_some() {
-        normals::take_normals_from_faces(&mut res);
-    }
+    res
+}
 
+/// Sets the error bound of `res` against the input, as the options ask: certified, measured
+/// (scaled by the safety factor, at least the floor) or not computed (infinite).
+fn measure_error(
+    mesh: &MeshInput,
+    opts: &SimplifyOptions,
+    input_triangles: usize,
+    res: &mut SimplifiedMesh,
+) {
     if opts.compute_error_bound && opts.certified_error_bound {
         let b = hausdorff_bound(
             TriMesh::new(mesh.positions, mesh.indices),
@@ -527,7 +591,6 @@ pub fn simplify(mesh: &MeshInput, opts: &SimplifyOptions) -> Result<SimplifiedMe
     } else {
         res.error_m = f64::INFINITY;
     }
-    Ok(res)
 }
 
 /// Simplifies independent meshes in parallel (rayon); results in input order.

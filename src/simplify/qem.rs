@@ -1245,6 +1245,34 @@ pub(crate) struct QemInput {
 
 /// Runs the simplification on welded data.
 pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
+    let mut st = setup(input, params);
+    // Passes (as in meshoptimizer): rank every live edge, then apply the
+    // cheapest collapses whose endpoints were not touched earlier in the
+    // pass (re-validated against the current geometry), until the pass has
+    // done enough work or the costs rise well above the pass's goal.
+    let mut passes = Passes::new(&st);
+    while st.live > params.target_tris {
+        if !std::mem::take(&mut passes.csr_fresh) {
+            st.rebuild_csr();
+        }
+        passes.update_constraint_flags(&mut st);
+        passes.rank_dirty_edges(&st);
+        passes.rank_parts(&st);
+        if passes.ranked.is_empty() {
+            break;
+        }
+        if passes.walk(&mut st) == 0 {
+            break;
+        }
+        passes.keep_clean_entries(&st);
+    }
+    passes.finish(st)
+}
+
+/// The state of a run before its first pass: quadrics (face planes plus
+/// border planes; carried ones have both), connected parts, the CSR
+/// adjacency, and border vertices locked if `lock_borders`.
+fn setup(input: QemInput, params: &QemParams) -> State<'_> {
     let QemInput {
         pos,
         mut locked,
@@ -1258,7 +1286,6 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     } = input;
     let nv = pos.len();
     let nt = tris.len();
-    // Quadrics: face planes plus border planes (carried ones have both).
     let carried = quadrics.is_some();
     let quad = quadrics.unwrap_or_else(|| face_quadrics(&pos, &wedge_pos, &tris));
     let (comp, comp_r2) = components(&pos, &wedge_pos, &tris);
@@ -1286,78 +1313,141 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
     };
     // Border edges: extra perpendicular planes (weighted by length²) and
     // optional locking of border vertices.
-    let mut su = Vec::new();
-    let mut sv = Vec::new();
-    let mut old = Vec::new();
     st.rebuild_csr();
     if !carried {
-        add_border_planes(&mut st, &mut locked, &mut su);
+        add_border_planes(&mut st, &mut locked, &mut Vec::new());
     }
     st.locked = locked;
+    st
+}
 
-    // Passes (as in meshoptimizer): rank every live edge, then apply the
-    // cheapest collapses whose endpoints were not touched earlier in the
-    // pass (re-validated against the current geometry), until the pass has
-    // done enough work or the costs rise well above the pass's goal.
-    let ncomp = st.comp_r2.len();
-    let mut comp_live = vec![0usize; ncomp];
-    let mut comp_off = vec![0u32; ncomp + 1];
-    for t in &st.tris {
-        comp_off[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize + 1] += 1;
-    }
-    for i in 0..ncomp {
-        comp_off[i + 1] += comp_off[i];
-    }
-    let mut comp_tris = vec![0u32; st.tris.len()];
-    {
+/// What the passes of a run keep between passes and share within one: the
+/// ranked edges, the deferred heap, dirty and touched flags, the parts'
+/// triangle lists, the largest error and edge so far, and scratch vectors.
+struct Passes {
+    /// Triangles of each connected part: `comp_tris[comp_off[c]..comp_off[c + 1]]`.
+    comp_off: Vec<u32>,
+    comp_tris: Vec<u32>,
+    /// Live triangles of each part (counted at each pass's ranking).
+    comp_live: Vec<usize>,
+    /// Parts that may be dropped whole (no locked vertex, not larger than
+    /// the longest collapsible edge).
+    prunable: Vec<bool>,
+    /// Largest squared error and squared collapsed edge length so far.
+    max_d2: f64,
+    max_edge2: f64,
+    /// Vertex is an endpoint of a collapse of this pass.
+    touched: Vec<bool>,
+    deferred: std::collections::BinaryHeap<Deferred>,
+    /// Keys of the entries the walk reached, in order (the pass goal is the
+    /// cost at rank `goal_idx`).
+    popped: Vec<f64>,
+    /// Incremental ranking: a vertex is dirty when a collapse of the pass
+    /// changed its star (it is in the closed 1-ring of a collapsed edge).
+    /// Every input to the evaluation of an edge (quadrics, positions,
+    /// constraint flags, stars) is local to its endpoints' stars, so an edge
+    /// with two clean endpoints has the same entry (and the same coverage,
+    /// and the same validity) as in the last pass: only dirty edges are
+    /// ranked again. Validity failures are remembered too (the entry is
+    /// dropped) since rejected collapses recur pass after pass.
+    dirty: Vec<bool>,
+    ranked: Vec<Ranked>,
+    /// Ranking chunks of ~4096 vertices: output and scratch vectors.
+    n_rank_bufs: usize,
+    rank_bufs: Vec<RankBuf>,
+    cflag_scratch: Vec<u32>,
+    /// Stars of the edge at hand, and the old star of the interior check.
+    su: Vec<StarTri>,
+    sv: Vec<StarTri>,
+    old: Vec<OldTri>,
+    /// The CSR built by [`setup`] (for the border planes) is the first
+    /// pass's too.
+    csr_fresh: bool,
+}
+
+/// Where the walk of one pass stands.
+struct Walk {
+    /// Next entry of the sorted prefix `ranked[..m]` of the `n_ranked` entries.
+    i: usize,
+    m: usize,
+    n_ranked: usize,
+    /// Triangles the pass should remove, and the live count at its start.
+    tri_goal: usize,
+    live0: usize,
+    /// Rank of the goal edge in `popped` (moved on by invalid edges), and a
+    /// lower bound of its key until the walk reaches it.
+    goal_idx: usize,
+    goal_lb: f64,
+    collapses: usize,
+}
+
+/// An entry reached by the walk, after its lazy coverage.
+enum Reached {
+    /// Skipped (an endpoint touched) or deferred (its full key moved it
+    /// behind the next entry).
+    Skipped,
+    /// To be taken now; `Some(d1)`: its coverage was just computed, and its
+    /// stars are gathered in `su` and `sv`.
+    Ready(Option<f64>),
+}
+
+impl Passes {
+    fn new(st: &State) -> Passes {
+        let nv = st.pos.len();
+        let ncomp = st.comp_r2.len();
+        let mut comp_off = vec![0u32; ncomp + 1];
+        for t in &st.tris {
+            comp_off[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize + 1] += 1;
+        }
+        for i in 0..ncomp {
+            comp_off[i + 1] += comp_off[i];
+        }
+        let mut comp_tris = vec![0u32; st.tris.len()];
         let mut fill = comp_off[..ncomp].to_vec();
         for (ti, t) in st.tris.iter().enumerate() {
             let c = st.comp[st.wedge_pos[t[0] as usize] as usize] as usize;
             comp_tris[fill[c] as usize] = ti as u32;
             fill[c] += 1;
         }
-    }
-    // Parts with a locked vertex, or larger than the longest collapsible
-    // edge, are never dropped.
-    let mut prunable: Vec<bool> = st
-        .comp_r2
-        .iter()
-        .map(|&r2| 4.0 * r2 <= params.max_edge_len2)
-        .collect();
-    for (x, &l) in st.locked.iter().enumerate() {
-        if l {
-            prunable[st.comp[x] as usize] = false;
+        let mut prunable: Vec<bool> = st
+            .comp_r2
+            .iter()
+            .map(|&r2| 4.0 * r2 <= st.p.max_edge_len2)
+            .collect();
+        for (x, &l) in st.locked.iter().enumerate() {
+            if l {
+                prunable[st.comp[x] as usize] = false;
+            }
+        }
+        let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
+        Passes {
+            comp_off,
+            comp_tris,
+            comp_live: vec![0usize; ncomp],
+            prunable,
+            max_d2: 0.0,
+            max_edge2: 0.0,
+            touched: vec![false; nv],
+            deferred: Default::default(),
+            popped: Vec::new(),
+            dirty: vec![true; nv],
+            ranked: Vec::new(),
+            n_rank_bufs,
+            rank_bufs: (0..n_rank_bufs).map(|_| Default::default()).collect(),
+            cflag_scratch: Vec::new(),
+            su: Vec::new(),
+            sv: Vec::new(),
+            old: Vec::new(),
+            csr_fresh: true,
         }
     }
-    let mut max_d2: f64 = 0.0;
-    let mut max_edge2: f64 = 0.0;
-    let mut touched = vec![false; nv];
-    let mut deferred: std::collections::BinaryHeap<Deferred> = Default::default();
-    let mut popped: Vec<f64> = Vec::new();
-    // Incremental ranking: a vertex is dirty when a collapse of the pass
-    // changed its star (it is in the closed 1-ring of a collapsed edge).
-    // Every input to the evaluation of an edge (quadrics, positions,
-    // constraint flags, stars) is local to its endpoints' stars, so an edge
-    // with two clean endpoints has the same entry (and the same coverage,
-    // and the same validity) as in the last pass: only dirty edges are
-    // ranked again. Validity failures are remembered too (the entry is
-    // dropped) since rejected collapses recur pass after pass.
-    let mut dirty = vec![true; nv];
-    let mut ranked: Vec<Ranked> = Vec::new();
-    // Ranking chunks of ~4096 vertices: output and scratch vectors.
-    let n_rank_bufs = nv.div_ceil(4096).clamp(1, 256);
-    let mut rank_bufs: Vec<RankBuf> = (0..n_rank_bufs).map(|_| Default::default()).collect();
-    let mut cflag_scratch = Vec::new();
-    // The CSR built for the border planes above is the first pass's too.
-    let mut csr_fresh = true;
-    while st.live > params.target_tris {
-        if !std::mem::take(&mut csr_fresh) {
-            st.rebuild_csr();
-        }
-        // Constraint flags of the dirty vertices (the others' stars did not
-        // change).
+
+    /// Constraint flags of the dirty vertices (the others' stars did not
+    /// change).
+    fn update_constraint_flags(&mut self, st: &mut State) {
         let mut cflag = std::mem::take(&mut st.cflag);
-        let stref = &st;
+        let stref = &*st;
+        let dirty = &self.dirty;
         let cflag_chunk = |lo: usize, cf: &mut [bool], scratch: &mut Vec<u32>| {
             for (i, cf) in cf.iter_mut().enumerate() {
                 let a = lo + i;
@@ -1370,8 +1460,8 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
         };
         // Small meshes (they come by the thousand) stay on this thread: a
         // hand-off to the thread pool costs more than their work.
-        if n_rank_bufs == 1 {
-            cflag_chunk(0, &mut cflag, &mut cflag_scratch);
+        if self.n_rank_bufs == 1 {
+            cflag_chunk(0, &mut cflag, &mut self.cflag_scratch);
         } else {
             cflag
                 .par_chunks_mut(4096)
@@ -1381,7 +1471,14 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 });
         }
         st.cflag = cflag;
-        let stref = &st;
+    }
+
+    /// Ranks the edges with a dirty endpoint (in parallel chunks) and appends
+    /// them to `ranked`; every vertex is clean afterwards.
+    fn rank_dirty_edges(&mut self, st: &State) {
+        let nv = st.pos.len();
+        let n_rank_bufs = self.n_rank_bufs;
+        let dirty = &self.dirty;
         // Per-chunk vectors, kept across passes (growing fresh ones every
         // pass cost page faults and copies); the order of `ranked` does not
         // matter (everything below uses the total order).
@@ -1394,19 +1491,19 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 // endpoints) keeps its entry from the last pass (kept in `ranked`), or
                 // stays out of the order if it was found invalid. The others
                 // are ranked from their smaller dirty endpoint.
-                if !stref.alive[a as usize] || !dirty[a as usize] {
+                if !st.alive[a as usize] || !dirty[a as usize] {
                     continue;
                 }
-                let star = stref.csr_star(a);
+                let star = st.csr_star(a);
                 // Those edges with their triangles, in one scan.
-                stref.star_edges(a, star, |b| !dirty[b as usize], nb);
+                st.star_edges(a, star, |b| !dirty[b as usize], nb);
                 for &(b, ref e) in nb.iter() {
                     let (a, b) = (a.min(b), a.max(b));
-                    if let Some((key, p)) = stref.evaluate_best(a, b, e) {
-                        let f = stref.factor(a, b);
+                    if let Some((key, p)) = st.evaluate_best(a, b, e) {
+                        let f = st.factor(a, b);
                         // Coverage can only raise the key: computed lazily
                         // (below) unless its bound is no larger.
-                        let skip = stref
+                        let skip = st
                             .coverage2_bound(a, b, p, star.len(), e)
                             .is_some_and(|ub| ub * f <= key);
                         out.push(Ranked {
@@ -1421,29 +1518,33 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
             }
         };
         if n_rank_bufs == 1 {
-            rank_chunk(0, &mut rank_bufs[0]);
+            rank_chunk(0, &mut self.rank_bufs[0]);
         } else {
-            rank_bufs
+            self.rank_bufs
                 .par_iter_mut()
                 .enumerate()
                 .for_each(|(ci, b)| rank_chunk(ci, b));
         }
-        let n_new: usize = rank_bufs.iter().map(|b| b.0.len()).sum();
-        ranked.reserve(n_new + comp_live.len());
-        for b in &rank_bufs {
-            ranked.extend_from_slice(&b.0);
+        let n_new: usize = self.rank_bufs.iter().map(|b| b.0.len()).sum();
+        self.ranked.reserve(n_new + self.comp_live.len());
+        for b in &self.rank_bufs {
+            self.ranked.extend_from_slice(&b.0);
         }
-        dirty.iter_mut().for_each(|d| *d = false);
-        // Whole-part removal: a connected part is dropped for its radius.
-        comp_live.iter_mut().for_each(|c| *c = 0);
+        self.dirty.iter_mut().for_each(|d| *d = false);
+    }
+
+    /// Whole-part removal: every prunable part with live triangles is an
+    /// entry of cost = its squared radius.
+    fn rank_parts(&mut self, st: &State) {
+        self.comp_live.iter_mut().for_each(|c| *c = 0);
         for (t, &a) in st.tris.iter().zip(&st.tri_alive) {
             if a {
-                comp_live[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize] += 1;
+                self.comp_live[st.comp[st.wedge_pos[t[0] as usize] as usize] as usize] += 1;
             }
         }
-        for (c, &n) in comp_live.iter().enumerate() {
-            if n > 0 && prunable[c] {
-                ranked.push(Ranked {
+        for (c, &n) in self.comp_live.iter().enumerate() {
+            if n > 0 && self.prunable[c] {
+                self.ranked.push(Ranked {
                     key: st.comp_r2[c],
                     u: NONE,
                     v: c as u32,
@@ -1452,265 +1553,370 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
                 });
             }
         }
-        if ranked.is_empty() {
-            break;
+    }
+
+    /// The walk of one pass; returns the number of collapses (parts dropped
+    /// included).
+    ///
+    /// Lazy coverage, in exact order. The full key (quadric key raised by
+    /// the coverage error) is never below the quadric key, so the walk
+    /// merges two ordered sources: the edges by quadric key (`ranked`,
+    /// sorted in chunks as the walk reaches them) and a heap of edges
+    /// whose full key is known but was larger than the next quadric key
+    /// (deferred). The coverage is computed when an edge is reached and
+    /// neither endpoint is touched yet: edges skipped as touched (most
+    /// of them on dense meshes) never pay for it.
+    fn walk(&mut self, st: &mut State) -> usize {
+        let mut w = self.start_walk(st);
+        while let Some(ri) = self.next_entry(st, &mut w) {
+            if st.live <= st.p.target_tris {
+                break;
+            }
+            let fresh = match self.lazy_coverage(st, &mut w, ri) {
+                Reached::Skipped => continue,
+                Reached::Ready(fresh) => fresh,
+            };
+            let en = self.ranked[ri];
+            self.popped.push(en.key);
+            let error_goal = 1.5
+                * self
+                    .popped
+                    .get(w.goal_idx)
+                    .copied()
+                    .unwrap_or(w.goal_lb.max(en.key));
+            if en.key > error_goal && w.live0 - st.live > w.tri_goal / 6 {
+                break;
+            }
+            let done = if en.u == NONE {
+                self.drop_part(st, en)
+            } else {
+                self.try_collapse(st, &mut w, ri, fresh, error_goal)
+            };
+            if done {
+                w.collapses += 1;
+            }
         }
-        // Lazy coverage, in exact order. The full key (quadric key raised by
-        // the coverage error) is never below the quadric key, so the walk
-        // merges two ordered sources: the edges by quadric key (`ranked`,
-        // sorted in chunks as the walk reaches them) and a heap of edges
-        // whose full key is known but was larger than the next quadric key
-        // (deferred). The coverage is computed when an edge is reached and
-        // neither endpoint is touched yet: edges skipped as touched (most
-        // of them on dense meshes) never pay for it.
-        let tri_goal = st.live - params.target_tris;
+        w.collapses
+    }
+
+    /// Starts the walk of a pass: the first chunk of the order, the goal.
+    fn start_walk(&mut self, st: &State) -> Walk {
+        let tri_goal = st.live - st.p.target_tris;
         let goal0 = tri_goal / 2;
-        let n_ranked = ranked.len();
-        touched.iter_mut().for_each(|t| *t = false);
+        let n_ranked = self.ranked.len();
+        self.touched.iter_mut().for_each(|t| *t = false);
         let mut m = 0usize;
         let first = (goal0 + goal0 / 2 + 4096).min(n_ranked);
-        extend_order(&mut ranked, &mut m, first);
+        extend_order(&mut self.ranked, &mut m, first);
         // The goal edge's full key is at least the `goal0`-th smallest
         // quadric key (full keys are never smaller), and at least the key
         // of the edge at hand: the bound of the pass goal until the walk
         // reaches the goal edge.
-        let goal_lb = ranked.get(goal0).map_or(f64::INFINITY, |r| r.key);
-        deferred.clear();
-        popped.clear();
+        let goal_lb = self.ranked.get(goal0).map_or(f64::INFINITY, |r| r.key);
+        self.deferred.clear();
+        self.popped.clear();
         // As in meshoptimizer, the cost of the `tri_goal / 2`-th edge of the
         // order (skipping invalid ones) times 1.5 bounds what a pass accepts.
-        let mut goal_idx = goal0;
-        let live0 = st.live;
-        let mut collapses = 0usize;
-        let mut i = 0;
-        loop {
-            if i == m && m < n_ranked {
-                let want = (m + m / 2).max(m + 4096).min(n_ranked);
-                extend_order(&mut ranked, &mut m, want);
-            }
-            let from_heap = match (i < m, deferred.peek()) {
-                (true, Some(d)) => d.before(&ranked[i]),
-                (false, Some(_)) => true,
-                (true, None) => false,
-                (false, None) => break,
-            };
-            if i < m {
-                for (stage, ahead) in [(0u32, 32usize), (1, 24), (2, 16), (3, 8), (4, 4)] {
-                    if let Some(r) = ranked.get(i + ahead).filter(|_| i + ahead < m) {
-                        if r.u != NONE {
-                            st.prefetch(r.u, r.v, stage, &touched);
-                        }
+        Walk {
+            i: 0,
+            m,
+            n_ranked,
+            tri_goal,
+            live0: st.live,
+            goal_idx: goal0,
+            goal_lb,
+            collapses: 0,
+        }
+    }
+
+    /// Sorts the next chunk of the order when the walk has reached the end
+    /// of the sorted prefix.
+    #[inline]
+    fn extend_if_reached(&mut self, w: &mut Walk) {
+        if w.i == w.m && w.m < w.n_ranked {
+            let want = (w.m + w.m / 2).max(w.m + 4096).min(w.n_ranked);
+            extend_order(&mut self.ranked, &mut w.m, want);
+        }
+    }
+
+    /// The next entry of the walk (index in `ranked`): the smaller of the
+    /// next sorted entry and the deferred heap's top; `None` at the end.
+    /// Prefetches the data of the entries a few steps ahead.
+    #[inline]
+    fn next_entry(&mut self, st: &State, w: &mut Walk) -> Option<usize> {
+        self.extend_if_reached(w);
+        let from_heap = match (w.i < w.m, self.deferred.peek()) {
+            (true, Some(d)) => d.before(&self.ranked[w.i]),
+            (false, Some(_)) => true,
+            (true, None) => false,
+            (false, None) => return None,
+        };
+        if w.i < w.m {
+            for (stage, ahead) in [(0u32, 32usize), (1, 24), (2, 16), (3, 8), (4, 4)] {
+                if let Some(r) = self.ranked.get(w.i + ahead).filter(|_| w.i + ahead < w.m) {
+                    if r.u != NONE {
+                        st.prefetch(r.u, r.v, stage, &self.touched);
                     }
                 }
             }
-            let ri = if from_heap {
-                deferred.pop().map_or(0, |d| d.ranked as usize)
+        }
+        Some(if from_heap {
+            self.deferred.pop().map_or(0, |d| d.ranked as usize)
+        } else {
+            w.i += 1;
+            w.i - 1
+        })
+    }
+
+    /// Computes the coverage of entry `ri` if it is still to be computed
+    /// (on the current state), and defers the edge if its full key moved it
+    /// behind the next edge of the order.
+    #[inline]
+    fn lazy_coverage(&mut self, st: &State, w: &mut Walk, ri: usize) -> Reached {
+        let en = self.ranked[ri];
+        if !(en.u != NONE && en.f > 0.0) {
+            return Reached::Ready(None);
+        }
+        let (u, v) = (en.u, en.v);
+        if self.touched[u as usize] || self.touched[v as usize] {
+            self.popped.push(en.key);
+            return Reached::Skipped;
+        }
+        st.gather(u, &mut self.su);
+        st.gather(v, &mut self.sv);
+        let d1 = st.coverage2(u, v, en.p, &self.su, &self.sv, en.key / en.f);
+        let full = en.key.max(d1 * en.f);
+        self.ranked[ri].key = full;
+        self.ranked[ri].f = 0.0;
+        self.extend_if_reached(w);
+        let r = self.ranked[ri];
+        let later = (w.i < w.m && rank_cmp(&r, &self.ranked[w.i]).is_gt())
+            || self.deferred.peek().is_some_and(|d| d.before(&r));
+        if later {
+            self.deferred.push(Deferred {
+                ranked: ri as u32,
+                key: r.key,
+                u: r.u,
+                v: r.v,
+            });
+            return Reached::Skipped;
+        }
+        Reached::Ready(Some(d1))
+    }
+
+    /// Drops the part of entry `en` whole, if it still has live triangles,
+    /// the triangle goal leaves room for it and its radius is within the
+    /// error target; returns whether it was dropped.
+    fn drop_part(&mut self, st: &mut State, en: Ranked) -> bool {
+        let c = en.v as usize;
+        let tl = &self.comp_tris[self.comp_off[c] as usize..self.comp_off[c + 1] as usize];
+        let n = tl.iter().filter(|&&t| st.tri_alive[t as usize]).count();
+        if n == 0 || st.live < n + st.p.target_tris || en.key > st.p.target_error2 {
+            return false;
+        }
+        for &t in tl {
+            if st.tri_alive[t as usize] {
+                st.tri_alive[t as usize] = false;
+                st.live -= 1;
+                for &w in &st.tris[t as usize] {
+                    self.dirty[st.wedge_pos[w as usize] as usize] = true;
+                }
+            }
+        }
+        self.comp_live[c] = 0;
+        self.max_d2 = self.max_d2.max(en.key);
+        self.max_edge2 = self.max_edge2.max(4.0 * st.comp_r2[c]);
+        true
+    }
+
+    /// Collapses the edge of entry `ri` if neither endpoint is touched and
+    /// a valid placement is within the pass goal; returns whether it did.
+    /// `fresh`: see [`Reached::Ready`].
+    #[inline]
+    fn try_collapse(
+        &mut self,
+        st: &mut State,
+        w: &mut Walk,
+        ri: usize,
+        fresh: Option<f64>,
+        error_goal: f64,
+    ) -> bool {
+        let en = self.ranked[ri];
+        let (u, v) = (en.u, en.v);
+        if self.touched[u as usize] || self.touched[v as usize] {
+            return false;
+        }
+        if fresh.is_none() {
+            st.gather(u, &mut self.su);
+            st.gather(v, &mut self.sv);
+        }
+        let e = st.edge_info(v, &self.su);
+        // Both endpoints are untouched: the edge evaluates as ranked
+        // (its triangles only die with a part dropped whole), and its
+        // first placement is the ranked one (`en.p`). The others are
+        // computed only if that one is rejected.
+        if e.count == 0 {
+            w.goal_idx += 1;
+            self.ranked[ri].f = -1.0;
+            return false;
+        }
+        let (chosen, over_target) = self.choose_placement(st, en, fresh.is_some(), &e, error_goal);
+        // A fallback placement (the first one failed validation) costs
+        // more than the rank: only take it if it is within the pass goal.
+        let Some(cand) = chosen.filter(|c| c.key <= en.key * (1.0 + 1e-9) || c.key <= error_goal)
+        else {
+            w.goal_idx += 1;
+            match chosen {
+                // Next pass (if still clean) it ranks at its real cost.
+                Some(c) => self.ranked[ri].key = c.key,
+                None if !over_target => self.ranked[ri].f = -1.0,
+                None => {}
+            }
+            return false;
+        };
+        for s in self.su.iter().chain(&self.sv) {
+            self.dirty[s.a as usize] = true;
+            self.dirty[s.b as usize] = true;
+        }
+        self.dirty[u as usize] = true;
+        self.dirty[v as usize] = true;
+        self.max_edge2 = self
+            .max_edge2
+            .max((st.pos[u as usize] - st.pos[v as usize]).length_squared());
+        let d2 = st.apply(u, v, cand.p, cand.dist2, &self.su, &e);
+        self.max_d2 = self.max_d2.max(d2);
+        self.touched[u as usize] = true;
+        self.touched[v as usize] = true;
+        true
+    }
+
+    /// The first placement of edge `en` (ranked one first, then the others
+    /// in cost order) that passes the link condition and validity, with its
+    /// full cost; and whether a placement was over the error target.
+    /// `fresh`: the coverage of the ranked placement was just computed.
+    #[inline]
+    fn choose_placement(
+        &mut self,
+        st: &mut State,
+        en: Ranked,
+        fresh: bool,
+        e: &EdgeInfo,
+        error_goal: f64,
+    ) -> (Option<Candidate>, bool) {
+        let (u, v) = (en.u, en.v);
+        let first = EdgeCost::new(st, u, v).at(en.p);
+        let mut ev: Option<Option<Eval>> = None;
+        let mut over_target = false;
+        // The known coverage of the first placement holds if it was just
+        // computed, or if nothing around the edge changed in this pass.
+        let touched = &self.touched;
+        let unchanged = fresh
+            || [&self.su, &self.sv].iter().all(|star| {
+                star.iter()
+                    .all(|s| !touched[s.a as usize] && !touched[s.b as usize])
+            });
+        let mut link = None;
+        for ci in 0..4 {
+            let cand = if ci == 0 {
+                first
             } else {
-                i += 1;
-                i - 1
+                // (`None` cannot happen for a ranked untouched edge; it
+                // would end as an invalid edge, as before.)
+                match ev.get_or_insert_with(|| st.evaluate(u, v, e)) {
+                    Some(ev) if ci < ev.n => ev.cands[ci],
+                    _ => break,
+                }
             };
-            let en = ranked[ri];
-            if st.live <= params.target_tris {
+            if cand.dist2 > st.p.target_error2 {
+                over_target = true;
                 break;
             }
-            let (u, v) = (en.u, en.v);
-            let mut fresh = None;
-            if en.u != NONE && en.f > 0.0 {
-                if touched[u as usize] || touched[v as usize] {
-                    popped.push(en.key);
-                    continue;
-                }
-                // Coverage still to be computed: do it now, on the current
-                // state, and defer the edge if its full key moved it behind
-                // the next edge of the order.
-                st.gather(u, &mut su);
-                st.gather(v, &mut sv);
-                let d1 = st.coverage2(u, v, en.p, &su, &sv, en.key / en.f);
-                let full = en.key.max(d1 * en.f);
-                ranked[ri].key = full;
-                ranked[ri].f = 0.0;
-                if i == m && m < n_ranked {
-                    let want = (m + m / 2).max(m + 4096).min(n_ranked);
-                    extend_order(&mut ranked, &mut m, want);
-                }
-                let r = ranked[ri];
-                let later = (i < m && rank_cmp(&r, &ranked[i]).is_gt())
-                    || deferred.peek().is_some_and(|d| d.before(&r));
-                if later {
-                    deferred.push(Deferred {
-                        ranked: ri as u32,
-                        key: r.key,
-                        u: r.u,
-                        v: r.v,
-                    });
-                    continue;
-                }
-                fresh = Some(d1);
-            }
-            let en = ranked[ri];
-            popped.push(en.key);
-            let error_goal = 1.5 * popped.get(goal_idx).copied().unwrap_or(goal_lb.max(en.key));
-            if en.key > error_goal && live0 - st.live > tri_goal / 6 {
-                break;
-            }
-            if en.u == NONE {
-                let c = en.v as usize;
-                let tl = &comp_tris[comp_off[c] as usize..comp_off[c + 1] as usize];
-                let n = tl.iter().filter(|&&t| st.tri_alive[t as usize]).count();
-                if n == 0 || st.live < n + params.target_tris || en.key > params.target_error2 {
-                    continue;
-                }
-                for &t in &comp_tris[comp_off[c] as usize..comp_off[c + 1] as usize] {
-                    if st.tri_alive[t as usize] {
-                        st.tri_alive[t as usize] = false;
-                        st.live -= 1;
-                        for &w in &st.tris[t as usize] {
-                            dirty[st.wedge_pos[w as usize] as usize] = true;
-                        }
-                    }
-                }
-                comp_live[c] = 0;
-                max_d2 = max_d2.max(en.key);
-                max_edge2 = max_edge2.max(4.0 * st.comp_r2[c]);
-                collapses += 1;
-                continue;
-            }
-            if touched[u as usize] || touched[v as usize] {
-                continue;
-            }
-            if fresh.is_none() {
-                st.gather(u, &mut su);
-                st.gather(v, &mut sv);
-            }
-            let e = st.edge_info(v, &su);
-            // Both endpoints are untouched: the edge evaluates as ranked
-            // (its triangles only die with a part dropped whole), and its
-            // first placement is the ranked one (`en.p`). The others are
-            // computed only if that one is rejected.
-            if e.count == 0 {
-                goal_idx += 1;
-                ranked[ri].f = -1.0;
-                continue;
-            }
-            let first = EdgeCost::new(&st, u, v).at(en.p);
-            let mut ev: Option<Option<Eval>> = None;
-            let mut chosen = None;
-            let mut over_target = false;
-            // The known coverage of the first placement holds if it was just
-            // computed, or if nothing around the edge changed in this pass.
-            let unchanged = fresh.is_some()
-                || [&su, &sv].iter().all(|star| {
-                    star.iter()
-                        .all(|s| !touched[s.a as usize] && !touched[s.b as usize])
-                });
-            let mut link = None;
-            for ci in 0..4 {
-                let cand = if ci == 0 {
-                    first
-                } else {
-                    // (`None` cannot happen for a ranked untouched edge; it
-                    // would end as an invalid edge, as before.)
-                    match ev.get_or_insert_with(|| st.evaluate(u, v, &e)) {
-                        Some(ev) if ci < ev.n => ev.cands[ci],
-                        _ => break,
-                    }
-                };
-                if cand.dist2 > params.target_error2 {
-                    over_target = true;
+            if !*link.get_or_insert_with(|| st.link_ok(u, v, &self.su, &self.sv, e)) {
+                // No placement passes the link condition. Without an error target the other
+                // placements cannot even set `over_target`: not worth evaluating them.
+                if st.p.target_error2 == f64::INFINITY {
                     break;
                 }
-                if !*link.get_or_insert_with(|| st.link_ok(u, v, &su, &sv, &e)) {
-                    // No placement passes the link condition. Without an error target the other
-                    // placements cannot even set `over_target`: not worth evaluating them.
-                    if params.target_error2 == f64::INFINITY {
-                        break;
-                    }
-                    continue;
-                }
-                if st.valid(u, v, cand.p, &su, &sv, &e) {
-                    let mut c = cand;
-                    // Only values above the cost matter (`t`: early exits;
-                    // the key also holds the tie-break term).
-                    let f = st.factor(u, v);
-                    let t = c.key / f;
-                    // Errors up to `t_free` change nothing either: the
-                    // collapse is still within the pass goal and its
-                    // distance does not raise the largest one so far
-                    // (`max_d2`), so the checks below may stop at that
-                    // threshold instead of `t`.
-                    let t_free = max_d2.min(error_goal / f);
-                    let tt = if c.key <= error_goal && c.dist2 <= max_d2 && t_free * f <= error_goal
-                    {
-                        t.max(t_free)
-                    } else {
-                        t
-                    };
-                    // Below the threshold, both checks are bounded by how far the endpoints
-                    // move (`p` is a vertex of every new triangle, `u` and `v` of the old
-                    // star; a new triangle's sample point is within half that of the old
-                    // triangle it replaces): skipped when the bound cannot exceed it (with
-                    // a margin for rounding).
-                    let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
-                    let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
-                    let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
-                    let mut d1 = if ci == 0 && unchanged {
-                        if en.key > c.key {
-                            en.key / f
-                        } else {
-                            0.0
-                        }
-                    } else if st
-                        .coverage2_bound(u, v, c.p, su.len(), &e)
-                        .is_some_and(|b| below(b, tt))
-                    {
-                        0.0
-                    } else {
-                        st.coverage2(u, v, c.p, &su, &sv, tt)
-                    };
-                    if !below(0.25 * moved2, tt.max(d1)) {
-                        d1 = d1.max(st.interior2(u, v, c.p, &su, &sv, tt.max(d1), &mut old));
-                    }
-                    if d1 > tt {
-                        c.key = c.key.max(d1 * f);
-                        c.dist2 = c.dist2.max(d1);
-                    }
-                    chosen = Some(c);
-                    break;
-                }
-            }
-            // A fallback placement (the first one failed validation) costs
-            // more than the rank: only take it if it is within the pass goal.
-            let Some(cand) =
-                chosen.filter(|c| c.key <= en.key * (1.0 + 1e-9) || c.key <= error_goal)
-            else {
-                goal_idx += 1;
-                match chosen {
-                    // Next pass (if still clean) it ranks at its real cost.
-                    Some(c) => ranked[ri].key = c.key,
-                    None if !over_target => ranked[ri].f = -1.0,
-                    None => {}
-                }
                 continue;
-            };
-            for s in su.iter().chain(&sv) {
-                dirty[s.a as usize] = true;
-                dirty[s.b as usize] = true;
             }
-            dirty[u as usize] = true;
-            dirty[v as usize] = true;
-            max_edge2 = max_edge2.max((st.pos[u as usize] - st.pos[v as usize]).length_squared());
-            let d2 = st.apply(u, v, cand.p, cand.dist2, &su, &e);
-            max_d2 = max_d2.max(d2);
-            collapses += 1;
-            touched[u as usize] = true;
-            touched[v as usize] = true;
+            if st.valid(u, v, cand.p, &self.su, &self.sv, e) {
+                let known = ci == 0 && unchanged;
+                return (
+                    Some(self.full_cost(st, en, cand, known, e, error_goal)),
+                    over_target,
+                );
+            }
         }
-        if collapses == 0 {
-            break;
+        (None, over_target)
+    }
+
+    /// Candidate `c` of edge `en` with its key and distance raised by the
+    /// coverage and interior errors. `known`: the coverage of `c` is the one
+    /// computed for the ranked entry.
+    #[inline]
+    fn full_cost(
+        &mut self,
+        st: &mut State,
+        en: Ranked,
+        mut c: Candidate,
+        known: bool,
+        e: &EdgeInfo,
+        error_goal: f64,
+    ) -> Candidate {
+        let (u, v) = (en.u, en.v);
+        // Only values above the cost matter (`t`: early exits;
+        // the key also holds the tie-break term).
+        let f = st.factor(u, v);
+        let t = c.key / f;
+        // Errors up to `t_free` change nothing either: the
+        // collapse is still within the pass goal and its
+        // distance does not raise the largest one so far
+        // (`max_d2`), so the checks below may stop at that
+        // threshold instead of `t`.
+        let t_free = self.max_d2.min(error_goal / f);
+        let tt = if c.key <= error_goal && c.dist2 <= self.max_d2 && t_free * f <= error_goal {
+            t.max(t_free)
+        } else {
+            t
+        };
+        // Below the threshold, both checks are bounded by how far the endpoints
+        // move (`p` is a vertex of every new triangle, `u` and `v` of the old
+        // star; a new triangle's sample point is within half that of the old
+        // triangle it replaces): skipped when the bound cannot exceed it (with
+        // a margin for rounding).
+        let (pu, pv) = (st.pos[u as usize], st.pos[v as usize]);
+        let moved2 = (pu - c.p).length_squared().max((pv - c.p).length_squared());
+        let below = |b: f64, t: f64| b < t * (1.0 - 1e-3);
+        let mut d1 = if known {
+            if en.key > c.key {
+                en.key / f
+            } else {
+                0.0
+            }
+        } else if st
+            .coverage2_bound(u, v, c.p, self.su.len(), e)
+            .is_some_and(|b| below(b, tt))
+        {
+            0.0
+        } else {
+            st.coverage2(u, v, c.p, &self.su, &self.sv, tt)
+        };
+        if !below(0.25 * moved2, tt.max(d1)) {
+            d1 = d1.max(st.interior2(u, v, c.p, &self.su, &self.sv, tt.max(d1), &mut self.old));
         }
-        // The entries kept for the next pass stay at the front of `ranked`
-        // (compacted in place, not copied out and back).
-        ranked.retain(|r| {
+        if d1 > tt {
+            c.key = c.key.max(d1 * f);
+            c.dist2 = c.dist2.max(d1);
+        }
+        c
+    }
+
+    /// Keeps the entries of edges with two clean live endpoints, valid so
+    /// far, for the next pass (compacted in place at the front of `ranked`,
+    /// not copied out and back).
+    fn keep_clean_entries(&mut self, st: &State) {
+        let dirty = &self.dirty;
+        self.ranked.retain(|r| {
             r.u != NONE
                 && r.f >= 0.0
                 && st.alive[r.u as usize]
@@ -1720,22 +1926,25 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
         });
     }
 
-    let tris: Vec<[u32; 3]> = st
-        .tris
-        .iter()
-        .zip(&st.tri_alive)
-        .filter(|(_, &a)| a)
-        .map(|(t, _)| *t)
-        .collect();
-    QemOutput {
-        pos: st.pos,
-        locked: st.locked,
-        wedge_pos: st.wedge_pos,
-        attr: st.attr,
-        tris,
-        max_qem_distance: max_d2.sqrt(),
-        max_collapsed_edge: max_edge2.sqrt(),
-        quad: st.quad,
-        curv: st.curv,
+    /// The output of the run: the state's arrays with the live triangles.
+    fn finish(self, st: State) -> QemOutput {
+        let tris: Vec<[u32; 3]> = st
+            .tris
+            .iter()
+            .zip(&st.tri_alive)
+            .filter(|(_, &a)| a)
+            .map(|(t, _)| *t)
+            .collect();
+        QemOutput {
+            pos: st.pos,
+            locked: st.locked,
+            wedge_pos: st.wedge_pos,
+            attr: st.attr,
+            tris,
+            max_qem_distance: self.max_d2.sqrt(),
+            max_collapsed_edge: self.max_edge2.sqrt(),
+            quad: st.quad,
+            curv: st.curv,
+        }
     }
 }

@@ -73,139 +73,202 @@ pub(crate) fn weld(
     indices: &[u32],
     tolerance: f64,
 ) -> Welded {
-    let n = positions.len();
     // Only weld vertices that are referenced.
-    let mut used = vec![false; n];
+    let mut used = vec![false; positions.len()];
     for &i in indices {
         used[i as usize] = true;
     }
-    let p64 = |i: usize| {
-        let p = positions[i];
-        DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    // 1. Position vertices: first representative in input order.
+    let pv = if tolerance > 0.0 {
+        position_vertices_within(positions, &used, groups, locked, tolerance)
+    } else {
+        position_vertices_exact(positions, &used, groups, locked)
     };
+    // 2. Wedges.
+    let (wedge_of, wedge_pos, wedge_src) = wedges(&used, &pv.rep, pv.pos.len(), attr_key);
+    // 3. Triangles.
+    let tris = valid_triangles(indices, &wedge_of, &wedge_pos, &pv.pos);
+    Welded {
+        pos: pv.pos,
+        locked: pv.locked,
+        wedge_pos,
+        wedge_src,
+        tris,
+    }
+}
 
-    // 1. Position vertices: grid hash, first representative in input order.
-    let mut rep = vec![NONE; n]; // input vertex -> position vertex
+/// Position vertices of the referenced input vertices.
+struct PositionVertices {
+    /// Input vertex -> position vertex (`NONE` if unreferenced).
+    rep: Vec<u32>,
+    pos: Vec<DVec3>,
+    locked: Vec<bool>,
+}
+
+fn p64(p: [f32; 3]) -> DVec3 {
+    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+}
+
+/// Position vertices within `tolerance` (> 0) of each other, same group,
+/// found on a grid hash: each input vertex takes the first earlier position
+/// vertex of its group within the tolerance (a locked one: at exactly its
+/// position), else becomes one.
+fn position_vertices_within(
+    positions: &[[f32; 3]],
+    used: &[bool],
+    groups: &dyn Fn(usize) -> u32,
+    locked: &dyn Fn(usize) -> bool,
+    tolerance: f64,
+) -> PositionVertices {
+    let n = positions.len();
+    let mut rep = vec![NONE; n];
     let mut pos: Vec<DVec3> = Vec::new();
     let mut plocked = Vec::new();
-    let mut rep_src: Vec<u32> = Vec::new(); // position vertex -> input vertex
-    if tolerance > 0.0 {
-        // Cells of four times the tolerance: per axis a point within the
-        // tolerance is in the point's own cell, or in the neighbour on the
-        // side where the point is within the tolerance of the cell's edge
-        // (a quarter of the cell). Most points need one probe (cells of twice
-        // the tolerance took 8, of the tolerance 27); the result, the first
-        // representative within the tolerance, does not depend on the cells.
-        let inv = 0.25 / tolerance;
-        let cell = |p: DVec3| {
-            (
-                (p.x * inv).floor() as i64,
-                (p.y * inv).floor() as i64,
-                (p.z * inv).floor() as i64,
-            )
-        };
-        // Cells to probe along one axis: the own one, and a neighbour when
-        // the point is within the tolerance of that side (with a margin for
-        // rounding).
-        let span = |x: f64, c: i64| -> (i64, i64) {
-            let f = x * inv - c as f64;
-            (
-                if f < 0.25 + 1e-6 { -1 } else { 0 },
-                if f > 0.75 - 1e-6 { 1 } else { 0 },
-            )
-        };
-        let n_used = used.iter().filter(|&&u| u).count();
-        // Compact cell table: a bucket per hash of (group, cell) holding
-        // the head of a list of position vertices (`next_in_cell`). Cells
-        // sharing a bucket share its list: the extra entries are farther
-        // than the tolerance (every point within it lies in a probed
-        // cell) or of another group (checked), so the result is the same
-        // as with one list per cell; an empty bucket is one load (a map
-        // probe was a cache miss and most probes are of empty cells).
-        let bits = (2 * n_used).next_power_of_two().max(64);
-        let shift = 64 - bits.trailing_zeros();
-        let mut heads = vec![NONE; bits];
-        let bucket = |g: u32, cx: i64, cy: i64, cz: i64| {
-            let mut h = FxHasher::default();
-            h.write_u32(g);
-            h.write_i64(cx);
-            h.write_i64(cy);
-            h.write_i64(cz);
-            (h.finish() >> shift) as usize
-        };
-        let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
-        let mut rep_group: Vec<u32> = Vec::new(); // per position vertex
-        let tol2 = tolerance * tolerance;
-        for i in 0..n {
-            if !used[i] {
-                continue;
-            }
-            let g = groups(i);
-            let lk = locked(i);
-            let p = p64(i);
-            let (cx, cy, cz) = cell(p);
-            let (sx, sy, sz) = (span(p.x, cx), span(p.y, cy), span(p.z, cz));
-            let mut best = NONE;
-            for dx in sx.0..=sx.1 {
-                for dy in sy.0..=sy.1 {
-                    for dz in sz.0..=sz.1 {
-                        let mut r = heads[bucket(g, cx + dx, cy + dy, cz + dz)];
-                        while r != NONE {
-                            let q = pos[r as usize];
-                            let ok = if lk {
-                                q == p
-                            } else {
-                                (q - p).length_squared() <= tol2
-                            };
-                            if ok && r < best && rep_group[r as usize] == g {
-                                best = r;
-                            }
-                            r = next_in_cell[r as usize];
+    // Cells of four times the tolerance: per axis a point within the
+    // tolerance is in the point's own cell, or in the neighbour on the
+    // side where the point is within the tolerance of the cell's edge
+    // (a quarter of the cell). Most points need one probe (cells of twice
+    // the tolerance took 8, of the tolerance 27); the result, the first
+    // representative within the tolerance, does not depend on the cells.
+    let inv = 0.25 / tolerance;
+    let cell = |p: DVec3| {
+        (
+            (p.x * inv).floor() as i64,
+            (p.y * inv).floor() as i64,
+            (p.z * inv).floor() as i64,
+        )
+    };
+    // Cells to probe along one axis: the own one, and a neighbour when
+    // the point is within the tolerance of that side (with a margin for
+    // rounding).
+    let span = |x: f64, c: i64| -> (i64, i64) {
+        let f = x * inv - c as f64;
+        (
+            if f < 0.25 + 1e-6 { -1 } else { 0 },
+            if f > 0.75 - 1e-6 { 1 } else { 0 },
+        )
+    };
+    let n_used = used.iter().filter(|&&u| u).count();
+    // Compact cell table: a bucket per hash of (group, cell) holding
+    // the head of a list of position vertices (`next_in_cell`). Cells
+    // sharing a bucket share its list: the extra entries are farther
+    // than the tolerance (every point within it lies in a probed
+    // cell) or of another group (checked), so the result is the same
+    // as with one list per cell; an empty bucket is one load (a map
+    // probe was a cache miss and most probes are of empty cells).
+    let bits = (2 * n_used).next_power_of_two().max(64);
+    let shift = 64 - bits.trailing_zeros();
+    let mut heads = vec![NONE; bits];
+    let bucket = |g: u32, cx: i64, cy: i64, cz: i64| {
+        let mut h = FxHasher::default();
+        h.write_u32(g);
+        h.write_i64(cx);
+        h.write_i64(cy);
+        h.write_i64(cz);
+        (h.finish() >> shift) as usize
+    };
+    let mut next_in_cell: Vec<u32> = Vec::new(); // per position vertex
+    let mut rep_group: Vec<u32> = Vec::new(); // per position vertex
+    let tol2 = tolerance * tolerance;
+    for i in 0..n {
+        if !used[i] {
+            continue;
+        }
+        let g = groups(i);
+        let lk = locked(i);
+        let p = p64(positions[i]);
+        let (cx, cy, cz) = cell(p);
+        let (sx, sy, sz) = (span(p.x, cx), span(p.y, cy), span(p.z, cz));
+        let mut best = NONE;
+        for dx in sx.0..=sx.1 {
+            for dy in sy.0..=sy.1 {
+                for dz in sz.0..=sz.1 {
+                    let mut r = heads[bucket(g, cx + dx, cy + dy, cz + dz)];
+                    while r != NONE {
+                        let q = pos[r as usize];
+                        let ok = if lk {
+                            q == p
+                        } else {
+                            (q - p).length_squared() <= tol2
+                        };
+                        if ok && r < best && rep_group[r as usize] == g {
+                            best = r;
                         }
+                        r = next_in_cell[r as usize];
                     }
                 }
             }
-            if best == NONE {
-                best = pos.len() as u32;
-                pos.push(p);
-                plocked.push(false);
-                rep_src.push(i as u32);
-                rep_group.push(g);
-                let h = &mut heads[bucket(g, cx, cy, cz)];
-                next_in_cell.push(*h);
-                *h = best;
-            }
-            if lk {
-                plocked[best as usize] = true;
-            }
-            rep[i] = best;
         }
-    } else {
-        let mut map: HashMap<(u32, [u32; 3]), u32> = HashMap::default();
-        for i in 0..n {
-            if !used[i] {
-                continue;
-            }
-            let p = positions[i];
-            let key = (groups(i), [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()]);
-            let id = *map.entry(key).or_insert_with(|| {
-                pos.push(p64(i));
-                plocked.push(false);
-                rep_src.push(i as u32);
-                (pos.len() - 1) as u32
-            });
-            if locked(i) {
-                plocked[id as usize] = true;
-            }
-            rep[i] = id;
+        if best == NONE {
+            best = pos.len() as u32;
+            pos.push(p);
+            plocked.push(false);
+            rep_group.push(g);
+            let h = &mut heads[bucket(g, cx, cy, cz)];
+            next_in_cell.push(*h);
+            *h = best;
         }
+        if lk {
+            plocked[best as usize] = true;
+        }
+        rep[i] = best;
     }
+    PositionVertices {
+        rep,
+        pos,
+        locked: plocked,
+    }
+}
 
-    // 2. Wedges: (position vertex, attributes). A position vertex has a few
-    // wedges: they are found on a per-vertex list (a map keyed by the
-    // attributes was a cache miss per input vertex).
+/// Position vertices at exactly the same position (bits), same group.
+fn position_vertices_exact(
+    positions: &[[f32; 3]],
+    used: &[bool],
+    groups: &dyn Fn(usize) -> u32,
+    locked: &dyn Fn(usize) -> bool,
+) -> PositionVertices {
+    let n = positions.len();
+    let mut rep = vec![NONE; n];
+    let mut pos: Vec<DVec3> = Vec::new();
+    let mut plocked = Vec::new();
+    let mut map: HashMap<(u32, [u32; 3]), u32> = HashMap::default();
+    for i in 0..n {
+        if !used[i] {
+            continue;
+        }
+        let p = positions[i];
+        let key = (groups(i), [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()]);
+        let id = *map.entry(key).or_insert_with(|| {
+            pos.push(p64(p));
+            plocked.push(false);
+            (pos.len() - 1) as u32
+        });
+        if locked(i) {
+            plocked[id as usize] = true;
+        }
+        rep[i] = id;
+    }
+    PositionVertices {
+        rep,
+        pos,
+        locked: plocked,
+    }
+}
+
+/// Wedges: (position vertex, attributes), in input order. Returns the wedge
+/// of every input vertex, and the position vertex and source input vertex
+/// of every wedge. A position vertex has a few wedges: they are found on a
+/// per-vertex list (a map keyed by the attributes was a cache miss per
+/// input vertex).
+fn wedges(
+    used: &[bool],
+    rep: &[u32],
+    n_pos: usize,
+    attr_key: &dyn Fn(usize) -> [u32; 9],
+) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+    let n = used.len();
     let mut wedge_of = vec![NONE; n];
-    let mut first_wedge = vec![NONE; pos.len()];
+    let mut first_wedge = vec![NONE; n_pos];
     let mut next_wedge: Vec<u32> = Vec::new();
     let mut wedge_key: Vec<[u32; 9]> = Vec::new();
     let mut wedge_pos = Vec::new();
@@ -230,8 +293,17 @@ pub(crate) fn weld(
         }
         wedge_of[i] = w;
     }
+    (wedge_of, wedge_pos, wedge_src)
+}
 
-    // 3. Triangles: drop repeated position vertices and zero-area faces.
+/// Triangles as wedge triples, without those with a repeated position
+/// vertex or zero area (relative to their size).
+fn valid_triangles(
+    indices: &[u32],
+    wedge_of: &[u32],
+    wedge_pos: &[u32],
+    pos: &[DVec3],
+) -> Vec<[u32; 3]> {
     let mut tris = Vec::with_capacity(indices.len() / 3);
     for t in indices.chunks_exact(3) {
         let w = [
@@ -259,14 +331,7 @@ pub(crate) fn weld(
         }
         tris.push(w);
     }
-    let _ = rep_src;
-    Welded {
-        pos,
-        locked: plocked,
-        wedge_pos,
-        wedge_src,
-        tris,
-    }
+    tris
 }
 
 #[cfg(test)]

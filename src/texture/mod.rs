@@ -18,6 +18,7 @@
 //! small non-repeating images are packed into one image when that saves requests and bytes
 //! ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
 
+pub mod admit;
 pub mod atlas;
 pub mod classify;
 pub mod codec;
@@ -105,17 +106,27 @@ pub struct Prepared {
     /// Classes of the images still bound after identical ones were merged.
     pub classes: classify::ClassCounts,
     pub crop: crop::CropReport,
+    /// Images that could not be decoded, dropped from their materials ([`admit`]).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub dropped_images: Vec<admit::DroppedImage>,
     #[serde(skip)]
     pub uses: Vec<classify::ImageUse>,
 }
 
-/// Identical images merged, images classified, unused areas cropped (with `opts.crop`).
-pub fn prepare(scene: &mut Scene, opts: &TextureOptions) -> Prepared {
+/// Images admitted under `limits` (an image over them is refused, with its input file; an
+/// undecodable one dropped), identical images merged, images classified, unused areas cropped
+/// (with `opts.crop`).
+pub fn prepare(
+    scene: &mut Scene,
+    opts: &TextureOptions,
+    limits: &admit::ImageLimits,
+) -> Result<Prepared, (std::path::PathBuf, admit::ImageRefused)> {
     let bound = classify::bound_images(scene);
     let original_bytes = bound
         .iter()
         .map(|i| scene.images[i.index()].bytes.len() as u64)
         .sum();
+    let dropped_images = admit::admit_images(scene, limits)?;
     let identical = identical::merge_identical(scene);
     let uses = classify::classify(scene);
     let classes = classify::counts(
@@ -129,14 +140,15 @@ pub fn prepare(scene: &mut Scene, opts: &TextureOptions) -> Prepared {
     } else {
         crop::CropReport::default()
     };
-    Prepared {
+    Ok(Prepared {
         images_bound: bound.len(),
         original_bytes,
         identical,
         classes,
         crop,
+        dropped_images,
         uses,
-    }
+    })
 }
 
 /// One encoded pyramid level.
@@ -569,7 +581,12 @@ mod tests {
             &uses,
         );
         assert_eq!(off.for_tile(&content, 0.02).0[&ImageId(0)], 0);
-        let prepared = prepare(&mut s.clone(), &TextureOptions::default());
+        let prepared = prepare(
+            &mut s.clone(),
+            &TextureOptions::default(),
+            &admit::ImageLimits::under_budget(None),
+        )
+        .unwrap();
         let r = levels.report(prepared);
         assert_eq!(r.written_bytes, (b0.len() + b2.len()) as u64);
         assert_eq!(r.written_per_level.len(), 2);

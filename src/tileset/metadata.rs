@@ -124,14 +124,19 @@ pub fn identifier(s: &str) -> String {
     id
 }
 
-impl MetadataSchema {
-    /// Builds the schema for `scene`: enum values in first-use order, one property per
-    /// property-set entry (ordered by set, then name).
-    pub fn from_scene(scene: &Scene) -> MetadataSchema {
-        let base: Value =
-            serde_json::from_str(BASE_SCHEMA).expect("schemas/bimtiles.schema.json is valid JSON");
-        let mut enums: BTreeMap<String, Vec<String>> = BTreeMap::new();
-        let mut enum_codes: HashMap<String, HashMap<String, u16>> = HashMap::new();
+/// The enums of a schema while it is built: value names (index = code) and codes by name.
+struct EnumTable {
+    names: BTreeMap<String, Vec<String>>,
+    codes: HashMap<String, HashMap<String, u16>>,
+}
+
+impl EnumTable {
+    /// The enums of the base schema, with their fixed values.
+    fn from_base(base: &Value) -> EnumTable {
+        let mut table = EnumTable {
+            names: BTreeMap::new(),
+            codes: HashMap::new(),
+        };
         for (id, e) in base["enums"].as_object().expect("base enums") {
             let names: Vec<String> = e["values"]
                 .as_array()
@@ -139,21 +144,34 @@ impl MetadataSchema {
                 .iter()
                 .map(|v| v["name"].as_str().expect("enum value name").to_string())
                 .collect();
-            enum_codes.insert(id.clone(), codes_of(&names));
-            enums.insert(id.clone(), names);
+            table.insert(id.clone(), names);
         }
-        let mut add = |enum_id: &str, v: Option<&str>| {
-            if let Some(v) = v {
-                let codes = enum_codes.get_mut(enum_id).expect("known enum");
-                if !codes.contains_key(v) && codes.len() < u16::MAX as usize {
-                    let list = enums.get_mut(enum_id).expect("known enum");
-                    codes.insert(v.to_string(), list.len() as u16);
-                    list.push(v.to_string());
-                }
+        table
+    }
+
+    /// Adds enum `enum_id` with these value names.
+    fn insert(&mut self, enum_id: String, names: Vec<String>) {
+        self.codes.insert(enum_id.clone(), codes_of(&names));
+        self.names.insert(enum_id, names);
+    }
+
+    /// Adds value `v` (if any and new, while codes last) to enum `enum_id` of the base schema.
+    fn add(&mut self, enum_id: &str, v: Option<&str>) {
+        if let Some(v) = v {
+            let codes = self.codes.get_mut(enum_id).expect("known enum");
+            if !codes.contains_key(v) && codes.len() < u16::MAX as usize {
+                let list = self.names.get_mut(enum_id).expect("known enum");
+                codes.insert(v.to_string(), list.len() as u16);
+                list.push(v.to_string());
             }
-        };
+        }
+    }
+
+    /// The values the scene uses of the fixed enums (source files, then each element's IFC
+    /// class, storey, building, site and material), in first-use order.
+    fn add_fixed_values(&mut self, scene: &Scene) {
         for s in &scene.sources {
-            add(
+            self.add(
                 "sourceFile",
                 s.path
                     .file_name()
@@ -161,138 +179,190 @@ impl MetadataSchema {
                     .as_deref(),
             );
         }
-        // Property-set entries and their value types.
-        let mut kinds: BTreeMap<(SharedText, SharedText), (bool, bool, bool)> = BTreeMap::new(); // (text, number, bool)
         for info in scene.elements.iter() {
-            add("ifcClass", info.class.as_deref());
-            add("storey", info.storey.as_deref());
-            add("building", info.building.as_deref());
-            add("site", info.site.as_deref());
-            add("material", info.material.as_deref());
-            for p in &info.properties {
-                let k = kinds.entry((p.set.clone(), p.name.clone())).or_default();
-                match p.value {
-                    PropertyValue::Text(_) => k.0 = true,
-                    PropertyValue::Number(_) | PropertyValue::Integer(_) => k.1 = true,
-                    PropertyValue::Bool(_) => k.2 = true,
+            self.add("ifcClass", info.class.as_deref());
+            self.add("storey", info.storey.as_deref());
+            self.add("building", info.building.as_deref());
+            self.add("site", info.site.as_deref());
+            self.add("material", info.material.as_deref());
+        }
+    }
+}
+
+/// Which value types each property-set entry (set, name) has: (text, number, bool).
+type PsetKinds = BTreeMap<(SharedText, SharedText), (bool, bool, bool)>;
+
+/// The property-set entries of the scene and their value types.
+fn pset_kinds(scene: &Scene) -> PsetKinds {
+    let mut kinds = PsetKinds::new();
+    for info in scene.elements.iter() {
+        for p in &info.properties {
+            let k = kinds.entry((p.set.clone(), p.name.clone())).or_default();
+            match p.value {
+                PropertyValue::Text(_) => k.0 = true,
+                PropertyValue::Number(_) | PropertyValue::Integer(_) => k.1 = true,
+                PropertyValue::Bool(_) => k.2 = true,
+            }
+        }
+    }
+    kinds
+}
+
+/// The properties of the fixed class (`schemas/bimtiles.schema.json`).
+fn fixed_properties() -> Vec<PropertyDef> {
+    [
+        ("id", Column::Id, ValueType::Text),
+        ("name", Column::Name, ValueType::Text),
+        ("path", Column::Path, ValueType::Text),
+        (
+            "source",
+            Column::Source,
+            ValueType::Enum("sourceFile".into()),
+        ),
+        ("class", Column::Class, ValueType::Enum("ifcClass".into())),
+        ("storey", Column::Storey, ValueType::Enum("storey".into())),
+        (
+            "building",
+            Column::Building,
+            ValueType::Enum("building".into()),
+        ),
+        ("site", Column::Site, ValueType::Enum("site".into())),
+        (
+            "material",
+            Column::Material,
+            ValueType::Enum("material".into()),
+        ),
+        ("aliases", Column::Aliases, ValueType::Text),
+    ]
+    .into_iter()
+    .map(|(id, column, value_type)| PropertyDef {
+        id: id.into(),
+        column,
+        value_type,
+    })
+    .collect()
+}
+
+/// Distinct values of a text-only property-set entry, in first-use order (collected up to one
+/// more than [`ENUM_MAX_VALUES`]), with its use count.
+#[derive(Default)]
+struct Distinct {
+    values: Vec<String>,
+    seen: std::collections::HashSet<String>,
+    uses: usize,
+}
+
+/// The distinct non-empty values of the text-only property-set entries.
+fn distinct_text_values(
+    scene: &Scene,
+    kinds: &PsetKinds,
+) -> HashMap<(SharedText, SharedText), Distinct> {
+    let mut text_values: HashMap<(SharedText, SharedText), Distinct> = HashMap::new();
+    for info in scene.elements.iter() {
+        for p in &info.properties {
+            if let PropertyValue::Text(t) = &p.value {
+                if kinds[&(p.set.clone(), p.name.clone())] == (true, false, false) && !t.is_empty()
+                {
+                    let d = text_values
+                        .entry((p.set.clone(), p.name.clone()))
+                        .or_default();
+                    d.uses += 1;
+                    if d.values.len() <= ENUM_MAX_VALUES && d.seen.insert(t.clone()) {
+                        d.values.push(t.clone());
+                    }
                 }
             }
         }
-        let mut properties: Vec<PropertyDef> = [
-            ("id", Column::Id, ValueType::Text),
-            ("name", Column::Name, ValueType::Text),
-            ("path", Column::Path, ValueType::Text),
-            (
-                "source",
-                Column::Source,
-                ValueType::Enum("sourceFile".into()),
-            ),
-            ("class", Column::Class, ValueType::Enum("ifcClass".into())),
-            ("storey", Column::Storey, ValueType::Enum("storey".into())),
-            (
-                "building",
-                Column::Building,
-                ValueType::Enum("building".into()),
-            ),
-            ("site", Column::Site, ValueType::Enum("site".into())),
-            (
-                "material",
-                Column::Material,
-                ValueType::Enum("material".into()),
-            ),
-            ("aliases", Column::Aliases, ValueType::Text),
-        ]
-        .into_iter()
-        .map(|(id, column, value_type)| PropertyDef {
-            id: id.into(),
-            column,
+    }
+    text_values
+}
+
+/// One property per property-set entry (ordered by set, then name), typed by its values, added
+/// to `properties` (and an enum per text entry with few, often used values to `enums`);
+/// returns the (set, name) of each.
+fn add_pset_properties(
+    kinds: PsetKinds,
+    text_values: &HashMap<(SharedText, SharedText), Distinct>,
+    properties: &mut Vec<PropertyDef>,
+    enums: &mut EnumTable,
+) -> Vec<(String, String)> {
+    let mut pset_keys = Vec::new();
+    for ((set, name), (text, number, boolean)) in kinds {
+        let mut id = identifier(&format!("{set}_{name}"));
+        while properties.iter().any(|p| p.id == id) {
+            id.push('_');
+        }
+        let value_type = match (text, number, boolean) {
+            (false, true, false) => ValueType::Float64,
+            (false, false, true) => ValueType::Enum("boolean".into()),
+            _ => match text_values.get(&(set.clone(), name.clone())) {
+                // A text entry with few values, each used often ("Material: Concrete"): an
+                // enum, 2 bytes a row and the names once in schema.json, instead of the
+                // string and its 4-byte offset in every tile.
+                Some(Distinct { values, uses, .. })
+                    if values.len() <= ENUM_MAX_VALUES
+                        && *uses >= ENUM_MIN_USES_PER_VALUE * values.len()
+                        && !values.iter().any(|v| v == NO_VALUE) =>
+                {
+                    let mut enum_id = format!("pset_{id}");
+                    while enums.names.contains_key(&enum_id) {
+                        enum_id.push('_');
+                    }
+                    let names: Vec<String> = std::iter::once(NO_VALUE.to_string())
+                        .chain(values.iter().cloned())
+                        .collect();
+                    enums.insert(enum_id.clone(), names);
+                    ValueType::Enum(enum_id)
+                }
+                _ => ValueType::Text,
+            },
+        };
+        properties.push(PropertyDef {
+            id,
+            column: Column::Pset(pset_keys.len()),
             value_type,
-        })
-        .collect();
-        // Distinct values of the text-only entries, in first-use order, with their use count.
-        #[derive(Default)]
-        struct Distinct {
-            values: Vec<String>,
-            seen: std::collections::HashSet<String>,
-            uses: usize,
+        });
+        pset_keys.push((set.to_string(), name.to_string()));
+    }
+    pset_keys
+}
+
+/// Kept component -> ids of its aliases, as a JSON array: any id (node names hold spaces) reads
+/// back unchanged.
+fn alias_lists(scene: &Scene) -> HashMap<ComponentId, String> {
+    let mut alias_ids: HashMap<ComponentId, Vec<String>> = HashMap::new();
+    for c in &scene.components {
+        if let Some(kept) = c.alias_of {
+            alias_ids
+                .entry(kept)
+                .or_default()
+                .push(scene.element(c.id).key);
         }
-        let mut text_values: HashMap<(SharedText, SharedText), Distinct> = HashMap::new();
-        for info in scene.elements.iter() {
-            for p in &info.properties {
-                if let PropertyValue::Text(t) = &p.value {
-                    if kinds[&(p.set.clone(), p.name.clone())] == (true, false, false)
-                        && !t.is_empty()
-                    {
-                        let d = text_values
-                            .entry((p.set.clone(), p.name.clone()))
-                            .or_default();
-                        d.uses += 1;
-                        if d.values.len() <= ENUM_MAX_VALUES && d.seen.insert(t.clone()) {
-                            d.values.push(t.clone());
-                        }
-                    }
-                }
-            }
-        }
-        let mut pset_keys = Vec::new();
-        for ((set, name), (text, number, boolean)) in kinds {
-            let mut id = identifier(&format!("{set}_{name}"));
-            while properties.iter().any(|p| p.id == id) {
-                id.push('_');
-            }
-            let value_type = match (text, number, boolean) {
-                (false, true, false) => ValueType::Float64,
-                (false, false, true) => ValueType::Enum("boolean".into()),
-                _ => match text_values.get(&(set.clone(), name.clone())) {
-                    // A text entry with few values, each used often ("Material: Concrete"): an
-                    // enum, 2 bytes a row and the names once in schema.json, instead of the
-                    // string and its 4-byte offset in every tile.
-                    Some(Distinct { values, uses, .. })
-                        if values.len() <= ENUM_MAX_VALUES
-                            && *uses >= ENUM_MIN_USES_PER_VALUE * values.len()
-                            && !values.iter().any(|v| v == NO_VALUE) =>
-                    {
-                        let mut enum_id = format!("pset_{id}");
-                        while enums.contains_key(&enum_id) {
-                            enum_id.push('_');
-                        }
-                        let names: Vec<String> = std::iter::once(NO_VALUE.to_string())
-                            .chain(values.iter().cloned())
-                            .collect();
-                        enum_codes.insert(enum_id.clone(), codes_of(&names));
-                        enums.insert(enum_id.clone(), names);
-                        ValueType::Enum(enum_id)
-                    }
-                    _ => ValueType::Text,
-                },
-            };
-            properties.push(PropertyDef {
-                id,
-                column: Column::Pset(pset_keys.len()),
-                value_type,
-            });
-            pset_keys.push((set.to_string(), name.to_string()));
-        }
-        // A JSON array of ids: any id (node names hold spaces) reads back unchanged.
-        let mut alias_ids: HashMap<ComponentId, Vec<String>> = HashMap::new();
-        for c in &scene.components {
-            if let Some(kept) = c.alias_of {
-                alias_ids
-                    .entry(kept)
-                    .or_default()
-                    .push(scene.element(c.id).key);
-            }
-        }
-        let aliases = alias_ids
-            .into_iter()
-            .map(|(kept, ids)| (kept, Value::from(ids).to_string()))
-            .collect();
+    }
+    alias_ids
+        .into_iter()
+        .map(|(kept, ids)| (kept, Value::from(ids).to_string()))
+        .collect()
+}
+
+impl MetadataSchema {
+    /// Builds the schema for `scene`: enum values in first-use order, one property per
+    /// property-set entry (ordered by set, then name).
+    pub fn from_scene(scene: &Scene) -> MetadataSchema {
+        let base: Value =
+            serde_json::from_str(BASE_SCHEMA).expect("schemas/bimtiles.schema.json is valid JSON");
+        let mut enums = EnumTable::from_base(&base);
+        enums.add_fixed_values(scene);
+        let kinds = pset_kinds(scene);
+        let mut properties = fixed_properties();
+        let text_values = distinct_text_values(scene, &kinds);
+        let pset_keys = add_pset_properties(kinds, &text_values, &mut properties, &mut enums);
         MetadataSchema {
             properties,
             pset_keys,
-            enums,
-            enum_codes,
-            aliases,
+            enums: enums.names,
+            enum_codes: enums.codes,
+            aliases: alias_lists(scene),
             base,
         }
     }

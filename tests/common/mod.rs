@@ -21,7 +21,10 @@ use std::process::{Command, Output};
 
 #[path = "../support/glb.rs"]
 pub mod glb;
-pub use glb::{bounds, f32_bytes, glb, glb_chunks, one_mesh_glb, GlbBuilder};
+pub use glb::{
+    bounds, f32_bytes, glb, glb_chunks, one_mesh_glb, png_claiming, png_image, textured_quad_glb,
+    GlbBuilder,
+};
 
 #[path = "../support/height_field.rs"]
 pub mod height_field;

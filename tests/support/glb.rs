@@ -119,3 +119,55 @@ pub fn one_mesh_glb(
         "meshes": [{"primitives": [primitive]}],
     }))
 }
+
+/// A GLB of one textured quad whose base colour texture is `image` (declared `image/png`).
+pub fn textured_quad_glb(image: &[u8]) -> Vec<u8> {
+    let mut b = GlbBuilder::default();
+    let quad = [
+        [0.0, 0.0, 0.0],
+        [4.0, 0.0, 0.0],
+        [4.0, 3.0, 0.0],
+        [0.0, 3.0, 0.0],
+    ];
+    let position = b.positions(&quad, None);
+    let uv = b.accessor(
+        &f32_bytes(&[[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]),
+        None,
+        json!({"componentType": 5126, "count": 4, "type": "VEC2"}),
+    );
+    let indices = b.indices(&[0, 1, 2, 0, 2, 3], None);
+    let image_view = b.view(image, None);
+    b.finish(json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "wall", "mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": position, "TEXCOORD_0": uv},
+            "indices": indices, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 0}],
+        "images": [{"name": "photo", "bufferView": image_view, "mimeType": "image/png"}],
+    }))
+}
+
+/// A PNG of `w` x `h` px (RGBA, every pixel `rgba`).
+pub fn png_image(w: u32, h: u32, rgba: [u8; 4]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut e = png::Encoder::new(&mut out, w, h);
+    e.set_color(png::ColorType::Rgba);
+    let pixels: Vec<u8> = (0..w * h).flat_map(|_| rgba).collect();
+    let mut writer = e.write_header().unwrap();
+    writer.write_image_data(&pixels).unwrap();
+    writer.finish().unwrap();
+    out
+}
+
+/// A PNG whose header claims `w` x `h` px, followed by the pixel data of a 1 x 1 image: a few
+/// dozen bytes that would decode to gigabytes.
+pub fn png_claiming(w: u32, h: u32) -> Vec<u8> {
+    let mut head = Vec::new();
+    let mut e = png::Encoder::new(&mut head, w, h);
+    e.set_color(png::ColorType::Rgba);
+    drop(e.write_header().unwrap());
+    let mut bytes = head[..33].to_vec(); // signature, IHDR
+    bytes.extend_from_slice(&png_image(1, 1, [0; 4])[33..]); // IDAT, IEND
+    bytes
+}

@@ -12,7 +12,7 @@
 use super::metadata::{write_property_table, PropertyTable};
 use super::{ContentFigures, EncodeError};
 use crate::glb_container::glb_container;
-use crate::partition::content::{ContentPrimitive, TileContent};
+use crate::partition::content::{ContentPrimitive, InstancedShape, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::*;
 use crate::texture::{ImageSource, TileImage};
@@ -179,49 +179,38 @@ fn write_glb(
     enc: &TileEncoding,
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
-    mut mats: MaterialTable,
+    mats: MaterialTable,
 ) -> std::result::Result<(Vec<u8>, usize), EncodeError> {
-    let mut b = GltfBuilder {
-        bin: Vec::new(),
-        buffer_views: Vec::new(),
-        accessors: Vec::new(),
+    let mut w = GlbWriter {
+        scene,
+        enc,
+        b: GltfBuilder {
+            bin: Vec::new(),
+            buffer_views: Vec::new(),
+            accessors: Vec::new(),
+        },
+        mats,
+        meshes: Vec::new(),
+        nodes: Vec::new(),
     };
     let (center, feature_count) = (content.center, content.features.len());
-    let mut meshes: Vec<Value> = Vec::new();
     let mut root_node = json!({"translation": [center.x, center.z, -center.y]});
-    let mut nodes: Vec<Value> = Vec::new();
     let mut used: Vec<&str> = Vec::new();
     let mut required: Vec<&str> = Vec::new();
 
     // The merged geometry: one mesh on the root node, a feature ID per vertex.
-    // With quantization, a frame per mesh (None: the mesh keeps float positions).
-    let frame_of = |prims: &[ContentPrimitive]| match enc.compression {
-        Compression::Quantized => QuantFrame::of(prims, enc.max_position_error_m),
-        _ => None,
-    };
     if !content.primitives.is_empty() {
-        let frame = frame_of(&content.primitives);
-        let mut primitives = Vec::new();
-        for m in &content.primitives {
-            let (prim, decoded) = write_primitive(
-                scene,
-                &mut b,
-                &mut mats,
-                m,
-                Some(feature_count),
-                table.is_some(),
-                enc,
-                frame.as_ref(),
-            )?;
-            for p in decoded.iter().flatten() {
-                bounds.extend(center + z_up(*p));
-            }
-            primitives.push(prim);
-        }
-        meshes.push(json!({"primitives": primitives}));
+        let frame = w.frame_of(&content.primitives);
+        w.write_mesh(
+            &content.primitives,
+            Some(feature_count),
+            table.is_some(),
+            frame.as_ref(),
+            |p| bounds.extend(center + z_up(p)),
+        )?;
         match frame {
             // Dequantized by a child node of the root.
-            Some(f) => nodes.push(json!({
+            Some(f) => w.nodes.push(json!({
                 "mesh": 0,
                 "translation": f.center,
                 "scale": vec![f.scale; 3],
@@ -230,30 +219,116 @@ fn write_glb(
         }
         used.push("EXT_mesh_features");
     }
-
-    // Each instanced shape: a mesh written once, on a child node placing it per instance
-    // (EXT_mesh_gpu_instancing) with a feature ID per instance (EXT_instance_features).
     for shape in &content.instanced {
-        let frame = frame_of(&shape.primitives);
+        w.write_instanced_shape(shape, center, feature_count, table.is_some(), bounds)?;
+    }
+    if !w.nodes.is_empty() {
+        root_node["children"] = json!((1..=w.nodes.len()).collect::<Vec<_>>());
+    }
+    if !content.instanced.is_empty() {
+        used.extend(["EXT_mesh_gpu_instancing", "EXT_instance_features"]);
+        // No fallback exists for viewers without instancing (they use --no-instancing output).
+        required.push("EXT_mesh_gpu_instancing");
+    }
+    w.nodes.insert(0, root_node);
+    w.finish(table, used, required)
+}
+
+/// A tile's glTF while it is written: the binary buffer with its views and accessors, the
+/// materials, the meshes and the nodes.
+struct GlbWriter<'a> {
+    scene: &'a Scene,
+    enc: &'a TileEncoding,
+    b: GltfBuilder,
+    mats: MaterialTable<'a>,
+    meshes: Vec<Value>,
+    /// The root's children while they are written; the root is inserted first at the end.
+    nodes: Vec<Value>,
+}
+
+impl GlbWriter<'_> {
+    /// With quantization, a frame per mesh (None: the mesh keeps float positions).
+    fn frame_of(&self, prims: &[ContentPrimitive]) -> Option<QuantFrame> {
+        match self.enc.compression {
+            Compression::Quantized => QuantFrame::of(prims, self.enc.max_position_error_m),
+            _ => None,
+        }
+    }
+
+    /// Writes `prims` as one mesh; `decoded_point` gets every decoded (quantized) vertex, y-up,
+    /// in order.
+    fn write_mesh(
+        &mut self,
+        prims: &[ContentPrimitive],
+        feature_count: Option<usize>,
+        property_table: bool,
+        frame: Option<&QuantFrame>,
+        mut decoded_point: impl FnMut(DVec3),
+    ) -> std::result::Result<(), EncodeError> {
         let mut primitives = Vec::new();
+        for m in prims {
+            let (prim, decoded) = write_primitive(
+                self.scene,
+                &mut self.b,
+                &mut self.mats,
+                m,
+                feature_count,
+                property_table,
+                self.enc,
+                frame,
+            )?;
+            for p in decoded.iter().flatten() {
+                decoded_point(*p);
+            }
+            primitives.push(prim);
+        }
+        self.meshes.push(json!({"primitives": primitives}));
+        Ok(())
+    }
+
+    /// An instanced shape: a mesh written once, on a child node placing it per instance
+    /// (EXT_mesh_gpu_instancing) with a feature ID per instance (EXT_instance_features).
+    fn write_instanced_shape(
+        &mut self,
+        shape: &InstancedShape,
+        center: DVec3,
+        feature_count: usize,
+        property_table: bool,
+        bounds: &mut Aabb,
+    ) -> std::result::Result<(), EncodeError> {
+        let frame = self.frame_of(&shape.primitives);
         // Decoded vertices of the shape (scene frame, z-up): every instance's copy of them
         // goes into the tile's box, so a rotated copy is bounded exactly, not by a turned box.
         let mut decoded_points: Vec<DVec3> = Vec::new();
-        for m in &shape.primitives {
-            let (prim, decoded) = write_primitive(
-                scene,
-                &mut b,
-                &mut mats,
-                m,
-                None,
-                false,
-                enc,
-                frame.as_ref(),
-            )?;
-            decoded_points.extend(decoded.iter().flatten().map(|p| z_up(*p)));
-            primitives.push(prim);
+        self.write_mesh(&shape.primitives, None, false, frame.as_ref(), |p| {
+            decoded_points.push(z_up(p))
+        })?;
+        let attributes =
+            self.instance_attributes(shape, frame.as_ref(), &decoded_points, center, bounds)?;
+        let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
+        if property_table {
+            feature_ids["propertyTable"] = json!(0);
         }
-        meshes.push(json!({"primitives": primitives}));
+        self.nodes.push(json!({
+            "mesh": self.meshes.len() - 1,
+            "extensions": {
+                "EXT_mesh_gpu_instancing": {"attributes": attributes},
+                "EXT_instance_features": {"featureIds": [feature_ids]},
+            }
+        }));
+        Ok(())
+    }
+
+    /// The per-instance attributes of a shape (TRS and feature ID accessors); `bounds` grows to
+    /// hold every instance's copy of the shape's decoded vertices.
+    fn instance_attributes(
+        &mut self,
+        shape: &InstancedShape,
+        frame: Option<&QuantFrame>,
+        decoded_points: &[DVec3],
+        center: DVec3,
+        bounds: &mut Aabb,
+    ) -> std::result::Result<Map<String, Value>, EncodeError> {
         let mut translations = Vec::with_capacity(shape.instances.len());
         let mut rotations = Vec::with_capacity(shape.instances.len());
         let mut scales = Vec::with_capacity(shape.instances.len());
@@ -263,7 +338,7 @@ fn write_glb(
             let mut y_up_transform = Z_UP_TO_Y_UP * inst.transform * Y_UP_TO_Z_UP;
             // Quantized positions: the dequantization (uniform scale, then translation) goes
             // first; it stays a TRS since the scale is uniform.
-            if let Some(f) = &frame {
+            if let Some(f) = frame {
                 y_up_transform *= f.matrix();
             }
             let (t, r, s) = crate::geometry::instance_trs(&y_up_transform)
@@ -272,10 +347,11 @@ fn write_glb(
             rotations.push(r.normalize().as_quat().to_array());
             scales.push(s.as_vec3().to_array());
             fids.push([inst.feature as f32]);
-            for p in &decoded_points {
+            for p in decoded_points {
                 bounds.extend(center + inst.transform.transform_point3(*p));
             }
         }
+        let b = &mut self.b;
         let mut attributes = Map::new();
         attributes.insert(
             "TRANSLATION".into(),
@@ -299,68 +375,60 @@ fn write_glb(
             "_FEATURE_ID_0".into(),
             json!(b.float_accessor_in(&fids, false, None)),
         );
-        let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
-        if table.is_some() {
-            feature_ids["propertyTable"] = json!(0);
-        }
-        nodes.push(json!({
-            "mesh": meshes.len() - 1,
-            "extensions": {
-                "EXT_mesh_gpu_instancing": {"attributes": attributes},
-                "EXT_instance_features": {"featureIds": [feature_ids]},
-            }
-        }));
+        Ok(attributes)
     }
-    if !nodes.is_empty() {
-        root_node["children"] = json!((1..=nodes.len()).collect::<Vec<_>>());
-    }
-    if !content.instanced.is_empty() {
-        used.extend(["EXT_mesh_gpu_instancing", "EXT_instance_features"]);
-        // No fallback exists for viewers without instancing (they use --no-instancing output).
-        required.push("EXT_mesh_gpu_instancing");
-    }
-    nodes.insert(0, root_node);
 
-    let (metadata_ext, metadata_bytes) = match table {
-        Some(t) => {
-            used.push("EXT_structural_metadata");
-            let (ext, n) =
-                write_property_table(t, &mut |bytes, align| b.view_aligned(bytes, None, align));
-            (Some(ext), n)
+    /// The property table, the compression extensions and the glTF JSON, in the GLB container;
+    /// returns it with the property table's bytes.
+    fn finish(
+        mut self,
+        table: Option<&PropertyTable>,
+        mut used: Vec<&str>,
+        mut required: Vec<&str>,
+    ) -> std::result::Result<(Vec<u8>, usize), EncodeError> {
+        let b = &mut self.b;
+        let (metadata_ext, metadata_bytes) = match table {
+            Some(t) => {
+                used.push("EXT_structural_metadata");
+                let (ext, n) =
+                    write_property_table(t, &mut |bytes, align| b.view_aligned(bytes, None, align));
+                (Some(ext), n)
+            }
+            None => (None, 0),
+        };
+        match self.enc.compression {
+            Compression::Draco => {
+                used.push("KHR_draco_mesh_compression");
+                required.push("KHR_draco_mesh_compression");
+            }
+            Compression::Quantized if !self.meshes.is_empty() => {
+                used.push("KHR_mesh_quantization");
+                required.push("KHR_mesh_quantization");
+            }
+            _ => {}
         }
-        None => (None, 0),
-    };
-    match enc.compression {
-        Compression::Draco => {
-            used.push("KHR_draco_mesh_compression");
-            required.push("KHR_draco_mesh_compression");
+        let b = self.b;
+        let mut root = json!({
+            "asset": {"version": "2.0", "generator": self.enc.generator},
+            "scene": 0,
+            "scenes": [{"nodes": [0]}],
+            "nodes": self.nodes,
+            "meshes": self.meshes,
+            "accessors": b.accessors,
+            "bufferViews": b.buffer_views,
+            "buffers": [{"byteLength": b.bin.len()}],
+            "extensionsUsed": used,
+        });
+        if !required.is_empty() {
+            root["extensionsRequired"] = json!(required);
         }
-        Compression::Quantized if !meshes.is_empty() => {
-            used.push("KHR_mesh_quantization");
-            required.push("KHR_mesh_quantization");
+        if let Some(ext) = metadata_ext {
+            root["extensions"] = json!({"EXT_structural_metadata": ext});
         }
-        _ => {}
+        self.mats.write_into(&mut root);
+        let json_bytes = serde_json::to_vec(&root)?;
+        Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
     }
-    let mut root = json!({
-        "asset": {"version": "2.0", "generator": enc.generator},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": nodes,
-        "meshes": meshes,
-        "accessors": b.accessors,
-        "bufferViews": b.buffer_views,
-        "buffers": [{"byteLength": b.bin.len()}],
-        "extensionsUsed": used,
-    });
-    if !required.is_empty() {
-        root["extensionsRequired"] = json!(required);
-    }
-    if let Some(ext) = metadata_ext {
-        root["extensions"] = json!({"EXT_structural_metadata": ext});
-    }
-    mats.write_into(&mut root);
-    let json_bytes = serde_json::to_vec(&root)?;
-    Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
 }
 
 #[cfg(test)]

@@ -276,37 +276,7 @@ pub(super) fn assemble(
         path: path.to_path_buf(),
         bytes: file_bytes,
     });
-    // Relationships: the parent of each object (aggregation > containment > nesting), types,
-    // property sets, materials.
-    let mut rank: HashMap<u32, u8> = HashMap::new();
-    for r in &data.rels {
-        use engine::RelKind as R;
-        let prio = match r.kind {
-            R::Aggregates => 3,
-            R::Contains => 2,
-            R::Nests => 1,
-            R::DefinesByType => {
-                b.type_of.entry(r.related).or_insert(r.relating);
-                continue;
-            }
-            R::DefinesByProperties | R::TypeHasSet => {
-                b.sets_of.entry(r.related).or_default().push(r.relating);
-                continue;
-            }
-        };
-        if r.related == r.relating {
-            continue;
-        }
-        let cur = rank.get(&r.related).copied().unwrap_or(0);
-        if prio > cur {
-            rank.insert(r.related, prio);
-            b.parent.insert(r.related, r.relating);
-        }
-    }
-    for (el, name) in &data.materials {
-        b.materials_of.entry(*el).or_default().push(name.clone());
-    }
-
+    b.read_relationships();
     let frame = geom.frame_to_world;
     for el in geom.elements {
         let class = el.class.clone();
@@ -318,52 +288,141 @@ pub(super) fn assemble(
             *report.excluded_by_class.entry(class).or_default() += 1;
             continue;
         }
-        // Frame-space box of the element, f64.
-        let mut bx = Aabb::EMPTY;
-        let mut bad: Option<String> = None;
-        for p in &el.pieces {
-            if p.positions.len() % 3 != 0 || p.indices.len() % 3 != 0 {
-                bad = Some("malformed triangle data".into());
-                break;
+        let bx = match element_box(&el) {
+            Ok(bx) => bx,
+            Err(reason) => {
+                report.skipped.push(SkippedElement {
+                    guid,
+                    class,
+                    reason,
+                });
+                continue;
             }
-            let nv = (p.positions.len() / 3) as u32;
-            if let Some(i) = p.indices.iter().find(|&&i| i >= nv) {
-                bad = Some(format!("index {i} out of range ({nv} vertices)"));
-                break;
-            }
-            for v in p.positions.chunks_exact(3) {
-                if !v.iter().all(|x| x.is_finite()) || !p.origin.iter().all(|x| x.is_finite()) {
-                    bad = Some("non-finite vertex coordinates".into());
-                    break;
-                }
-                bx.extend(DVec3::new(
-                    p.origin[0] + v[0] as f64,
-                    p.origin[1] + v[1] as f64,
-                    p.origin[2] + v[2] as f64,
-                ));
-            }
-        }
-        let tris: usize = el.pieces.iter().map(|p| p.indices.len() / 3).sum();
-        if bad.is_none() && (tris == 0 || bx.is_empty()) {
-            bad = Some("no triangles".into());
-        }
-        if let Some(reason) = bad {
-            report.skipped.push(SkippedElement {
-                guid,
-                class,
-                reason,
-            });
+        };
+        b.add_element(&el, guid, &class, bx.center(), frame);
+    }
+    for m in geom.missing {
+        if skip_reason(&m.class).is_some() {
             continue;
         }
-        let local = bx.center();
-        // One primitive per (colour, material name).
+        report.skipped.push(SkippedElement {
+            guid: m.guid.unwrap_or_else(|| format!("#{}", m.express_id)),
+            class: m.class,
+            reason: m.reason,
+        });
+    }
+    if b.scene.components.is_empty() {
+        return Err(Error::input(
+            path,
+            format!(
+                "no element with geometry in this IFC file ({} skipped)",
+                report.skipped.len()
+            ),
+        ));
+    }
+    Ok(b.scene)
+}
+
+/// Frame-space box of an element (f64), or why it is skipped (malformed or non-finite data, no
+/// triangles).
+fn element_box(el: &engine::RawElement) -> std::result::Result<Aabb, String> {
+    let mut bx = Aabb::EMPTY;
+    let mut bad: Option<String> = None;
+    for p in &el.pieces {
+        if p.positions.len() % 3 != 0 || p.indices.len() % 3 != 0 {
+            bad = Some("malformed triangle data".into());
+            break;
+        }
+        let nv = (p.positions.len() / 3) as u32;
+        if let Some(i) = p.indices.iter().find(|&&i| i >= nv) {
+            bad = Some(format!("index {i} out of range ({nv} vertices)"));
+            break;
+        }
+        for v in p.positions.chunks_exact(3) {
+            if !v.iter().all(|x| x.is_finite()) || !p.origin.iter().all(|x| x.is_finite()) {
+                bad = Some("non-finite vertex coordinates".into());
+                break;
+            }
+            bx.extend(DVec3::new(
+                p.origin[0] + v[0] as f64,
+                p.origin[1] + v[1] as f64,
+                p.origin[2] + v[2] as f64,
+            ));
+        }
+    }
+    let tris: usize = el.pieces.iter().map(|p| p.indices.len() / 3).sum();
+    if bad.is_none() && (tris == 0 || bx.is_empty()) {
+        bad = Some("no triangles".into());
+    }
+    match bad {
+        Some(reason) => Err(reason),
+        None => Ok(bx),
+    }
+}
+
+/// A piece's vertex normals: its own when complete and finite (normalized), else area-weighted
+/// ones from its triangles.
+fn piece_normals(p: &engine::RawPiece, positions: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    if p.normals.len() == p.positions.len() && p.normals.iter().all(|x| x.is_finite()) {
+        p.normals
+            .chunks_exact(3)
+            .map(|n| {
+                glam::Vec3::new(n[0], n[1], n[2])
+                    .try_normalize()
+                    .unwrap_or(glam::Vec3::Z)
+                    .to_array()
+            })
+            .collect()
+    } else {
+        vertex_normals(positions, &p.indices)
+    }
+}
+
+impl Builder<'_> {
+    /// Relationships: the parent of each object (aggregation > containment > nesting), types,
+    /// property sets, materials.
+    fn read_relationships(&mut self) {
+        let data = self.data;
+        let mut rank: HashMap<u32, u8> = HashMap::new();
+        for r in &data.rels {
+            use engine::RelKind as R;
+            let prio = match r.kind {
+                R::Aggregates => 3,
+                R::Contains => 2,
+                R::Nests => 1,
+                R::DefinesByType => {
+                    self.type_of.entry(r.related).or_insert(r.relating);
+                    continue;
+                }
+                R::DefinesByProperties | R::TypeHasSet => {
+                    self.sets_of.entry(r.related).or_default().push(r.relating);
+                    continue;
+                }
+            };
+            if r.related == r.relating {
+                continue;
+            }
+            let cur = rank.get(&r.related).copied().unwrap_or(0);
+            if prio > cur {
+                rank.insert(r.related, prio);
+                self.parent.insert(r.related, r.relating);
+            }
+        }
+        for (el, name) in &data.materials {
+            self.materials_of.entry(*el).or_default().push(name.clone());
+        }
+    }
+
+    /// The element's primitives, one per (colour, material name), vertices relative to `local`
+    /// (frame space).
+    fn primitives(&mut self, el: &engine::RawElement, local: DVec3) -> Vec<Primitive> {
         let mut prims: Vec<Primitive> = Vec::new();
         let mut prim_of: HashMap<MaterialId, usize> = HashMap::new();
         for p in &el.pieces {
             if p.indices.is_empty() {
                 continue;
             }
-            let mat = b.material(p.color, p.material_name.clone());
+            let mat = self.material(p.color, p.material_name.clone());
             let k = *prim_of.entry(mat).or_insert_with(|| {
                 prims.push(Primitive {
                     material: Some(mat),
@@ -386,33 +445,33 @@ pub(super) fn assemble(
                     ]
                 })
                 .collect();
-            let normals: Vec<[f32; 3]> = if p.normals.len() == p.positions.len()
-                && p.normals.iter().all(|x| x.is_finite())
-            {
-                p.normals
-                    .chunks_exact(3)
-                    .map(|n| {
-                        glam::Vec3::new(n[0], n[1], n[2])
-                            .try_normalize()
-                            .unwrap_or(glam::Vec3::Z)
-                            .to_array()
-                    })
-                    .collect()
-            } else {
-                vertex_normals(&positions, &p.indices)
-            };
+            let normals = piece_normals(p, &positions);
             prim.positions.extend(positions);
             prim.normals.as_mut().unwrap().extend(normals);
             prim.indices.extend(p.indices.iter().map(|i| i + base));
         }
-        let (storey, building, site) = b.containers(el.express_id);
-        let parent_node = b
+        prims
+    }
+
+    /// Adds a valid element: its node (under its spatial parent), its mesh (centred on `local`,
+    /// placed by `frame`) and its component with its semantics and properties.
+    fn add_element(
+        &mut self,
+        el: &engine::RawElement,
+        guid: String,
+        class: &str,
+        local: DVec3,
+        frame: DMat4,
+    ) {
+        let prims = self.primitives(el, local);
+        let (storey, building, site) = self.containers(el.express_id);
+        let parent_node = self
             .parent
             .get(&el.express_id)
             .copied()
-            .and_then(|p| b.node(p, 0));
-        let node = NodeId(b.scene.nodes.len() as u32);
-        b.scene.nodes.push(Node {
+            .and_then(|p| self.node(p, 0));
+        let node = NodeId(self.scene.nodes.len() as u32);
+        self.scene.nodes.push(Node {
             name: Some(
                 el.name
                     .clone()
@@ -423,9 +482,9 @@ pub(super) fn assemble(
             extras: None,
             name_repeat: 0,
         });
-        b.node_of.insert(el.express_id, node);
-        let mesh = MeshId(b.scene.meshes.len() as u32);
-        b.scene.meshes.push(Mesh {
+        self.node_of.insert(el.express_id, node);
+        let mesh = MeshId(self.scene.meshes.len() as u32);
+        self.scene.meshes.push(Mesh {
             name: el.name.clone(),
             primitives: prims,
             local_bounds: None,
@@ -434,14 +493,14 @@ pub(super) fn assemble(
             key: guid,
             name: el.name.clone(),
             guid: el.guid.clone(),
-            class: Some(b.shared(&class)),
-            storey: storey.map(|t| b.shared(&t)),
-            building: building.map(|t| b.shared(&t)),
-            site: site.map(|t| b.shared(&t)),
-            material: b.material_name(el.express_id).map(|t| b.shared(&t)),
-            properties: b.properties(el.express_id),
+            class: Some(self.shared(class)),
+            storey: storey.map(|t| self.shared(&t)),
+            building: building.map(|t| self.shared(&t)),
+            site: site.map(|t| self.shared(&t)),
+            material: self.material_name(el.express_id).map(|t| self.shared(&t)),
+            properties: self.properties(el.express_id),
         };
-        b.scene.push_component(
+        self.scene.push_component(
             Component {
                 node: Some(node),
                 ..Component::new(mesh, frame * DMat4::from_translation(local))
@@ -449,26 +508,6 @@ pub(super) fn assemble(
             &info,
         );
     }
-    for m in geom.missing {
-        if skip_reason(&m.class).is_some() {
-            continue;
-        }
-        report.skipped.push(SkippedElement {
-            guid: m.guid.unwrap_or_else(|| format!("#{}", m.express_id)),
-            class: m.class,
-            reason: m.reason,
-        });
-    }
-    if b.scene.components.is_empty() {
-        return Err(Error::input(
-            path,
-            format!(
-                "no element with geometry in this IFC file ({} skipped)",
-                report.skipped.len()
-            ),
-        ));
-    }
-    Ok(b.scene)
 }
 
 // ------------------------------------------------------------------------------------------------

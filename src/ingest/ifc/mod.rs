@@ -55,7 +55,7 @@ mod step;
 use assembly::assemble;
 pub use assembly::parse_loose;
 use georef::georef_from_raw;
-pub use step::{check_step, StepSummary};
+pub use step::{check_step, RecordProblem, StepError, StepSummary};
 
 /// IFC classes never turned into components, with the reason (exact class names; subtypes such as
 /// IfcOpeningStandardCase are listed on their own).
@@ -91,6 +91,8 @@ pub const SKIPPED_CLASSES: &[(&str, &str)] = &[
     ("IfcGrid", "setting-out lines, not a built object"),
     ("IfcVirtualElement", "an invisible boundary between spaces"),
 ];
+// Products of any class whose only shape representations are curves or points (IfcAlignment's
+// Axis, a FootPrint) are left out too, like grids: counted in `IfcReadReport::curve_only`.
 
 /// Roughness given to every IFC material (IFC surface styles rarely carry PBR data).
 pub const IFC_ROUGHNESS: f32 = 0.85;
@@ -116,6 +118,17 @@ pub struct IfcMapConversion {
     pub scale: f64,
     /// e.g. "EPSG:25832".
     pub crs_name: Option<String>,
+    /// IfcProjectedCRS GeodeticDatum, MapProjection, MapZone ("ETRS89", "UTM", "32N"): the CRS
+    /// when the name is not one PROJ knows.
+    pub geodetic_datum: Option<String>,
+    pub map_projection: Option<String>,
+    pub map_zone: Option<String>,
+    /// IFC4X3 IfcMapConversionScaled FactorX/Y/Z (1 when absent), on top of `scale`.
+    pub factors: [f64; 3],
+    /// Metres per IfcProjectedCRS MapUnit (`None`: not given, the project's length unit).
+    pub map_unit_m: Option<f64>,
+    /// Metres per project length unit (1 for metres, 0.001 for millimetres).
+    pub project_unit_m: f64,
 }
 
 /// Where the model sits on Earth, as the IFC file says.
@@ -133,8 +146,13 @@ pub struct IfcGeoref {
     pub true_north_deg: Option<f64>,
     pub map_conversion: Option<IfcMapConversion>,
     /// The scene-frame point (metres, z-up) that the longitude/latitude/height refer to: the
-    /// IfcSite placement's origin.
+    /// IfcSite placement's origin (the project origin for a map conversion).
     pub anchor: DVec3,
+    /// A map conversion used: project metres → local east-north-up metres (rotation, scales,
+    /// convergence and grid scale factor).
+    pub map_linear: Option<glam::DMat3>,
+    /// The CRS that placed the model, for the report.
+    pub crs: Option<crate::geodesy::crs::CrsUse>,
 }
 
 /// Read timings, seconds.
@@ -163,6 +181,11 @@ pub struct IfcReadReport {
     /// Elements of the classes in [`SKIPPED_CLASSES`] that had geometry, by class.
     pub excluded_by_class: BTreeMap<String, usize>,
     pub georef: Option<IfcGeoref>,
+    /// A georeference the file asked for that could not be used (the model falls back to its
+    /// site reference or the default placement).
+    pub georef_warning: Option<String>,
+    /// Products left out because their only geometry is a curve (IfcAlignment axes and the like).
+    pub curve_only: usize,
     pub timings: IfcTimings,
 }
 
@@ -178,50 +201,73 @@ pub fn read_ifc_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
 
 /// Reads one IFC file and reports skipped elements, georeference and timings.
 pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    let bytes = super::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     read_ifc_bytes_with_report(path, &bytes)
 }
 
 /// The georeference of an IFC file (IfcSite RefLatitude/RefLongitude/RefElevation, true north,
 /// IfcMapConversion); `None` when the site has no reference latitude/longitude or the file cannot be
-/// read. A file with only an IfcMapConversion is placed from it when its CRS is UTM
-/// ([`crate::geodesy::projection`]); other CRSs give `None`.
+/// read. An IfcMapConversion whose CRS PROJ knows wins over the site reference
+/// ([`crate::geodesy::crs`]); one that cannot be used is a warning in the result.
 pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
-    let bytes = std::fs::read(path).ok()?;
+    let bytes = super::read_regular(path).ok()?;
     check_step(&bytes).ok()?;
     let engine = engine::IfcLite;
-    let raw = guarded(|| engine::IfcEngine::georef(&engine, &bytes))
-        .ok()?
-        .ok()?;
-    georef_from_raw(raw)
+    let raw = guarded(IfcStage::Georef, || {
+        engine::IfcEngine::georef(&engine, &bytes)
+    })
+    .ok()?;
+    georef_from_raw(raw, path, None).0
 }
 
 /// Like [`read_ifc_with_report`], from bytes.
 pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, IfcReadReport)> {
+    read_ifc_bytes_with_crs(path, bytes, None)
+}
+
+/// Like [`read_ifc_with_report`]; `crs_option` (`--crs`) names the CRS of an IfcMapConversion
+/// whose IfcProjectedCRS names none PROJ knows.
+pub fn read_ifc_with_crs(path: &Path, crs_option: Option<&str>) -> Result<(Scene, IfcReadReport)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    read_ifc_bytes_with_crs(path, &bytes, crs_option)
+}
+
+/// Like [`read_ifc_with_crs`], from bytes.
+pub fn read_ifc_bytes_with_crs(
+    path: &Path,
+    bytes: &[u8],
+    crs_option: Option<&str>,
+) -> Result<(Scene, IfcReadReport)> {
     let t0 = Instant::now();
-    let header = check_step(bytes).map_err(|m| Error::input(path, m))?;
+    // The STEP and IFC errors name the problem themselves: "<file>: <problem>".
+    let header = check_step(bytes).map_err(|e| Error::input_from(path, "", e))?;
     let check_s = t0.elapsed().as_secs_f64();
 
     let engine = engine::IfcLite;
     let t1 = Instant::now();
-    let geometry = guarded(|| engine::IfcEngine::geometry(&engine, bytes))
-        .map_err(|m| Error::input(path, format!("IFC geometry failed: {m}")))?
-        .map_err(|m| Error::input(path, m))?;
+    let geometry = guarded(IfcStage::Geometry, || {
+        engine::IfcEngine::geometry(&engine, bytes)
+    })
+    .map_err(|e| Error::input_from(path, "", e))?;
     let geometry_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let data = guarded(|| engine::IfcEngine::data_model(&engine, bytes))
-        .map_err(|m| Error::input(path, format!("IFC property extraction failed: {m}")))?
-        .map_err(|m| Error::input(path, m))?;
+    let data = guarded(IfcStage::DataModel, || {
+        engine::IfcEngine::data_model(&engine, bytes)
+    })
+    .map_err(|e| Error::input_from(path, "", e))?;
     let data_model_s = t2.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
-    let georef = guarded(|| engine::IfcEngine::georef(&engine, bytes))
-        .ok()
-        .and_then(|r| r.ok())
-        .and_then(georef_from_raw);
+    let (georef, georef_warning) = guarded(IfcStage::Georef, || {
+        engine::IfcEngine::georef(&engine, bytes)
+    })
+    .ok()
+    .map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
     let mut report = IfcReadReport {
         schema: header.schema.clone(),
         georef,
+        georef_warning,
+        curve_only: geometry.curve_only.len(),
         ..Default::default()
     };
     let mut scene = assemble(path, bytes.len() as u64, geometry, data, &mut report)?;
@@ -246,16 +292,48 @@ pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, I
     Ok((scene, report))
 }
 
-/// Runs `f`, turning a panic into an error message (ifc-lite is not guaranteed panic-free on
-/// malformed input).
-fn guarded<T>(f: impl FnOnce() -> T) -> std::result::Result<T, String> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
-        let msg = p
+/// The IFC kernel failed on a file that passed the STEP check.
+#[derive(Debug, thiserror::Error)]
+pub enum IfcError {
+    /// The project's length unit cannot be turned into metres.
+    #[error("unusable length unit (#{entity}): no geometry can be scaled")]
+    UnusableLengthUnit { entity: u32 },
+    /// ifc-lite panicked during `stage`; `message` is the panic's text.
+    #[error("{stage} failed: the IFC library crashed on this file ({message})")]
+    Crashed { stage: IfcStage, message: String },
+}
+
+/// A call into the IFC kernel, to say which one failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IfcStage {
+    Geometry,
+    DataModel,
+    Georef,
+}
+
+impl std::fmt::Display for IfcStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(match self {
+            IfcStage::Geometry => "IFC geometry",
+            IfcStage::DataModel => "IFC property extraction",
+            IfcStage::Georef => "IFC georeference",
+        })
+    }
+}
+
+/// Runs the kernel call `f`, turning a panic into [`IfcError::Crashed`] (ifc-lite is not
+/// guaranteed panic-free on malformed input).
+fn guarded<T>(
+    stage: IfcStage,
+    f: impl FnOnce() -> std::result::Result<T, IfcError>,
+) -> std::result::Result<T, IfcError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
+        let message = p
             .downcast_ref::<&str>()
             .map(|s| s.to_string())
             .or_else(|| p.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown panic".into());
-        format!("the IFC library crashed on this file ({msg})")
+        Err(IfcError::Crashed { stage, message })
     })
 }
 
@@ -274,22 +352,44 @@ mod tests {
         let trunc = &MINI[..MINI.len() / 2 + 40];
         assert!(check_step(trunc.as_bytes())
             .unwrap_err()
+            .to_string()
             .contains("truncated"));
-        assert!(check_step(b"").unwrap_err().contains("empty"));
+        assert!(check_step(b"").unwrap_err().to_string().contains("empty"));
         assert!(check_step(b"hello world")
             .unwrap_err()
+            .to_string()
             .contains("not an IFC"));
         let unk = MINI.replace("'IFC4'", "'IFC9X9'");
-        assert!(check_step(unk.as_bytes())
-            .unwrap_err()
-            .contains("unknown IFC schema"));
+        assert!(matches!(
+            check_step(unk.as_bytes()).unwrap_err(),
+            StepError::UnknownSchema { schema } if schema == "IFC9X9"
+        ));
         let broken = MINI.replace("#2=IFCAXIS2PLACEMENT3D(#1", "#2=IFCAXIS2PLACEMENT3D(#42");
-        let e = check_step(broken.as_bytes()).unwrap_err();
+        let e = check_step(broken.as_bytes()).unwrap_err().to_string();
         assert!(e.contains("#2 refers to #42"), "{e}");
         let garbage = MINI.replace("#3=IFCLABEL", "garbage #3=IFCLABEL");
         assert!(check_step(garbage.as_bytes())
             .unwrap_err()
+            .to_string()
             .contains("malformed"));
+    }
+
+    #[test]
+    fn a_kernel_panic_becomes_a_typed_error() {
+        let e = guarded::<()>(IfcStage::Geometry, || panic!("boom")).unwrap_err();
+        assert!(
+            matches!(&e, IfcError::Crashed { stage: IfcStage::Geometry, message } if message == "boom")
+        );
+        assert_eq!(
+            e.to_string(),
+            "IFC geometry failed: the IFC library crashed on this file (boom)"
+        );
+        let e = Error::input_from("a.ifc", "", e);
+        assert_eq!(
+            crate::error::chain_text(&e),
+            "a.ifc: IFC geometry failed: the IFC library crashed on this file (boom)"
+        );
+        assert_eq!(guarded(IfcStage::Georef, || Ok(3)).unwrap(), 3);
     }
 
     #[test]

@@ -30,254 +30,437 @@ pub(super) fn find(hay: &[u8], needle: &[u8], from: usize) -> Option<usize> {
         .map(|p| p + from)
 }
 
+/// Why a file is not a complete, well-formed IFC STEP file. Problems inside the DATA section name
+/// their line (1-based) and, when it was read, the record's `#id`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum StepError {
+    #[error("empty file")]
+    Empty,
+    #[error("looks like a zip archive (.ifczip?): unzip it first")]
+    Zip,
+    #[error("looks like JSON (IFC5/ifcJSON?), which is not supported: expected an IFC STEP file")]
+    Json,
+    #[error("looks like XML (ifcXML?), which is not supported: expected an IFC STEP file")]
+    Xml,
+    #[error("not an IFC file: it does not start with the STEP header 'ISO-10303-21;'")]
+    NoStepHeader,
+    #[error("truncated or malformed: no end of HEADER section")]
+    NoHeaderEnd,
+    #[error("malformed header: no FILE_SCHEMA")]
+    NoFileSchema,
+    #[error("malformed FILE_SCHEMA")]
+    MalformedFileSchema,
+    #[error(
+        "unknown IFC schema '{schema}' (bimtiles reads IFC2X3, IFC4, IFC4X1, IFC4X2 and IFC4X3)"
+    )]
+    UnknownSchema { schema: String },
+    #[error("truncated: no DATA section")]
+    NoDataSection,
+    #[error("truncated: unclosed comment at line {line}")]
+    UnclosedComment { line: usize },
+    /// A record that breaks the `#id=TYPE(...);` form (`id`: when its number was read).
+    #[error("malformed record{} at line {line}: {problem}", record_id(*id))]
+    MalformedRecord {
+        id: Option<u64>,
+        line: usize,
+        problem: RecordProblem,
+    },
+    #[error("truncated: record #{id} at line {line} is not terminated (the file ends inside it)")]
+    UnterminatedRecord { id: u64, line: usize },
+    #[error("truncated: the DATA section has no ENDSEC;")]
+    NoDataEnd,
+    #[error("truncated: no 'END-ISO-10303-21;' trailer")]
+    NoTrailer,
+    #[error("the DATA section holds no entities")]
+    NoEntities,
+    /// The first reference to an undefined record, and how many more there are.
+    #[error("broken reference: #{from} refers to #{to}, which is not defined{}", more_text(*more))]
+    BrokenReference { from: u32, to: u32, more: usize },
+}
+
+/// What is wrong with a malformed record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum RecordProblem {
+    #[error("expected '#id=' or ENDSEC;")]
+    NotARecord,
+    #[error("'#' without a number")]
+    NoNumber,
+    #[error("expected '='")]
+    NoEquals,
+    #[error("unbalanced ')'")]
+    ExtraClosingParen,
+    #[error("unbalanced parentheses")]
+    UnbalancedParens,
+    #[error("no attribute list")]
+    NoAttributes,
+    #[error("reference number out of range")]
+    ReferenceOutOfRange,
+}
+
+fn record_id(id: Option<u64>) -> String {
+    id.map_or(String::new(), |id| format!(" #{id}"))
+}
+
+fn more_text(more: usize) -> String {
+    match more {
+        0 => String::new(),
+        _ => format!(" ({more} more broken references)"),
+    }
+}
+
+type StepResult<T> = std::result::Result<T, StepError>;
+
 /// Checks that `bytes` is a complete, well-formed IFC STEP file: header, known schema, DATA
 /// records `#id=TYPE(...);` with balanced parentheses and closed strings, trailer, no reference
-/// to an undefined `#id`. Returns the problem as a sentence naming its line.
-pub fn check_step(bytes: &[u8]) -> std::result::Result<StepSummary, String> {
+/// to an undefined `#id`. Returns the first problem found, naming its line.
+pub fn check_step(bytes: &[u8]) -> StepResult<StepSummary> {
+    let (schema, data_start) = check_header(bytes)?;
+    let data = scan_data(bytes, data_start)?;
+    if !data.ended {
+        return Err(StepError::NoDataEnd);
+    }
+    if find(bytes, b"END-ISO-10303-21", data.end).is_none() {
+        return Err(StepError::NoTrailer);
+    }
+    if data.entities == 0 {
+        return Err(StepError::NoEntities);
+    }
+    if let Some(offset) = data.first_oversized_ref {
+        return Err(StepError::MalformedRecord {
+            id: None,
+            line: line_of(bytes, offset),
+            problem: RecordProblem::ReferenceOutOfRange,
+        });
+    }
+    let mut broken = data.refs.iter().filter(|(r, _)| !data.defined.contains(*r));
+    if let Some(&(to, from)) = broken.next() {
+        return Err(StepError::BrokenReference {
+            from,
+            to,
+            more: broken.count(),
+        });
+    }
+    Ok(StepSummary {
+        schema,
+        entities: data.entities,
+    })
+}
+
+/// Phase 1: the STEP header and a known FILE_SCHEMA. Returns the schema as written and where the
+/// DATA section's records start.
+fn check_header(bytes: &[u8]) -> StepResult<(String, usize)> {
     let start = bytes
         .iter()
         .position(|b| !b.is_ascii_whitespace() && *b != 0xEF && *b != 0xBB && *b != 0xBF)
-        .ok_or("empty file")?;
+        .ok_or(StepError::Empty)?;
     let body = &bytes[start..];
     if !body.starts_with(b"ISO-10303-21;") {
         return Err(if body.starts_with(b"PK") {
-            "looks like a zip archive (.ifczip?): unzip it first".into()
+            StepError::Zip
         } else if body.starts_with(b"{") {
-            "looks like JSON (IFC5/ifcJSON?), which is not supported: expected an IFC STEP file"
-                .into()
+            StepError::Json
         } else if body.starts_with(b"<") {
-            "looks like XML (ifcXML?), which is not supported: expected an IFC STEP file".into()
+            StepError::Xml
         } else {
-            "not an IFC file: it does not start with the STEP header 'ISO-10303-21;'".into()
+            StepError::NoStepHeader
         });
     }
-    let hdr_end =
-        find(bytes, b"ENDSEC;", start).ok_or("truncated or malformed: no end of HEADER section")?;
+    let hdr_end = find(bytes, b"ENDSEC;", start).ok_or(StepError::NoHeaderEnd)?;
     let header = &bytes[start..hdr_end];
-    let fs = find(header, b"FILE_SCHEMA", 0).ok_or("malformed header: no FILE_SCHEMA")?;
-    let q1 = header[fs..]
-        .iter()
-        .position(|&b| b == b'\'')
-        .map(|p| p + fs)
-        .ok_or("malformed FILE_SCHEMA")?;
-    let q2 = header[q1 + 1..]
-        .iter()
-        .position(|&b| b == b'\'')
-        .map(|p| p + q1 + 1)
-        .ok_or("malformed FILE_SCHEMA")?;
+    let fs = find(header, b"FILE_SCHEMA", 0).ok_or(StepError::NoFileSchema)?;
+    let quote_after = |from: usize| {
+        header[from..]
+            .iter()
+            .position(|&b| b == b'\'')
+            .map(|p| p + from)
+            .ok_or(StepError::MalformedFileSchema)
+    };
+    let q1 = quote_after(fs)?;
+    let q2 = quote_after(q1 + 1)?;
     let schema = String::from_utf8_lossy(&header[q1 + 1..q2])
         .trim()
         .to_string();
     let up = schema.to_ascii_uppercase();
     if !KNOWN_SCHEMAS.iter().any(|k| up.starts_with(k)) {
-        return Err(format!(
-            "unknown IFC schema '{schema}' (bimtiles reads IFC2X3, IFC4, IFC4X1, IFC4X2 and IFC4X3)"
-        ));
+        return Err(StepError::UnknownSchema { schema });
     }
-    let data = find(bytes, b"DATA;", hdr_end).ok_or("truncated: no DATA section")?;
-    let mut i = data + 5;
-    let n = bytes.len();
-    // Pass 1: records and definitions; references go to a list checked afterwards.
-    let mut defined: Vec<u64> = Vec::new(); // bitset by id
-    let mut defined_big: HashSet<u64> = HashSet::new();
-    let mut refs: Vec<(u32, u32)> = Vec::new(); // (ref id, offset / 16) compact: ids only to check
-    let mut ref_offsets_first_bad: Option<usize> = None;
-    let mut entities = 0usize;
-    let mut ended = false;
-    let set_def = |id: u64, defined: &mut Vec<u64>, big: &mut HashSet<u64>| {
+    let data = find(bytes, b"DATA;", hdr_end).ok_or(StepError::NoDataSection)?;
+    Ok((schema, data + 5))
+}
+
+/// The record ids defined so far: a bitset for the usual small ids, a set for the rest.
+#[derive(Default)]
+struct DefinedIds {
+    small: Vec<u64>,
+    big: HashSet<u64>,
+}
+
+impl DefinedIds {
+    fn insert(&mut self, id: u64) {
         if id < (1 << 31) {
             let w = (id / 64) as usize;
-            if w >= defined.len() {
-                defined.resize(w + 1, 0);
+            if w >= self.small.len() {
+                self.small.resize(w + 1, 0);
             }
-            defined[w] |= 1 << (id % 64);
+            self.small[w] |= 1 << (id % 64);
         } else {
-            big.insert(id);
+            self.big.insert(id);
         }
-    };
-    let skip_ws_comments = |mut i: usize| -> std::result::Result<usize, String> {
-        loop {
-            while i < n && bytes[i].is_ascii_whitespace() {
-                i += 1;
-            }
-            if i + 1 < n && bytes[i] == b'/' && bytes[i + 1] == b'*' {
-                match find(bytes, b"*/", i + 2) {
-                    Some(e) => i = e + 2,
-                    None => {
-                        return Err(format!(
-                            "truncated: unclosed comment at line {}",
-                            line_of(bytes, i)
-                        ))
-                    }
-                }
-            } else {
-                return Ok(i);
-            }
-        }
-    };
+    }
+
+    fn contains(&self, id: u32) -> bool {
+        let id = id as u64;
+        let w = (id / 64) as usize;
+        (w < self.small.len() && self.small[w] & (1 << (id % 64)) != 0) || self.big.contains(&id)
+    }
+}
+
+/// What the pass over the DATA section found.
+#[derive(Default)]
+struct DataScan {
+    defined: DefinedIds,
+    /// (referenced id, id of the record that refers to it), checked once every record is known.
+    refs: Vec<(u32, u32)>,
+    /// Where the first record referring to an id past `u32::MAX` starts.
+    first_oversized_ref: Option<usize>,
+    entities: usize,
+    /// Whether the section's ENDSEC; was found, and the offset after it (or the end of the file).
+    ended: bool,
+    end: usize,
+}
+
+/// Phase 2: every record of the DATA section, from `from` to its ENDSEC; (or the end of the file).
+fn scan_data(bytes: &[u8], from: usize) -> StepResult<DataScan> {
+    let n = bytes.len();
+    let mut scan = DataScan::default();
+    let mut i = from;
     while i < n {
-        i = skip_ws_comments(i)?;
+        i = skip_ws_comments(bytes, i)?;
         if i >= n {
             break;
         }
         if bytes[i..].len() >= 7 && bytes[i..i + 7].eq_ignore_ascii_case(b"ENDSEC;") {
-            ended = true;
+            scan.ended = true;
             i += 7;
             break;
         }
         let rec_start = i;
-        if bytes[i] != b'#' {
-            return Err(format!(
-                "malformed record at line {}: expected '#id=' or ENDSEC;",
-                line_of(bytes, i)
-            ));
-        }
-        i += 1;
-        let ds = i;
-        let mut id: u64 = 0;
-        while i < n && bytes[i].is_ascii_digit() {
-            id = id
-                .saturating_mul(10)
-                .saturating_add((bytes[i] - b'0') as u64);
+        let (id, body_start) = record_head(bytes, rec_start)?;
+        i = record_body(bytes, id, rec_start, body_start, &mut scan)?;
+        scan.defined.insert(id);
+        scan.entities += 1;
+    }
+    scan.end = i;
+    Ok(scan)
+}
+
+/// Whitespace and `/* */` comments from `i`: the offset of the next token.
+fn skip_ws_comments(bytes: &[u8], mut i: usize) -> StepResult<usize> {
+    let n = bytes.len();
+    loop {
+        while i < n && bytes[i].is_ascii_whitespace() {
             i += 1;
         }
-        if i == ds {
-            return Err(format!(
-                "malformed record at line {}: '#' without a number",
-                line_of(bytes, rec_start)
-            ));
-        }
-        i = skip_ws_comments(i)?;
-        if i >= n || bytes[i] != b'=' {
-            return Err(format!(
-                "malformed record #{id} at line {}: expected '='",
-                line_of(bytes, rec_start)
-            ));
-        }
-        i += 1;
-        // Body up to the ';' at depth 0 outside strings.
-        let mut depth: i64 = 0;
-        let mut in_str = false;
-        let mut saw_paren = false;
-        let mut closed = false;
-        while i < n {
-            let b = bytes[i];
-            if in_str {
-                if b == b'\'' {
-                    in_str = false;
+        if i + 1 < n && bytes[i] == b'/' && bytes[i + 1] == b'*' {
+            match find(bytes, b"*/", i + 2) {
+                Some(e) => i = e + 2,
+                None => {
+                    return Err(StepError::UnclosedComment {
+                        line: line_of(bytes, i),
+                    })
                 }
-                i += 1;
-                continue;
             }
-            match b {
-                b'\'' => in_str = true,
-                b'(' => {
-                    depth += 1;
-                    saw_paren = true;
+        } else {
+            return Ok(i);
+        }
+    }
+}
+
+/// A record's `#id =` at `rec_start`: its id and the offset after the '='.
+fn record_head(bytes: &[u8], rec_start: usize) -> StepResult<(u64, usize)> {
+    let n = bytes.len();
+    let malformed = |id, problem| StepError::MalformedRecord {
+        id,
+        line: line_of(bytes, rec_start),
+        problem,
+    };
+    if bytes[rec_start] != b'#' {
+        return Err(malformed(None, RecordProblem::NotARecord));
+    }
+    let mut i = rec_start + 1;
+    let ds = i;
+    let mut id: u64 = 0;
+    while i < n && bytes[i].is_ascii_digit() {
+        id = id
+            .saturating_mul(10)
+            .saturating_add((bytes[i] - b'0') as u64);
+        i += 1;
+    }
+    if i == ds {
+        return Err(malformed(None, RecordProblem::NoNumber));
+    }
+    i = skip_ws_comments(bytes, i)?;
+    if i >= n || bytes[i] != b'=' {
+        return Err(malformed(Some(id), RecordProblem::NoEquals));
+    }
+    Ok((id, i + 1))
+}
+
+/// A record's body from `from` up to the ';' at depth 0 outside strings and comments, noting its
+/// references in `scan`. Returns the offset after the ';'.
+fn record_body(
+    bytes: &[u8],
+    id: u64,
+    rec_start: usize,
+    from: usize,
+    scan: &mut DataScan,
+) -> StepResult<usize> {
+    let n = bytes.len();
+    let malformed = |problem| StepError::MalformedRecord {
+        id: Some(id),
+        line: line_of(bytes, rec_start),
+        problem,
+    };
+    let mut i = from;
+    let mut depth: i64 = 0;
+    let mut in_str = false;
+    let mut saw_paren = false;
+    let mut closed = false;
+    while i < n {
+        let b = bytes[i];
+        if in_str {
+            if b == b'\'' {
+                in_str = false;
+            }
+            i += 1;
+            continue;
+        }
+        match b {
+            b'\'' => in_str = true,
+            b'(' => {
+                depth += 1;
+                saw_paren = true;
+            }
+            b')' => {
+                depth -= 1;
+                if depth < 0 {
+                    return Err(malformed(RecordProblem::ExtraClosingParen));
                 }
-                b')' => {
-                    depth -= 1;
-                    if depth < 0 {
-                        return Err(format!(
-                            "malformed record #{id} at line {}: unbalanced ')'",
-                            line_of(bytes, rec_start)
-                        ));
-                    }
-                }
-                b'/' if i + 1 < n && bytes[i + 1] == b'*' => match find(bytes, b"*/", i + 2) {
-                    Some(e) => {
-                        i = e + 2;
-                        continue;
-                    }
-                    None => {
-                        return Err(format!(
-                            "truncated: unclosed comment at line {}",
-                            line_of(bytes, i)
-                        ))
-                    }
-                },
-                b'#' => {
-                    let mut j = i + 1;
-                    let mut r: u64 = 0;
-                    while j < n && bytes[j].is_ascii_digit() {
-                        r = r
-                            .saturating_mul(10)
-                            .saturating_add((bytes[j] - b'0') as u64);
-                        j += 1;
-                    }
-                    if j > i + 1 {
-                        if r <= u32::MAX as u64 {
-                            refs.push((r as u32, id.min(u32::MAX as u64) as u32));
-                        } else if ref_offsets_first_bad.is_none() {
-                            ref_offsets_first_bad = Some(rec_start);
-                        }
-                    }
-                    i = j;
+            }
+            b'/' if i + 1 < n && bytes[i + 1] == b'*' => match find(bytes, b"*/", i + 2) {
+                Some(e) => {
+                    i = e + 2;
                     continue;
                 }
-                b';' => {
-                    if depth != 0 {
-                        return Err(format!(
-                            "malformed record #{id} at line {}: unbalanced parentheses",
-                            line_of(bytes, rec_start)
-                        ));
-                    }
-                    closed = true;
-                    i += 1;
-                    break;
+                None => {
+                    return Err(StepError::UnclosedComment {
+                        line: line_of(bytes, i),
+                    })
                 }
-                _ => {}
+            },
+            b'#' => {
+                let mut j = i + 1;
+                let mut r: u64 = 0;
+                while j < n && bytes[j].is_ascii_digit() {
+                    r = r
+                        .saturating_mul(10)
+                        .saturating_add((bytes[j] - b'0') as u64);
+                    j += 1;
+                }
+                if j > i + 1 {
+                    if r <= u32::MAX as u64 {
+                        scan.refs.push((r as u32, id.min(u32::MAX as u64) as u32));
+                    } else if scan.first_oversized_ref.is_none() {
+                        scan.first_oversized_ref = Some(rec_start);
+                    }
+                }
+                i = j;
+                continue;
             }
-            i += 1;
+            b';' => {
+                if depth != 0 {
+                    return Err(malformed(RecordProblem::UnbalancedParens));
+                }
+                closed = true;
+                i += 1;
+                break;
+            }
+            _ => {}
         }
-        if !closed {
-            return Err(format!(
-                "truncated: record #{id} at line {} is not terminated (the file ends inside it)",
-                line_of(bytes, rec_start)
-            ));
-        }
-        if !saw_paren || depth != 0 {
-            return Err(format!(
-                "malformed record #{id} at line {}: no attribute list",
-                line_of(bytes, rec_start)
-            ));
-        }
-        set_def(id, &mut defined, &mut defined_big);
-        entities += 1;
+        i += 1;
     }
-    if !ended {
-        return Err("truncated: the DATA section has no ENDSEC;".into());
+    if !closed {
+        return Err(StepError::UnterminatedRecord {
+            id,
+            line: line_of(bytes, rec_start),
+        });
     }
-    if find(bytes, b"END-ISO-10303-21", i).is_none() {
-        return Err("truncated: no 'END-ISO-10303-21;' trailer".into());
+    if !saw_paren || depth != 0 {
+        return Err(malformed(RecordProblem::NoAttributes));
     }
-    if entities == 0 {
-        return Err("the DATA section holds no entities".into());
+    Ok(i)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEAD: &str = "ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n";
+
+    fn check(data: &str) -> StepResult<StepSummary> {
+        check_step(format!("{HEAD}{data}ENDSEC;\nEND-ISO-10303-21;\n").as_bytes())
     }
-    if let Some(off) = ref_offsets_first_bad {
-        return Err(format!(
-            "malformed record at line {}: reference number out of range",
-            line_of(bytes, off)
-        ));
-    }
-    let is_def = |r: u32| -> bool {
-        let r = r as u64;
-        let w = (r / 64) as usize;
-        (w < defined.len() && defined[w] & (1 << (r % 64)) != 0) || defined_big.contains(&r)
-    };
-    let mut bad = refs.iter().filter(|(r, _)| !is_def(*r));
-    if let Some(&(r, from)) = bad.next() {
-        let more = bad.count();
-        return Err(format!(
-            "broken reference: #{from} refers to #{r}, which is not defined{}",
-            if more > 0 {
-                format!(" ({more} more broken references)")
-            } else {
-                String::new()
+
+    #[test]
+    fn problems_are_typed_with_their_line() {
+        assert_eq!(check_step(b"PK\x03\x04").unwrap_err(), StepError::Zip);
+        assert_eq!(check_step(b" \n").unwrap_err(), StepError::Empty);
+        assert_eq!(check("").unwrap_err(), StepError::NoEntities);
+        // HEAD is 5 lines: the first record is on line 6.
+        let e = check("#1=IFCX((1.);\n").unwrap_err();
+        assert_eq!(
+            e,
+            StepError::MalformedRecord {
+                id: Some(1),
+                line: 6,
+                problem: RecordProblem::UnbalancedParens
+            }
+        );
+        assert_eq!(
+            e.to_string(),
+            "malformed record #1 at line 6: unbalanced parentheses"
+        );
+        let e = check("#1=IFCX(1.);\nfoo\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "malformed record at line 7: expected '#id=' or ENDSEC;"
+        );
+        let e = check("#1=IFCX(#2,#3,#4);\n#2=IFCY(#1);\n").unwrap_err();
+        assert_eq!(
+            e,
+            StepError::BrokenReference {
+                from: 1,
+                to: 3,
+                more: 1
+            }
+        );
+        assert!(e.to_string().ends_with("(1 more broken references)"), "{e}");
+        let e = check("#1=IFCX(#99999999999);\n").unwrap_err();
+        assert!(matches!(
+            e,
+            StepError::MalformedRecord {
+                id: None,
+                line: 6,
+                problem: RecordProblem::ReferenceOutOfRange
             }
         ));
+        assert!(matches!(
+            check("#1=IFCX(1.) /* open\n").unwrap_err(),
+            StepError::UnclosedComment { line: 6 }
+        ));
+        let s = check("#1=IFCX(#2);\n/* c */ #2 = IFCY('a;)');\n").unwrap();
+        assert_eq!((s.schema.as_str(), s.entities), ("IFC4", 2));
     }
-    Ok(StepSummary { schema, entities })
 }
 
 // ------------------------------------------------------------------------------------------------
