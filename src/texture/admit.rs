@@ -136,7 +136,7 @@ pub fn admit_images(
                     };
                     return Err((source_file(scene, id), refused));
                 }
-                decodes(&image.bytes).err()
+                decodes(&image.bytes).err().map(|e| chain_text(&e))
             }
         };
         if let Some(reason) = problem {
@@ -158,9 +158,9 @@ pub fn admit_images(
 }
 
 /// Whether every row of the image decodes (row by row: no whole image is held for PNG).
-fn decodes(bytes: &[u8]) -> Result<(), String> {
-    let mut rows = Rows::open(bytes).map_err(|e| chain_text(&e))?;
-    while rows.next_row().map_err(|e| chain_text(&e))?.is_some() {}
+fn decodes(bytes: &[u8]) -> Result<(), codec::CodecError> {
+    let mut rows = Rows::open(bytes)?;
+    while rows.next_row()?.is_some() {}
     Ok(())
 }
 
