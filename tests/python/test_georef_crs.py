@@ -37,16 +37,7 @@ import ifcopenshell.geom  # noqa: E402
 REPO = pathlib.Path(__file__).resolve().parents[2]
 BIN = pathlib.Path(os.environ.get("BIMTILES_BIN", REPO / "target/release/bimtiles"))
 TOL_M = 0.05
-EXCLUDED = (
-    "IfcOpeningElement",
-    "IfcVoidingFeature",
-    "IfcSpace",
-    "IfcSpatialZone",
-    "IfcExternalSpatialElement",
-    "IfcAnnotation",
-    "IfcGrid",
-    "IfcVirtualElement",
-)
+from ifc_classes import EXCLUDED  # noqa: E402
 WGS84_A = 6378137.0
 WGS84_F = 1 / 298.257223563
 
