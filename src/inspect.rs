@@ -373,10 +373,8 @@ fn inside_tileset(dir: &Path, base: &Path, uri: &str) -> Result<std::path::PathB
     if !path.starts_with(dir) {
         return Err(refuse());
     }
-    if let (Ok(canon), Ok(root)) = (path.canonicalize(), dir.canonicalize()) {
-        if !canon.starts_with(root) {
-            return Err(refuse());
-        }
+    if crate::ingest::leads_outside(&path, dir) {
+        return Err(refuse());
     }
     Ok(path)
 }

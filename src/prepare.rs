@@ -47,13 +47,6 @@ pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Sce
             format!("{} (--strict-georef)", w.message),
         ));
     }
-    for w in &scene.georef_warnings {
-        eprintln!(
-            "warning: {}: {}; the model is placed without it",
-            w.file.display(),
-            w.message
-        );
-    }
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -76,6 +69,8 @@ pub(crate) struct Prepared {
     /// The projected CRSs that placed inputs, and georeferences that could not be used.
     pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
     pub georef_warnings: Vec<String>,
+    /// What the readers left out (one line each, naming the file).
+    pub reader_warnings: Vec<String>,
     pub dedup: Option<DedupReport>,
     pub textures_prepared: crate::texture::Prepared,
     /// White twin materials added to the scene for merging plain colours per tile.
@@ -170,8 +165,15 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
         georef_warnings: scene
             .georef_warnings
             .iter()
-            .map(|w| format!("{}: {}", w.file.display(), w.message))
+            .map(|w| {
+                format!(
+                    "{}: {}; the model is placed without it",
+                    w.file.display(),
+                    w.message
+                )
+            })
             .collect(),
+        reader_warnings: std::mem::take(&mut scene.reader_warnings),
         dedup,
         textures_prepared,
         appearance,

@@ -263,8 +263,9 @@ pub(crate) fn make_report(
         peak_memory_bytes: 0,
         memory: None,
         warnings: prep
-            .georef_warnings
+            .reader_warnings
             .iter()
+            .chain(&prep.georef_warnings)
             .cloned()
             .chain(
                 prep.textures_prepared

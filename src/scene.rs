@@ -431,6 +431,9 @@ pub struct Scene {
     pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
     /// Georeferences that could not be used.
     pub georef_warnings: Vec<GeorefWarning>,
+    /// What the readers left out or could not use (an IFC element skipped...), one line each
+    /// naming the file: the report's `warnings`, printed by the CLI unless `--quiet`.
+    pub reader_warnings: Vec<String>,
     /// Elements a reader skipped (broken geometry), counted for the report.
     pub skipped_elements: usize,
     /// Products left out because their only geometry is a curve (IFC alignments, footprints).
@@ -557,6 +560,7 @@ impl Scene {
         self.georeference = self.georeference.or(other.georeference);
         self.crs_used.extend(other.crs_used);
         self.georef_warnings.extend(other.georef_warnings);
+        self.reader_warnings.extend(other.reader_warnings);
     }
 
     /// Pre-multiplies every component's world transform (e.g. to move the anchor to the origin).

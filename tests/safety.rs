@@ -243,3 +243,31 @@ fn fifos_and_devices_are_refused() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// A manifest entry that is a symlink inside the manifest's folder, leading out of it, is refused
+/// (as glTF URIs are).
+#[test]
+fn manifest_symlinks_leading_out_are_refused() {
+    let dir = tmpdir("safety-manifest-symlink");
+    std::os::unix::fs::symlink(sample(), dir.join("outside.glb")).unwrap();
+    std::fs::write(
+        dir.join("m.json"),
+        r#"{"models": [{"path": "outside.glb"}]}"#,
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("m.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("m.json") && err.contains("symlink leads outside"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

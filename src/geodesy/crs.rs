@@ -8,7 +8,7 @@
 //! far outside the CRS's area of use) is a [`CrsError`]; callers warn and fall back, or fail
 //! under `--strict-georef`.
 
-use super::proj::{self, Context};
+use super::proj::{self, Context, ProjError};
 use super::{geodetic_to_ecef, GeoOrigin};
 use glam::{DMat2, DMat3, DVec2};
 
@@ -146,19 +146,22 @@ pub fn place_map_point(
         crs: definition.clone(),
         why,
     };
-    let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
+    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
+        crs: definition.clone(),
+        why: "PROJ could not start".into(),
+    })?;
     let created = ctx.create(&definition).map_err(|why| CrsError::Unknown {
         crs: definition.clone(),
         // PROJ says "Unknown error (code 4096)" for a code it does not have.
-        why: if why.starts_with("Unknown error") {
+        why: if why.message.starts_with("Unknown error") {
             "not in its database".into()
         } else {
-            why
+            why.message
         },
     })?;
     // A compound CRS (e.g. RD New + NAP height): its horizontal part places the point.
     let crs = match created.kind() {
-        proj::PJ_TYPE_COMPOUND_CRS => created.sub_crs(0).map_err(fail)?,
+        proj::PJ_TYPE_COMPOUND_CRS => created.sub_crs(0).map_err(|e: ProjError| fail(e.message))?,
         _ => created,
     };
     let id = crs.id().unwrap_or_else(|| definition.clone());
@@ -190,10 +193,14 @@ pub fn place_map_point(
             "the map point ({easting}, {northing}, {height_m}) is not finite"
         )));
     }
-    let wgs84 = ctx.create("EPSG:4326").map_err(fail)?;
-    let op = ctx.operation(&crs, &wgs84).map_err(fail)?;
+    let wgs84 = ctx
+        .create("EPSG:4326")
+        .map_err(|e: ProjError| fail(e.message))?;
+    let op = ctx
+        .operation(&crs, &wgs84)
+        .map_err(|e: ProjError| fail(e.message))?;
     let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
-    let centre = lon_lat(easting, northing).map_err(fail)?;
+    let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
     let (operation, accuracy_m) = op
         .last_used()
         .unwrap_or_else(|| ("unknown operation".into(), None));
@@ -235,7 +242,7 @@ pub fn place_map_point(
     let origin_ecef = geodetic_to_ecef(centre.x, centre.y, 0.0);
     let step = JACOBIAN_STEP_M / unit_m;
     let enu_of = |de: f64, dn: f64| -> Result<DVec2, CrsError> {
-        let ll = lon_lat(easting + de, northing + dn).map_err(fail)?;
+        let ll = lon_lat(easting + de, northing + dn).map_err(|e| fail(e.message))?;
         let local = ecef_to_enu * (geodetic_to_ecef(ll.x, ll.y, 0.0) - origin_ecef);
         Ok(local.truncate())
     };

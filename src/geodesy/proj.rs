@@ -98,6 +98,19 @@ extern "C" {
     fn proj_errno_reset(p: *const Pj) -> c_int;
 }
 
+/// What PROJ said went wrong (its own message: PROJ reports errors as text and a code).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct ProjError {
+    pub message: String,
+}
+
+impl ProjError {
+    fn new(message: String) -> Self {
+        ProjError { message }
+    }
+}
+
 fn text(p: *const c_char) -> Option<String> {
     // SAFETY: PROJ returns null or a NUL-terminated string that lives as long as its owner,
     // which the caller holds for the duration of this call.
@@ -130,9 +143,9 @@ impl Context {
         msg.unwrap_or_else(|| format!("PROJ error {code}"))
     }
 
-    fn wrap(&self, ptr: *mut Pj) -> Result<Object<'_>, String> {
+    fn wrap(&self, ptr: *mut Pj) -> Result<Object<'_>, ProjError> {
         if ptr.is_null() {
-            Err(self.last_error())
+            Err(ProjError::new(self.last_error()))
         } else {
             Ok(Object { ctx: self, ptr })
         }
@@ -140,8 +153,9 @@ impl Context {
 
     /// A CRS (or any object) from a definition PROJ understands: "EPSG:28992", a CRS name such
     /// as "WGS 84 / UTM zone 32N", a WKT or PROJJSON text.
-    pub fn create(&self, definition: &str) -> Result<Object<'_>, String> {
-        let c = CString::new(definition).map_err(|_| "the name holds a NUL byte".to_string())?;
+    pub fn create(&self, definition: &str) -> Result<Object<'_>, ProjError> {
+        let c = CString::new(definition)
+            .map_err(|_| ProjError::new("the name holds a NUL byte".into()))?;
         // SAFETY: live context and a NUL-terminated string.
         self.wrap(unsafe { proj_create(self.ptr, c.as_ptr()) })
     }
@@ -153,7 +167,7 @@ impl Context {
         &self,
         source: &Object<'_>,
         target: &Object<'_>,
-    ) -> Result<Object<'_>, String> {
+    ) -> Result<Object<'_>, ProjError> {
         // SAFETY: live context and objects of it; null area and options are allowed.
         let op = self.wrap(unsafe {
             proj_create_crs_to_crs_from_pj(self.ptr, source.ptr, target.ptr, null_mut(), null())
@@ -224,14 +238,14 @@ impl<'c> Object<'c> {
     }
 
     /// Component `index` of a compound CRS (0: horizontal, 1: vertical).
-    pub fn sub_crs(&self, index: i32) -> Result<Object<'c>, String> {
+    pub fn sub_crs(&self, index: i32) -> Result<Object<'c>, ProjError> {
         // SAFETY: live context and object.
         self.ctx
             .wrap(unsafe { proj_crs_get_sub_crs(self.ctx.ptr, self.ptr, index) })
     }
 
     /// The axes of this CRS's coordinate system.
-    pub fn axes(&self) -> Result<Vec<AxisInfo>, String> {
+    pub fn axes(&self) -> Result<Vec<AxisInfo>, ProjError> {
         // SAFETY: live context and object.
         let cs = self
             .ctx
@@ -258,7 +272,7 @@ impl<'c> Object<'c> {
                 )
             };
             if ok == 0 {
-                return Err(self.ctx.last_error());
+                return Err(ProjError::new(self.ctx.last_error()));
             }
             out.push(AxisInfo {
                 name: text(name).unwrap_or_default(),
@@ -297,7 +311,7 @@ impl<'c> Object<'c> {
 
     /// Applies an operation forward to (x, y, z); an error when PROJ fails or returns
     /// non-finite values.
-    pub fn forward(&self, x: f64, y: f64, z: f64) -> Result<[f64; 3], String> {
+    pub fn forward(&self, x: f64, y: f64, z: f64) -> Result<[f64; 3], ProjError> {
         // SAFETY: live operation.
         unsafe { proj_errno_reset(self.ptr) };
         let c = PjCoord {
@@ -309,10 +323,10 @@ impl<'c> Object<'c> {
         let err = unsafe { proj_errno(self.ptr) };
         let p = [r.v[0], r.v[1], r.v[2]];
         if err != 0 || p.iter().any(|v| !v.is_finite()) {
-            return Err(format!(
+            return Err(ProjError::new(format!(
                 "PROJ cannot transform ({x}, {y}): {}",
                 self.ctx.last_error()
-            ));
+            )));
         }
         Ok(p)
     }

@@ -264,10 +264,8 @@ pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<P
     }
     let full = base_dir.join(rel);
     // A symlink inside the folder could still point out of it.
-    if let (Ok(canon), Ok(base)) = (full.canonicalize(), base_dir.canonicalize()) {
-        if !canon.starts_with(&base) {
-            return Err(UriError::LeadsOutside { uri: uri_text() });
-        }
+    if super::leads_outside(&full, base_dir) {
+        return Err(UriError::LeadsOutside { uri: uri_text() });
     }
     Ok(full)
 }

@@ -132,17 +132,10 @@ impl Manifest {
             }
             let file = folder.join(rel);
             // Inside by its text, but a symlink could still lead out of the folder.
-            let base = if folder.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                folder
-            };
-            if let (Ok(canon), Ok(base)) = (file.canonicalize(), base.canonicalize()) {
-                if !canon.starts_with(&base) {
-                    return Err(bad(format!(
-                        "{what}: a symlink leads outside the manifest's folder (refused)"
-                    )));
-                }
+            if super::leads_outside(&file, folder) {
+                return Err(bad(format!(
+                    "{what}: a symlink leads outside the manifest's folder (refused)"
+                )));
             }
             match super::open_regular(&file) {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {

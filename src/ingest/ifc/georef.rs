@@ -24,7 +24,7 @@ pub(super) fn georef_from_raw(
         match georef_from_map_conversion(m, path, crs_option) {
             Ok(Some(g)) => return (Some(g), None),
             Ok(None) => {}
-            Err(e) => warning = Some(e),
+            Err(e) => warning = Some(e.to_string()),
         }
     }
     (georef_from_site(raw), warning)
@@ -95,17 +95,13 @@ fn georef_from_map_conversion(
     m: &IfcMapConversion,
     path: &Path,
     crs_option: Option<&str>,
-) -> std::result::Result<Option<IfcGeoref>, String> {
+) -> std::result::Result<Option<IfcGeoref>, MapConversionProblem> {
     let candidates = crs_candidates(m, crs_option);
     if candidates.is_empty() {
-        return Err(
-            "its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name or \
-             MapProjection/MapZone): give --crs EPSG:CODE"
-                .into(),
-        );
+        return Err(MapConversionProblem::NoCrs);
     }
     if !(m.eastings.is_finite() && m.northings.is_finite()) {
-        return Err("its IfcMapConversion Eastings/Northings are not numbers".into());
+        return Err(MapConversionProblem::NotNumbers);
     }
     let project_unit_m = if m.project_unit_m.is_finite() && m.project_unit_m > 0.0 {
         m.project_unit_m
@@ -198,10 +194,18 @@ fn georef_from_map_conversion(
             crs: Some(crs_use),
         }));
     }
-    Err(format!(
-        "its IfcMapConversion cannot be placed: {}",
-        first_error.map_or_else(|| "no CRS".to_string(), |e| e.to_string())
-    ))
+    Err(MapConversionProblem::Unplaceable { first_error })
+}
+
+/// Why an IfcMapConversion cannot place the model (a warning: the model falls back).
+#[derive(Debug, thiserror::Error)]
+pub(super) enum MapConversionProblem {
+    #[error("its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name or MapProjection/MapZone): give --crs EPSG:CODE")]
+    NoCrs,
+    #[error("its IfcMapConversion Eastings/Northings are not numbers")]
+    NotNumbers,
+    #[error("its IfcMapConversion cannot be placed: {}", first_error.as_ref().map_or_else(|| "no CRS".to_string(), |e| e.to_string()))]
+    Unplaceable { first_error: Option<CrsError> },
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -262,8 +266,9 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(g.crs.unwrap().source, "option");
-        let w =
-            georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), None).unwrap_err();
+        let w = georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), None)
+            .unwrap_err()
+            .to_string();
         assert!(w.contains("--crs"), "{w}");
     }
 }

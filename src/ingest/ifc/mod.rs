@@ -228,7 +228,7 @@ pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, I
 /// Like [`read_ifc_with_report`]; `crs_option` (`--crs`) names the CRS of an IfcMapConversion
 /// whose IfcProjectedCRS names none PROJ knows.
 pub fn read_ifc_with_crs(path: &Path, crs_option: Option<&str>) -> Result<(Scene, IfcReadReport)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
+    let bytes = super::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     read_ifc_bytes_with_crs(path, &bytes, crs_option)
 }
 
@@ -281,13 +281,13 @@ pub fn read_ifc_bytes_with_crs(
         assemble_s: t3.elapsed().as_secs_f64(),
     };
     for s in &report.skipped {
-        eprintln!(
-            "warning: {}: skipped {} {} ({})",
+        scene.reader_warnings.push(format!(
+            "{}: skipped {} {} ({})",
             path.display(),
             s.class,
             s.guid,
             s.reason
-        );
+        ));
     }
     Ok((scene, report))
 }
