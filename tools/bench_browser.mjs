@@ -2,7 +2,7 @@
 // Browser benchmark: each model as a single-tile tileset (the original GLB as the one content)
 // against bimtiles' tileset, in real CesiumJS (Debian Chromium, SwiftShader WebGL).
 //
-//   node tools/bench_browser.mjs [--runs 3] [--json out.json] MODEL.glb [MODEL.glb...]
+//   node tools/bench_browser.mjs [--runs 3] [--throttle 20:40] [--json out.json] MODEL.glb|MODEL.ifc...
 //
 // Options:
 //   --runs N           measured loads per variant (default 3), interleaved A/B, B/A, ...
@@ -11,13 +11,26 @@
 //   --serve-cmd T      command serving a folder at port 0 and printing its URL; {dir} is replaced
 //                      (default: `bimtiles serve {dir} --port 0` when the binary has it, else the
 //                      scratch server /work/scratch/serve/target/release/serve_scratch)
-//   --path-frames N    frames of the scripted far-to-near camera path (default 30)
+//   --path-frames N    frames of the scripted far-to-near camera path (default 30; 0: no path)
+//   --throttle M:L     network emulated by Chromium (CDP Network.emulateNetworkConditions): M Mbit/s
+//                      down and up, L ms latency per request, e.g. 20:40. The page then runs without
+//                      the service worker (?cache=0: the worker's own fetches are not throttled), so
+//                      there are no warm loads
+//   --stops R,R,...    fly-in stops in bounding radii (default 20,6,2.5,1.2,0.6; "none": no fly-in)
 //   --runs-for M=N     runs for the model named M (file name without .glb), e.g. a slow big one;
 //                      repeatable as a comma list: "A=1,B=2"
 //   --no-warm          skip the repeat-visit (warm tile cache) loads
 //   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
 //   --timeout S        per-load timeout (default 180)
 //   --json FILE        write the result there too
+//
+// An .ifc model has no raw GLB: its raw variant is bimtiles' own single-tile GLB of it (one
+// octree cell: --max-tile-triangles and --max-tile-bytes at their largest).
+//
+// Fly-in (each run, each variant, after the cold load): the tileset is loaded again at a new URL
+// (nothing cached) with the camera at the first stop, then moved to each stop in turn (heading 0.6,
+// pitch -0.45 about the bounding sphere's centre, at that many radii); at each stop, once all its
+// tiles are loaded, the tile bytes and requests fetched since the load began (cumulative).
 //
 // Method (see shared/notes/browser.md): one browser (fresh profile) per model, the viewer page with
 // its service-worker tile cache on; both variants are loaded once and discarded first (shader
@@ -43,7 +56,7 @@ import { collect, launch, startServer, stopServer, waitLoaded, watch } from "./b
 const REPO = resolve(dirname(fileURLToPath(import.meta.url)), "..");
 
 function parseArgs(argv) {
-  const o = { runs: 3, "path-frames": 30, width: 960, height: 540, timeout: 180, models: [], warm: true };
+  const o = { runs: 3, "path-frames": 30, width: 960, height: 540, timeout: 180, models: [], warm: true, stops: "20,6,2.5,1.2,0.6" };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     if (a === "--no-warm") o.warm = false;
@@ -57,6 +70,14 @@ function parseArgs(argv) {
     o.runsFor[k] = Number(v);
   }
   o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
+  o.stopRadii = o.stops === "none" ? [] : o.stops.split(",").map(Number);
+  if (o.stopRadii.some((r) => !(r > 0))) throw new Error(`--stops: radii must be positive numbers, got ${o.stops}`);
+  if (o.throttle) {
+    const [mbit, latencyMs] = o.throttle.split(":").map(Number);
+    if (!(mbit > 0) || !(latencyMs >= 0)) throw new Error(`--throttle wants MBIT:MS, e.g. 20:40, got ${o.throttle}`);
+    o.network = { mbit, latencyMs };
+    o.warm = false;
+  }
   return o;
 }
 
@@ -94,6 +115,40 @@ function rawTileset(ours, glbName) {
     ];
   }
   return { asset: { version: "1.1" }, geometricError: ours.geometricError, root };
+}
+
+/**
+ * bimtiles' own GLB of `ifc` as one tile (one octree cell): the raw file an IFC lacks. The metadata
+ * schema its properties refer to goes inline into the GLB (EXT_structural_metadata `schema`), so
+ * the file stands alone as a raw GLB does (two requests with its tileset JSON).
+ */
+function singleTileGlb(bimtiles, ifc, outDir) {
+  const most = String(2 ** 32 - 1);
+  execFileSync(bimtiles, ["convert", ifc, "--out", outDir, "--quiet", "--max-tile-triangles", most, "--max-tile-bytes", most], { stdio: "inherit" });
+  const ts = JSON.parse(readFileSync(join(outDir, "tileset.json")));
+  if (!ts.root.content || (ts.root.children && ts.root.children.length))
+    throw new Error(`${ifc}: the single-tile conversion has more than one tile`);
+  const glbPath = join(outDir, ts.root.content.uri);
+  const glb = readFileSync(glbPath);
+  const jsonLength = glb.readUInt32LE(12);
+  const gltf = JSON.parse(glb.subarray(20, 20 + jsonLength).toString("utf8"));
+  const metadata = gltf.extensions && gltf.extensions.EXT_structural_metadata;
+  if (metadata && metadata.schemaUri) {
+    metadata.schema = JSON.parse(readFileSync(join(dirname(glbPath), metadata.schemaUri)));
+    delete metadata.schemaUri;
+  }
+  let json = Buffer.from(JSON.stringify(gltf), "utf8");
+  json = Buffer.concat([json, Buffer.alloc((4 - (json.length % 4)) % 4, 0x20)]);
+  const rest = glb.subarray(20 + jsonLength);
+  const header = Buffer.alloc(20);
+  header.writeUInt32LE(0x46546c67, 0);
+  header.writeUInt32LE(2, 4);
+  header.writeUInt32LE(20 + json.length + rest.length, 8);
+  header.writeUInt32LE(json.length, 12);
+  header.writeUInt32LE(0x4e4f534a, 16);
+  const standalone = join(outDir, "standalone.glb");
+  writeFileSync(standalone, Buffer.concat([header, json, rest]));
+  return standalone;
 }
 
 function median(a) {
@@ -197,6 +252,53 @@ async function tilesetMemory(page) {
   });
 }
 
+/** Chromium's network emulation on `page` (its requests: the page runs without the worker). */
+async function throttle(page, network) {
+  const cdp = await page.context().newCDPSession(page);
+  await cdp.send("Network.enable");
+  const bytesPerS = (network.mbit * 1e6) / 8;
+  await cdp.send("Network.emulateNetworkConditions", {
+    offline: false,
+    latency: network.latencyMs,
+    downloadThroughput: bytesPerS,
+    uploadThroughput: bytesPerS,
+  });
+  return cdp;
+}
+
+/**
+ * The fly-in: `url` loaded with nothing refined (the framed view draws what the root has), the
+ * camera moved to the first stop, then to each stop in turn; at each, once all its tiles are
+ * loaded, what was fetched since the load began (cumulative) and the time since it began.
+ */
+async function flyIn(page, url, opts) {
+  const ok = await page.evaluate((u) => window.bimtiles.loadTileset(u, { maximumScreenSpaceError: 1e9 }), url);
+  if (!ok) throw new Error(`cannot load ${url}`);
+  const stops = [];
+  for (const radii of opts.stopRadii) {
+    await page.evaluate((radii) => {
+      const { viewer, tileset } = window.bimtiles;
+      tileset.maximumScreenSpaceError = 16;
+      const bs = tileset.boundingSphere;
+      viewer.scene.camera.lookAt(bs.center, new Cesium.HeadingPitchRange(0.6, -0.45, radii * bs.radius));
+    }, radii);
+    // Some frames at the new camera before the check (browser.md's condition).
+    await page.waitForTimeout(200);
+    const w = await waitLoaded(page, opts.timeout * 1000);
+    if (!w.ok) throw new Error(`${url}: fly-in stop at ${radii} radii: ${w.reason}`);
+    const s = await collect(page);
+    stops.push({
+      radii,
+      tileBytes: s.tileBytes,
+      tileRequests: s.tileRequests,
+      trianglesSelected: s.trianglesSelected,
+      sinceLoadMs: await page.evaluate(() => performance.now() - window.bimtilesStatus.tilesetRequestedMs),
+    });
+  }
+  await homeView(page, url, opts);
+  return stops;
+}
+
 /** Service-worker counters for this page (cumulative: callers take differences). */
 async function swCounters(page) {
   const s = await page.evaluate(() => (window.bimtiles.swStats ? window.bimtiles.swStats() : null));
@@ -235,7 +337,7 @@ async function measure(page, url, opts, path = true) {
     ...(await tilesetMemory(page)),
     tileFailures: s.tileFailures.length,
   };
-  if (path) {
+  if (path && opts["path-frames"] > 0) {
     const frames = await cameraPath(page, opts["path-frames"]);
     const wall = frames.map((p) => p.wallMs);
     const cpu = frames.map((p) => p.cpuMs);
@@ -256,16 +358,20 @@ async function measure(page, url, opts, path = true) {
     r.nearTilesetMemoryBytes = (await tilesetMemory(page)).tilesetMemoryBytes;
     r.nearJsHeapBytesAfterGc = s2.jsHeapBytesAfterGc;
   }
-  // Back to the home view and its tiles, so that every measured load starts from the same camera
-  // (a load started at the near end first selects, and waits for, the near view's tiles).
+  await homeView(page, url, opts);
+  return r;
+}
+
+/** Back to the home view and its tiles, so that every measured load starts from the same camera
+ * (a load started at the near end first selects, and requests, the near view's tiles). */
+async function homeView(page, url, opts) {
   await page.evaluate(async () => {
     const { viewer, tileset } = window.bimtiles;
     viewer.scene.camera.lookAtTransform(Cesium.Matrix4.IDENTITY);
     await viewer.zoomTo(tileset, new Cesium.HeadingPitchRange(0.6, -0.45, 0));
   });
-  const w3 = await waitLoaded(page, opts.timeout * 1000);
-  if (!w3.ok) throw new Error(`${url}: back at the home view: ${w3.reason}`);
-  return r;
+  const w = await waitLoaded(page, opts.timeout * 1000);
+  if (!w.ok) throw new Error(`${url}: back at the home view: ${w.reason}`);
 }
 
 function medians(runs) {
@@ -273,6 +379,13 @@ function medians(runs) {
   if (!runs.length) return out;
   for (const k of Object.keys(runs[0]))
     if (typeof runs[0][k] === "number") out[k] = median(runs.map((r) => r[k]));
+  // Fly-in stops: medians per stop.
+  if (Array.isArray(runs[0].flyIn))
+    out.flyIn = runs[0].flyIn.map((stop, i) => {
+      const m = { radii: stop.radii };
+      for (const k of Object.keys(stop)) if (k !== "radii") m[k] = median(runs.map((r) => r.flyIn[i] && r.flyIn[i][k]));
+      return m;
+    });
   return out;
 }
 
@@ -297,6 +410,8 @@ async function main() {
     viewport: `${opts.width}x${opts.height}`,
     runs: opts.runs,
     pathFrames: opts["path-frames"],
+    network: opts.network || null,
+    flyInStopsRadii: opts.stopRadii,
     bimtiles: { path: opts.bimtiles, modified: statSync(opts.bimtiles).mtime.toISOString() },
     loadAverageAtStart: loadavg().map((x) => +x.toFixed(2)),
     models: {},
@@ -316,6 +431,7 @@ async function main() {
     const dir = mkdtempSync(join(tmpdir(), "bimtiles-bench-"));
     let server = null;
     let browser = null;
+    let throttled = null; // the CDP session holding the network emulation
     current = { dir };
     const runs = opts.runsFor[name] || opts.runs;
     const entry = { model, runs: runs, loads: { ours: { cold: [], warm: [] }, raw: { cold: [], warm: [] } } };
@@ -326,14 +442,15 @@ async function main() {
       const t = Date.now();
       execFileSync(opts.bimtiles, ["convert", model, "--out", oursDir, "--quiet", ...extra], { stdio: "inherit" });
       entry.convertMs = Date.now() - t;
+      const rawGlb = /\.ifc$/i.test(model) ? singleTileGlb(opts.bimtiles, model, join(dir, "single")) : model;
       const ours = JSON.parse(readFileSync(join(oursDir, "tileset.json")));
       cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
       const rawDir = join(dir, "raw");
       mkdirSync(rawDir);
-      copyFileSync(model, join(rawDir, "model.glb"));
+      copyFileSync(rawGlb, join(rawDir, "model.glb"));
       writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
       // Everything a client could download: the whole tileset folder against the GLB.
-      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(model).size };
+      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(rawGlb).size };
 
       server = current.server = await startServer(serveCmd.replace("{dir}", dir));
       const base = new URL(server.url);
@@ -345,7 +462,11 @@ async function main() {
         raw: new URL("/tileset/raw/tileset.json", base).href,
       };
       // Service worker on (no cache=0): the first page load installs it and it takes control.
-      await page.goto(new URL(`/?msaa=1&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      // Throttled: no worker at all (a fresh profile and ?cache=0 never register it), and the
+      // emulated network on from the first page load.
+      if (opts.network) throttled = await throttle(page, opts.network);
+      const cacheQuery = opts.network ? "&cache=0" : "";
+      await page.goto(new URL(`/?msaa=1${cacheQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
       entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);
@@ -357,8 +478,10 @@ async function main() {
         for (const v of order) {
           const url = `${variants[v]}?run=${run}`;
           const cold = await measure(page, url, opts, true);
+          if (opts.stopRadii.length) cold.flyIn = await flyIn(page, `${variants[v]}?fly=${run}`, opts);
           entry.loads[v].cold.push(cold);
           let line = `${name} run ${run} ${v}: cold all tiles ${Math.round(cold.allTilesLoadedMs)} ms, ${cold.tileBytes} B`;
+          if (cold.flyIn) line += `; fly-in ${cold.flyIn.map((f) => `${f.radii}r ${f.tileBytes} B`).join(", ")}`;
           if (opts.warm) {
             const warm = await measure(page, url, opts, false);
             entry.loads[v].warm.push(warm);
@@ -374,6 +497,7 @@ async function main() {
     } catch (e) {
       entry.error = String(e && e.message ? e.message : e);
     } finally {
+      if (throttled) await throttled.detach().catch(() => {});
       if (browser) {
         await browser.context.close().catch(() => {});
         rmSync(browser.userDataDir, { recursive: true, force: true });

@@ -12,7 +12,7 @@
 //! is bounded too.
 
 use super::gather;
-use crate::encode::glb::DEFAULT_MAX_POSITION_ERROR_M;
+use crate::encode::glb::{draco_flattens, DEFAULT_MAX_POSITION_ERROR_M};
 use crate::encode::Compression;
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
@@ -20,7 +20,7 @@ use crate::options::{ConvertOptions, ErrorMetric};
 use crate::partition::content::TileContent;
 use crate::partition::TilePlan;
 use crate::scene::{ComponentId, Scene};
-use crate::simplify::hlod::{simplify_children, ErrorReference, HlodContent};
+use crate::simplify::hlod::{simplify_children, ErrorReference, HlodContent, TileError};
 use crate::tileset::view::{
     framed_error_m, paper_geometric_error_m, ViewOptions, PAPER_MAX_DELTA_PX,
 };
@@ -104,6 +104,33 @@ impl HlodBuilder<'_> {
         out
     }
 
+    /// A leaf: its content at full detail, written as it is.
+    fn build_leaf(&self, i: usize) -> Result<BuiltSubtree> {
+        let tile = &self.plan.tiles[i];
+        let content = gather(
+            self.scene,
+            self.opts,
+            &tile.content,
+            tile.content_bounds.center(),
+        );
+        let mut cut_triangles = BTreeMap::new();
+        for item in &tile.content {
+            if let Some(t) = &item.triangles {
+                *cut_triangles.entry(item.component).or_default() += t.len();
+            }
+        }
+        let written = (self.write)(i, &content, TileRecord::default())?;
+        *self.slots[i].lock().expect("slot") = Some(written);
+        Ok(BuiltSubtree {
+            // Parents simplify one surface: instances go up as plain geometry.
+            content: content.expand(),
+            geometric_error_m: 0.0,
+            coarse_to_full_m: 0.0,
+            max_folding_edge_m: 0.0,
+            cut_triangles,
+        })
+    }
+
     pub(crate) fn build(&self, i: usize) -> Result<BuiltSubtree> {
         let tile = &self.plan.tiles[i];
         let path = || format!("tiles/{}.glb", tile.path);
@@ -112,28 +139,7 @@ impl HlodBuilder<'_> {
             return done.ok_or_else(|| Error::output(path(), "no job built this subtree"));
         }
         let built = if tile.children.is_empty() {
-            let content = gather(
-                self.scene,
-                self.opts,
-                &tile.content,
-                tile.content_bounds.center(),
-            );
-            let mut cut_triangles = BTreeMap::new();
-            for item in &tile.content {
-                if let Some(t) = &item.triangles {
-                    *cut_triangles.entry(item.component).or_default() += t.len();
-                }
-            }
-            let written = (self.write)(i, &content, TileRecord::default())?;
-            *self.slots[i].lock().expect("slot") = Some(written);
-            BuiltSubtree {
-                // Parents simplify one surface: instances go up as plain geometry.
-                content: content.expand(),
-                geometric_error_m: 0.0,
-                coarse_to_full_m: 0.0,
-                max_folding_edge_m: 0.0,
-                cut_triangles,
-            }
+            self.build_leaf(i)?
         } else {
             let kids: Vec<BuiltSubtree> = tile
                 .children
@@ -182,89 +188,28 @@ impl HlodBuilder<'_> {
                 Ok(err.map(|e| (r, e)))
             };
             let input_triangles: usize = contents.iter().map(|c| c.triangle_count()).sum();
-            let mut target = self
+            let target = self
                 .opts
                 .octree
                 .max_tile_triangles
                 .min(input_triangles.div_ceil(HLOD_CHILDREN_DIVISOR))
                 .max(1);
-            let (mut r, mut err) = build_at(&contents, target, f64::INFINITY)?.expect("no limit");
-            // Finer while over the allowed error: more triangles, up to the budget (or all of the
-            // children's, which then stand as they are). Each try starts again from the children.
+            let (r, err) = build_at(&contents, target, f64::INFINITY)?.expect("no limit");
+            let mut tried = (r, err, target);
             if let Some(allowed) = allowed_m {
                 let most = self.opts.octree.max_tile_triangles.min(input_triangles);
-                for _ in 0..HLOD_REFINE_TRIES {
-                    if err.error_m <= allowed || target >= most {
-                        break;
-                    }
-                    let predicted = target as f64 * err.error_m / (0.7 * allowed);
-                    let next = (predicted.min(most as f64) as usize)
-                        .max(2 * target)
-                        .min(most);
-                    let (r2, err2) = build_at(&contents, next, f64::INFINITY)?.expect("no limit");
-                    target = next;
-                    if err2.error_m < err.error_m {
-                        (r, err) = (r2, err2);
-                    }
-                }
+                tried = refine(&build_at, &contents, most, allowed, tried)?;
+                tried = coarsen(&build_at, allowed, tried)?;
             }
-            // Coarser while the measured error leaves room: the first view of a model is its root
-            // alone, as small as its error allows. Each try costs a simplification and a
-            // measurement against all full detail below, so the count is predicted (the error of
-            // a simplified surface grows about as 1/triangles; aim at 0.7 of the allowed error)
-            // and the tries are few. A try simplifies the last accepted content, a quarter or less
-            // of the children's (it is measured against full detail all the same): on a
-            // 1.9M-triangle campus the tries took as long as the first simplifications.
-            // A rejected try is followed by one between it and the last accepted count (their
-            // geometric mean), once: the halving steps otherwise leave a tile up to twice the
-            // triangles its error allows, and a finer tile below can move the steps.
-            if let Some(allowed) = allowed_m {
-                let mut tries = 0;
-                let mut too_coarse: Option<usize> = None;
-                while tries < HLOD_COARSEN_TRIES || too_coarse.is_some() {
-                    let next = match too_coarse {
-                        Some(rejected) => ((target as f64 * rejected as f64).sqrt() as usize)
-                            .max(HLOD_MIN_TRIANGLES),
-                        None => {
-                            let predicted = target as f64 * err.error_m / (0.7 * allowed);
-                            (predicted as usize).clamp(target / 16, target / 2)
-                        }
-                    };
-                    if err.error_m >= allowed || next < HLOD_MIN_TRIANGLES || next >= target {
-                        break;
-                    }
-                    tries += 1;
-                    let Some((r2, err2)) = build_at(&[&r.content], next, allowed)? else {
-                        if too_coarse.is_some() {
-                            break;
-                        }
-                        too_coarse = Some(next);
-                        continue;
-                    };
-                    too_coarse = None;
-                    (r, err, target) = (
-                        // Figures of the whole chain: children -> last content -> this one.
-                        HlodContent {
-                            input_triangles: r.input_triangles,
-                            max_collapsed_edge_m: r
-                                .max_collapsed_edge_m
-                                .max(r2.max_collapsed_edge_m),
-                            content: r2.content,
-                        },
-                        err2,
-                        next,
-                    );
-                }
-            }
-            // The coarse grid flattens triangles thinner than about its step, and a flat triangle
-            // draws nothing (LoD3_Railway at 1,000 triangles a tile lost 51 of a tile's 253
-            // triangles, 0.67 m from full detail where 0.43 m was declared). They are dropped
-            // and the rest measured again, kept if that costs no more than the grid's share;
-            // otherwise the grid stays finer than the thinnest triangle.
+            let (mut r, mut err, _) = tried;
+            // The coarse grid flattens some thin triangles, and a flat triangle draws nothing
+            // (LoD3_Railway at 1,000 triangles a tile lost 51 of a tile's 253 triangles, 0.67 m
+            // from full detail where 0.43 m was declared). The ones Draco's grid flattens are
+            // dropped and the rest measured again, kept if that costs no more than the grid's
+            // share; otherwise the grid stays finer than the thinnest triangle.
             let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
             if per_axis_m > fine_grid_m(self.opts.compression) {
-                let flattened_m = 2.0 * 3f64.sqrt() * per_axis_m;
-                if let Some(kept) = without_thinner_than(&r.content, flattened_m) {
+                if let Some(kept) = without_flattened(&r.content, per_axis_m) {
                     let kept_err = reference.measure(&kept, &self.opts.simplify);
                     if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
                         (r.content, err) = (kept, kept_err);
@@ -335,6 +280,92 @@ impl HlodBuilder<'_> {
         };
         Ok(built)
     }
+}
+
+/// One try at an HLOD tile: its content simplified from `from` to a triangle target, with its
+/// error measured (`None`: over the limit, given up as soon as the measurement showed it).
+type BuildAt<'a> =
+    dyn Fn(&[&TileContent], usize, f64) -> Result<Option<(HlodContent, TileError)>> + Sync + 'a;
+
+/// A try's content, measured error and triangle target.
+type Tried = (HlodContent, TileError, usize);
+
+/// Finer while over the `allowed` error: more triangles, up to `most` (the budget, or all of the
+/// children's, which then stand as they are). Each try starts again from the children, and is
+/// kept only when it meets the allowed error: a finer tile that still misses it costs its bytes in
+/// every view and buys no rung (its parent declares twice the children's anyway; Mini_Project's
+/// root grew by a quarter from such tiles).
+fn refine(
+    build_at: &BuildAt,
+    contents: &[&TileContent],
+    most: usize,
+    allowed: f64,
+    (mut r, mut err, mut target): Tried,
+) -> Result<Tried> {
+    let mut tried = target;
+    for _ in 0..HLOD_REFINE_TRIES {
+        if err.error_m <= allowed || tried >= most {
+            break;
+        }
+        let predicted = tried as f64 * err.error_m / (0.7 * allowed);
+        let next = (predicted.min(most as f64) as usize)
+            .max(2 * tried)
+            .min(most);
+        tried = next;
+        if let Some(met) = build_at(contents, next, allowed)? {
+            (r, err) = met;
+            target = next;
+        }
+    }
+    Ok((r, err, target))
+}
+
+/// Coarser while the measured error leaves room under `allowed`: the first view of a model is its
+/// root alone, as small as its error allows. Each try costs a simplification and a measurement
+/// against all full detail below, so the count is predicted (the error of a simplified surface
+/// grows about as 1/triangles; aim at 0.7 of the allowed error) and the tries are few. A try
+/// simplifies the last accepted content, a quarter or less of the children's (it is measured
+/// against full detail all the same): on a 1.9M-triangle campus the tries took as long as the
+/// first simplifications. A rejected try is followed by one between it and the last accepted
+/// count (their geometric mean), once: the halving steps otherwise leave a tile up to twice the
+/// triangles its error allows, and a finer tile below can move the steps.
+fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut target): Tried) -> Result<Tried> {
+    let mut tries = 0;
+    let mut too_coarse: Option<usize> = None;
+    while tries < HLOD_COARSEN_TRIES || too_coarse.is_some() {
+        let next = match too_coarse {
+            Some(rejected) => {
+                ((target as f64 * rejected as f64).sqrt() as usize).max(HLOD_MIN_TRIANGLES)
+            }
+            None => {
+                let predicted = target as f64 * err.error_m / (0.7 * allowed);
+                (predicted as usize).clamp(target / 16, target / 2)
+            }
+        };
+        if err.error_m >= allowed || next < HLOD_MIN_TRIANGLES || next >= target {
+            break;
+        }
+        tries += 1;
+        let Some((r2, err2)) = build_at(&[&r.content], next, allowed)? else {
+            if too_coarse.is_some() {
+                break;
+            }
+            too_coarse = Some(next);
+            continue;
+        };
+        too_coarse = None;
+        (r, err, target) = (
+            // Figures of the whole chain: children -> last content -> this one.
+            HlodContent {
+                input_triangles: r.input_triangles,
+                max_collapsed_edge_m: r.max_collapsed_edge_m.max(r2.max_collapsed_edge_m),
+                content: r2.content,
+            },
+            err2,
+            next,
+        );
+    }
+    Ok((r, err, target))
 }
 
 /// Components of `cut_triangles` (triangles per component cut across tiles, in a subtree) that go
@@ -432,33 +463,25 @@ pub(crate) fn coarse_grid_m(c: Compression, measured_m: f64) -> f64 {
     }
 }
 
-/// `content` without its triangles thinner than `height_m` (twice the area over the longest
-/// edge), or `None` when it has none.
-fn without_thinner_than(content: &TileContent, height_m: f64) -> Option<TileContent> {
-    let thin = |p: &crate::partition::content::ContentPrimitive, t: &[u32]| {
-        let at = |i: u32| {
-            let v = p.positions[i as usize];
-            glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
-        };
-        let [a, b, c] = [at(t[0]), at(t[1]), at(t[2])];
-        let longest = (b - a).length().max((c - b).length()).max((a - c).length());
-        (b - a).cross(c - a).length() < height_m * longest
-    };
-    let any = content
+/// `content` without the triangles Draco's grid for `per_axis_m` flattens
+/// ([`draco_flattens`]), or `None` when it flattens none.
+fn without_flattened(content: &TileContent, per_axis_m: f64) -> Option<TileContent> {
+    let flat: Vec<Vec<bool>> = content
         .primitives
         .iter()
-        .any(|p| p.indices.chunks_exact(3).any(|t| thin(p, t)));
-    if !any || height_m <= 0.0 {
+        .map(|p| draco_flattens(&p.positions, &p.indices, per_axis_m))
+        .collect();
+    if !flat.iter().flatten().any(|&f| f) {
         return None;
     }
     let mut kept = content.clone();
-    for p in &mut kept.primitives {
+    for (p, flat) in kept.primitives.iter_mut().zip(&flat) {
         let indices: Vec<u32> = p
             .indices
             .chunks_exact(3)
-            .filter(|t| !thin(p, t))
-            .flatten()
-            .copied()
+            .zip(flat)
+            .filter(|(_, &f)| !f)
+            .flat_map(|(t, _)| t.iter().copied())
             .collect();
         p.indices = indices;
     }

@@ -161,6 +161,65 @@ fn encode_content_from(
     })
 }
 
+/// Where Draco draws `positions_y_up` (one primitive's, glTF frame) when they are written with at
+/// most `max_position_error_m` per axis: one step for all axes from the box's low corner (the
+/// largest extent over `2^bits - 1`), values rounded, as Draco's quantization transform does.
+pub(crate) fn draco_grid_positions(
+    positions_y_up: &[[f32; 3]],
+    max_position_error_m: f64,
+) -> Vec<[f32; 3]> {
+    use crate::encode::draco::{position_bits_for, quantization_step};
+    let (lo, extent) = draco_box(positions_y_up);
+    let step = quantization_step(extent, position_bits_for(extent, max_position_error_m));
+    if step <= 0.0 {
+        return positions_y_up.to_vec();
+    }
+    positions_y_up
+        .iter()
+        .map(|p| {
+            std::array::from_fn(|k| {
+                let q = ((p[k] - lo[k]) as f64 / step).round();
+                (lo[k] as f64 + q * step) as f32
+            })
+        })
+        .collect()
+}
+
+/// The low corner of the box of `positions` and its largest extent (Draco's quantization range).
+fn draco_box(positions: &[[f32; 3]]) -> ([f32; 3], f64) {
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    (lo, extent)
+}
+
+/// Per triangle of a primitive (scene frame, as content holds it), whether Draco's grid for
+/// `max_position_error_m` ([`draco_grid_positions`]) flattens it: drawn with no area, it shows
+/// nothing of what it stood for.
+pub fn draco_flattens(
+    positions_z_up: &[[f32; 3]],
+    indices: &[u32],
+    max_position_error_m: f64,
+) -> Vec<bool> {
+    let drawn = draco_grid_positions(&y_up(positions_z_up), max_position_error_m);
+    let at = |i: u32| {
+        let v = drawn[i as usize];
+        DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+    };
+    indices
+        .chunks_exact(3)
+        .map(|t| {
+            let [a, b, c] = [at(t[0]), at(t[1]), at(t[2])];
+            (b - a).cross(c - a).length_squared() == 0.0
+        })
+        .collect()
+}
+
 /// Scene z-up → glTF y-up: (x, y, z) ↦ (x, z, -y), as `Z_UP_TO_Y_UP`.
 fn y_up(v: &[[f32; 3]]) -> Vec<[f32; 3]> {
     v.iter().map(|p| [p[0], p[2], -p[1]]).collect()
@@ -435,6 +494,31 @@ impl GlbWriter<'_> {
 mod tests {
     use super::*;
     use glam::DMat4;
+
+    #[test]
+    fn draco_flattens_the_triangles_its_grid_puts_on_a_line() {
+        // 1 m extent, 1 mm: 9 bits, a step of 1/511 m (1.96 mm). An apex 0.4 mm above the base
+        // rounds onto it; 1.5 mm above, onto the next grid line; 0.5 m above stays a triangle.
+        let step = crate::encode::draco::quantization_step(1.0, 9);
+        assert!(step / 2.0 <= 0.001 && step > 0.0015);
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.5, 0.0, 0.0004],
+            [0.5, 0.0, 0.0015],
+            [0.5, 0.0, 0.5],
+        ];
+        let indices = [0, 1, 2, 0, 1, 3, 0, 1, 4];
+        assert_eq!(
+            draco_flattens(&positions, &indices, 0.001),
+            vec![true, false, false]
+        );
+        // A finer grid keeps the thin one.
+        assert_eq!(
+            draco_flattens(&positions, &indices, 0.0001),
+            vec![false, false, false]
+        );
+    }
 
     fn whole(c: u32) -> Vec<ContentItem> {
         vec![ContentItem {

@@ -111,37 +111,14 @@ pub(super) fn draco_primitive(
     enc: &TileEncoding,
     uv_texels: u32,
 ) -> std::result::Result<(Value, Vec<DVec3>), EncodeError> {
-    use crate::encode::draco::{
-        encode_mesh, position_bits_for, quantization_step, EncodeAttribute, EncodeOptions,
-    };
+    use crate::encode::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
     let positions_y_up = y_up(&m.positions);
     let mut normals_y_up = y_up(&m.normals);
     let positions = positions_y_up.as_flattened();
-    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    for p in &positions_y_up {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    let extent = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    let extent = super::draco_box(&positions_y_up).1;
     let position_bits = position_bits_for(extent, enc.max_position_error_m);
     if enc.normals_from_drawn_faces && !normals_y_up.is_empty() {
-        // Draco's grid: one step for all axes from the box's low corner, values rounded.
-        let step = quantization_step(extent, position_bits);
-        let drawn: Vec<[f32; 3]> = if step > 0.0 {
-            positions_y_up
-                .iter()
-                .map(|p| {
-                    std::array::from_fn(|k| {
-                        let q = ((p[k] - lo[k]) as f64 / step).round();
-                        (lo[k] as f64 + q * step) as f32
-                    })
-                })
-                .collect()
-        } else {
-            positions_y_up.clone()
-        };
+        let drawn = super::draco_grid_positions(&positions_y_up, enc.max_position_error_m);
         crate::geometry::normals_from_faces(&drawn, &m.indices, &mut normals_y_up);
     }
     let mut attrs = vec![EncodeAttribute::position(positions, position_bits)];
