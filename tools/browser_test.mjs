@@ -15,6 +15,8 @@
 //   --timeout S          seconds to wait for all tiles (default 120)
 //   --width W --height H viewport (default 1280x720)
 //   --require-pick       fail if clicking the centre of the view picks nothing
+//   --min-drawn-pct P    the share of pixels the tileset must change (default 1; a wide, sparse
+//                        scene framed whole covers less)
 //   --json FILE          also write the summary there
 //
 // Checks: the page reaches "all tiles loaded" (browser.md's condition), no tile failed, no console
@@ -44,7 +46,7 @@ export const CHROME_ARGS = [
 ];
 
 function parseArgs(argv) {
-  const o = { query: "msaa=1", timeout: 120, width: 1280, height: 720 };
+  const o = { query: "msaa=1", timeout: 120, width: 1280, height: 720, "min-drawn-pct": 1 };
   const flags = new Set(["second-load", "require-pick"]);
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
@@ -56,7 +58,7 @@ function parseArgs(argv) {
       o[k] = argv[++i];
     }
   }
-  for (const k of ["timeout", "width", "height"]) o[k] = Number(o[k]);
+  for (const k of ["timeout", "width", "height", "min-drawn-pct"]) o[k] = Number(o[k]);
   return o;
 }
 
@@ -409,7 +411,8 @@ async function main() {
     if (summary.load.ready) {
       const share = await notBlank(page);
       summary.changedPixelsPct = +(share * 100).toFixed(2);
-      if (share <= 0.01) failures.push(`view looks blank: only ${summary.changedPixelsPct}% of pixels show the tileset`);
+      if (share * 100 <= opts["min-drawn-pct"])
+        failures.push(`view looks blank: only ${summary.changedPixelsPct}% of pixels show the tileset`);
       if (opts.out) {
         await page.screenshot({ path: opts.out });
         summary.screenshot = opts.out;
