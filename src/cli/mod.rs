@@ -201,7 +201,8 @@ struct ConvertArgs {
     /// Crop the area of standalone and shared textures that no UV reaches (UVs remapped).
     #[arg(long, value_enum, default_value = "on")]
     texture_crop: OnOff,
-    /// Encoding of coarser texture levels: auto (PNG stays PNG, JPEG stays JPEG), png or jpeg.
+    /// Encoding of coarser texture levels: auto (PNG stays PNG, JPEG stays JPEG), png or jpeg;
+    /// ktx2: every level, the finest included, as KTX2 / Basis Universal (KHR_texture_basisu).
     #[arg(long, value_enum, default_value = "auto")]
     texture_format: TextureFormatArg,
     /// JPEG quality (1-100) of re-encoded JPEG texture levels.
@@ -275,6 +276,7 @@ enum TextureFormatArg {
     Auto,
     Png,
     Jpeg,
+    Ktx2,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -613,6 +615,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
                 TextureFormatArg::Auto => TextureFormat::Auto,
                 TextureFormatArg::Png => TextureFormat::Png,
                 TextureFormatArg::Jpeg => TextureFormat::Jpeg,
+                TextureFormatArg::Ktx2 => TextureFormat::Ktx2,
             },
             jpeg_quality: a.jpeg_quality,
             atlas: a.texture_atlas == OnOff::On,
