@@ -1,8 +1,10 @@
-//! Readers: turn input files into a [`Scene`](crate::scene::Scene). One file per format; each
+//! Readers: turn input files (glTF/GLB, IFC, CityJSON) into a [`Scene`](crate::scene::Scene). One file per format; each
 //! checks its input completely and reports problems as [`Error::Input`](crate::error::Error)
 //! naming the file.
 
+pub mod cityjson;
 pub mod gltf;
+mod gltf_compressed;
 mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
@@ -27,6 +29,9 @@ pub fn read_input(path: &Path) -> Result<Scene> {
         .unwrap_or_default();
     if ext == "ifc" || looks_like_step(path) {
         return read_ifc(path);
+    }
+    if cityjson::is_cityjson(path) {
+        return cityjson::read_cityjson(path);
     }
     gltf::read_gltf(path)
 }
