@@ -72,7 +72,7 @@ test: deps
 # The server logs every connection and request (BIMTILES_SERVE_LOG=1); a failing run prints that
 # log and the requests still open. (Tile requests that stayed pending for 120 s, seen once on
 # 2026-11-25, were tiny_http leaving a new connection unread: fixed in src/serve/, no retry.)
-BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
+BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus cityjson-3dbag-5907-subset
 test-browser: deps build
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || continue; \
 	  echo "browser test: $$s"; pick=""; [ $$s = sample ] && pick=--require-pick; \

@@ -40,7 +40,13 @@ pub use error::{Error, Result};
 /// `src/cli/` (the binary) sits on top and may use anything.
 pub const LAYERS: &[&[&str]] = &[
     &["error", "memory"],
-    &["geometry", "geodesy", "glb_container", "output_dir", "draco"],
+    &[
+        "geometry",
+        "geodesy",
+        "glb_container",
+        "output_dir",
+        "draco",
+    ],
     &["scene"],
     &["ingest"],
     &["dedup"],

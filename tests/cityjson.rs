@@ -72,11 +72,23 @@ fn expected(path: &Path) -> (usize, f64) {
     let (header, docs) = documents(path);
     let scale = header["transform"]["scale"]
         .as_array()
-        .map(|a| DVec3::new(a[0].as_f64().unwrap(), a[1].as_f64().unwrap(), a[2].as_f64().unwrap()))
+        .map(|a| {
+            DVec3::new(
+                a[0].as_f64().unwrap(),
+                a[1].as_f64().unwrap(),
+                a[2].as_f64().unwrap(),
+            )
+        })
         .unwrap_or(DVec3::ONE);
     let translate = header["transform"]["translate"]
         .as_array()
-        .map(|a| DVec3::new(a[0].as_f64().unwrap(), a[1].as_f64().unwrap(), a[2].as_f64().unwrap()))
+        .map(|a| {
+            DVec3::new(
+                a[0].as_f64().unwrap(),
+                a[1].as_f64().unwrap(),
+                a[2].as_f64().unwrap(),
+            )
+        })
         .unwrap_or(DVec3::ZERO);
     let (mut count, mut area) = (0, 0.0);
     for doc in docs {
@@ -85,8 +97,11 @@ fn expected(path: &Path) -> (usize, f64) {
             .unwrap()
             .iter()
             .map(|v| {
-                DVec3::new(v[0].as_f64().unwrap(), v[1].as_f64().unwrap(), v[2].as_f64().unwrap())
-                    * scale
+                DVec3::new(
+                    v[0].as_f64().unwrap(),
+                    v[1].as_f64().unwrap(),
+                    v[2].as_f64().unwrap(),
+                ) * scale
                     + translate
             })
             .collect();
@@ -96,11 +111,20 @@ fn expected(path: &Path) -> (usize, f64) {
                 .into_iter()
                 .flatten()
                 .filter(|g| {
-                    ["MultiSurface", "CompositeSurface", "Solid", "MultiSolid", "CompositeSolid"]
-                        .contains(&g["type"].as_str().unwrap_or(""))
+                    [
+                        "MultiSurface",
+                        "CompositeSurface",
+                        "Solid",
+                        "MultiSolid",
+                        "CompositeSolid",
+                    ]
+                    .contains(&g["type"].as_str().unwrap_or(""))
                 })
                 .collect();
-            let best = surface_geometries.iter().map(|g| lod(g)).fold(f64::NEG_INFINITY, f64::max);
+            let best = surface_geometries
+                .iter()
+                .map(|g| lod(g))
+                .fold(f64::NEG_INFINITY, f64::max);
             let mut object_area = 0.0;
             for g in surface_geometries.iter().filter(|g| lod(g) == best) {
                 let depth = match g["type"].as_str().unwrap() {
@@ -127,8 +151,10 @@ fn expected(path: &Path) -> (usize, f64) {
                         .collect();
                     // Relative to the first point, for precision on projected coordinates.
                     let o = rings[0][0];
-                    let rel: Vec<Vec<DVec3>> =
-                        rings.iter().map(|r| r.iter().map(|p| *p - o).collect()).collect();
+                    let rel: Vec<Vec<DVec3>> = rings
+                        .iter()
+                        .map(|r| r.iter().map(|p| *p - o).collect())
+                        .collect();
                     object_area += polygon_area(&rel);
                 }
             }
@@ -164,14 +190,18 @@ fn every_cityjson_dataset_converts_with_its_objects_and_areas() {
             "{name}: {objects} elements, {tris} triangles, area {area:.1} m² vs polygons {polygon_area_m2:.1} m² ({:.4} %)",
             rel_diff * 100.0
         );
-        assert!(rel_diff < 2e-3, "{name}: triangles cover the polygons ({rel_diff})");
+        assert!(
+            rel_diff < 2e-3,
+            "{name}: triangles cover the polygons ({rel_diff})"
+        );
         gltf_validator(&out);
     }
 }
 
 #[test]
 fn semantic_surfaces_are_materials_named_by_their_type() {
-    let Some(path) = dataset("fzk-haus-lod2-textured/01-FZK-Haus-LoD2-Tex-no-Storey-CG30-V01_formatted.json")
+    let Some(path) =
+        dataset("fzk-haus-lod2-textured/01-FZK-Haus-LoD2-Tex-no-Storey-CG30-V01_formatted.json")
     else {
         return;
     };
@@ -199,7 +229,12 @@ fn a_broken_cityjson_gives_one_line_naming_the_file() {
         r#"{"type":"CityJSON","version":"2.0","vertices":[[0,0,0]],"CityObjects":{"x":{"type":"Building","geometry":[{"type":"MultiSurface","lod":"1","boundaries":[[[0,1,9]]]}]}}}"#,
     )
     .unwrap();
-    let o = run(&["convert", bad.to_str().unwrap(), "--out", dir.join("out").to_str().unwrap()]);
+    let o = run(&[
+        "convert",
+        bad.to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

@@ -22,14 +22,20 @@ fn npm_tool(name: &str) -> Option<PathBuf> {
     if path.exists() {
         return Some(path);
     }
-    assert!(!tools_required(), "{name} is not installed (run `make test`)");
+    assert!(
+        !tools_required(),
+        "{name} is not installed (run `make test`)"
+    );
     eprintln!("SKIPPED: {name} missing (run `make test`)");
     None
 }
 
 /// Runs a compressor; panics with its output when it fails.
 fn compress(tool: &Path, args: &[&str]) {
-    let o = Command::new(tool).args(args).output().expect("run compressor");
+    let o = Command::new(tool)
+        .args(args)
+        .output()
+        .expect("run compressor");
     assert!(
         o.status.success(),
         "{} {args:?}: {}{}",
@@ -89,11 +95,12 @@ fn elements_of(dir: &Path) -> Elements {
                 let ext = &doc["meshes"][mesh.index()]["primitives"][p.index()]["extensions"]
                     ["EXT_mesh_features"]["featureIds"][0];
                 let table = ext["propertyTable"].as_u64().unwrap() as usize;
-                let features: Vec<usize> = match (placement.instance_feature, ext.get("attribute")) {
+                let features: Vec<usize> = match (placement.instance_feature, ext.get("attribute"))
+                {
                     (Some(f), _) => vec![f as usize; pos.len()],
                     (None, Some(_)) => {
-                        let acc = doc["meshes"][mesh.index()]["primitives"][p.index()]
-                            ["attributes"]["_FEATURE_ID_0"]
+                        let acc = doc["meshes"][mesh.index()]["primitives"][p.index()]["attributes"]
+                            ["_FEATURE_ID_0"]
                             .as_u64()
                             .unwrap() as usize;
                         read_accessor(&doc, &blob, acc)
@@ -113,7 +120,8 @@ fn elements_of(dir: &Path) -> Elements {
                     e.0 += 1;
                     for &i in t {
                         let v = pos[i as usize];
-                        let w = m.transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+                        let w =
+                            m.transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
                         e.1 = e.1.min(w);
                         e.2 = e.2.max(w);
                     }
@@ -129,7 +137,14 @@ fn convert_plain(input: &Path, name: &str) -> (Value, PathBuf) {
     let report = convert(
         input,
         &out,
-        &["--lod", "none", "--compression", "none", "--no-dedup", "--no-instancing"],
+        &[
+            "--lod",
+            "none",
+            "--compression",
+            "none",
+            "--no-dedup",
+            "--no-instancing",
+        ],
     );
     (report, out)
 }
@@ -165,7 +180,10 @@ fn compare(original: &Path, compressed: &Path, label: &str, tolerance_m: f64) {
         assert_eq!(tris, g_tris, "{label}: {id} triangles");
         let d = (*lo - *g_lo).abs().max((*hi - *g_hi).abs()).max_element();
         worst = worst.max(d);
-        assert!(d <= tolerance_m, "{label}: {id} box moved by {d} m (> {tolerance_m})");
+        assert!(
+            d <= tolerance_m,
+            "{label}: {id} box moved by {d} m (> {tolerance_m})"
+        );
     }
     eprintln!(
         "{label}: {} elements, {} triangles, worst box corner {:.2} mm",
@@ -197,7 +215,13 @@ fn draco_compressed_shared_models_give_the_same_elements() {
         // gltf-pipeline's defaults: 11-bit positions over each mesh's extent.
         compress(
             &tool,
-            &["-i", model.to_str().unwrap(), "-o", out.to_str().unwrap(), "-d"],
+            &[
+                "-i",
+                model.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "-d",
+            ],
         );
         let extent = extent_m(&model, &format!("draco-{name}"));
         compare(&model, &out, &format!("draco-{name}"), extent / 2047.0);

@@ -140,7 +140,8 @@ impl<'a> Reader<'a> {
                     a.get(2)?.as_f64()?,
                 ))
             };
-            self.scale = vec3("scale").ok_or_else(|| self.err("transform.scale is not 3 numbers"))?;
+            self.scale =
+                vec3("scale").ok_or_else(|| self.err("transform.scale is not 3 numbers"))?;
             self.translate = vec3("translate")
                 .ok_or_else(|| self.err("transform.translate is not 3 numbers"))?;
         }
@@ -157,7 +158,8 @@ impl<'a> Reader<'a> {
         for (i, v) in vertices.iter().enumerate() {
             let c = v.as_array().filter(|a| a.len() >= 3);
             let xyz = c.and_then(|a| Some([a[0].as_f64()?, a[1].as_f64()?, a[2].as_f64()?]));
-            let xyz = xyz.ok_or_else(|| self.err(format!("{what}: vertex {i} is not 3 numbers")))?;
+            let xyz =
+                xyz.ok_or_else(|| self.err(format!("{what}: vertex {i} is not 3 numbers")))?;
             points.push(DVec3::from_array(xyz) * self.scale + self.translate);
         }
         let objects = doc
@@ -188,7 +190,9 @@ impl<'a> Reader<'a> {
         let surfaces_of = |g: &Value| {
             matches!(
                 g.get("type").and_then(Value::as_str),
-                Some("MultiSurface" | "CompositeSurface" | "Solid" | "MultiSolid" | "CompositeSolid")
+                Some(
+                    "MultiSurface" | "CompositeSurface" | "Solid" | "MultiSolid" | "CompositeSolid"
+                )
             )
         };
         // Surface geometries only (points and lines draw nothing).
@@ -378,7 +382,10 @@ impl<'a> Reader<'a> {
                     .as_u64()
                     .and_then(|i| points.get(i as usize))
                     .ok_or_else(|| {
-                        self.err(format!("{what}: vertex index {i} is out of range ({} vertices)", points.len()))
+                        self.err(format!(
+                            "{what}: vertex index {i} is out of range ({} vertices)",
+                            points.len()
+                        ))
                     })?;
                 ring_points.push(*p);
             }
@@ -391,7 +398,10 @@ impl<'a> Reader<'a> {
         let centre = ring_points[..outer].iter().sum::<DVec3>() / outer as f64;
         let mut normal = DVec3::ZERO;
         for k in 0..outer {
-            let (a, b) = (ring_points[k] - centre, ring_points[(k + 1) % outer] - centre);
+            let (a, b) = (
+                ring_points[k] - centre,
+                ring_points[(k + 1) % outer] - centre,
+            );
             normal += DVec3::new(
                 (a.y - b.y) * (a.z + b.z),
                 (a.z - b.z) * (a.x + b.x),
@@ -470,7 +480,10 @@ mod tests {
         assert_eq!(scene.components.len(), 1, "b1 has no geometry");
         let info = scene.element(ComponentId(0));
         assert_eq!(info.key, "b1-0");
-        assert_eq!(scene.node_path(scene.components[0].node.unwrap()), "b1/b1-0");
+        assert_eq!(
+            scene.node_path(scene.components[0].node.unwrap()),
+            "b1/b1-0"
+        );
         let mesh = scene.mesh(scene.components[0].mesh);
         assert_eq!(mesh.primitives.len(), 1);
         assert_eq!(scene.materials[0].name.as_deref(), Some("RoofSurface"));
@@ -483,7 +496,10 @@ mod tests {
                 (v(t[1]) - v(t[0])).cross(v(t[2]) - v(t[0])).length() / 2.0
             })
             .sum();
-        assert!((area - 96.0).abs() < 1e-6, "100 m² minus a 4 m² hole: {area}");
+        assert!(
+            (area - 96.0).abs() < 1e-6,
+            "100 m² minus a 4 m² hole: {area}"
+        );
         let b = scene.components[0].world_bounds;
         assert!((b.min - DVec3::new(100000.0, 400000.0, 0.0)).length() < 1e-9);
     }
@@ -492,7 +508,9 @@ mod tests {
     fn bad_input_is_an_error_naming_the_problem() {
         let path = Path::new("bad.city.json");
         let mut r = Reader::new(path);
-        let e = r.header(&serde_json::json!({"type": "FeatureCollection"})).unwrap_err();
+        let e = r
+            .header(&serde_json::json!({"type": "FeatureCollection"}))
+            .unwrap_err();
         assert!(e.to_string().contains("not a CityJSON"), "{e}");
         let doc = serde_json::json!({"type": "CityJSON", "vertices": [[0,0,0]],
             "CityObjects": {"x": {"type": "Building", "geometry": [

@@ -974,8 +974,7 @@ impl Reader<'_> {
             })?;
             Ok(Some((decoded, normalized)))
         };
-        let short =
-            |name: &str| self.err(format!("{what}: Draco {name} has too few components"));
+        let short = |name: &str| self.err(format!("{what}: Draco {name} has too few components"));
         let (p, norm) = attribute(draco.positions, prim.positions, "POSITION")?
             .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
         let positions = draco_vectors::<3>(p, norm).ok_or_else(|| short("POSITION"))?;

@@ -225,7 +225,13 @@ impl UvTransform {
 mod tests {
     use super::*;
 
-    fn view(mode: &str, stride: usize, count: usize, len: usize, filter: Option<&str>) -> MeshoptView {
+    fn view(
+        mode: &str,
+        stride: usize,
+        count: usize,
+        len: usize,
+        filter: Option<&str>,
+    ) -> MeshoptView {
         MeshoptView {
             buffer: 0,
             byte_offset: 0,
@@ -242,7 +248,8 @@ mod tests {
         let vertices: Vec<[u16; 6]> = (0..50u16).map(|i| [i, i * 2, i * 3, 7, i, 0]).collect();
         let encoded = meshopt::encoding::encode_vertex_buffer(&vertices).unwrap();
         let decoded =
-            decode_meshopt_view(&view("ATTRIBUTES", 12, 50, encoded.len(), None), &encoded).unwrap();
+            decode_meshopt_view(&view("ATTRIBUTES", 12, 50, encoded.len(), None), &encoded)
+                .unwrap();
         assert_eq!(decoded, bytemuck::cast_slice::<_, u8>(&vertices));
 
         let indices: Vec<u32> = vec![0, 1, 2, 2, 1, 3, 3, 1, 4];
@@ -274,10 +281,14 @@ mod tests {
         .unwrap();
         assert_eq!(t.apply([1.0, 1.0]), [2.5, 4.25]);
         // Rotation by 90 degrees: (1, 0) -> (0, -1) in the extension's convention.
-        let r = UvTransform::from_json(&serde_json::json!({"rotation": std::f64::consts::FRAC_PI_2}))
-            .unwrap();
+        let r =
+            UvTransform::from_json(&serde_json::json!({"rotation": std::f64::consts::FRAC_PI_2}))
+                .unwrap();
         let p = r.apply([1.0, 0.0]);
-        assert!((p[0] - 0.0).abs() < 1e-6 && (p[1] + 1.0).abs() < 1e-6, "{p:?}");
+        assert!(
+            (p[0] - 0.0).abs() < 1e-6 && (p[1] + 1.0).abs() < 1e-6,
+            "{p:?}"
+        );
         assert_eq!(UvTransform::from_json(&serde_json::json!({})), None);
     }
 }
