@@ -114,7 +114,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
     let dedup = opts.dedup.as_ref().map(|d| deduplicate(scene, d));
     let t_dedup = t_dedup_start.elapsed().as_secs_f64();
 
-    let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes as u64));
+    let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes));
     let textures_prepared = crate::texture::prepare(scene, &opts.texture, &limits)
         .map_err(|(file, refused)| Error::input_from(file, "", refused))?;
     let merge_materials = opts

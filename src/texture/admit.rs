@@ -2,7 +2,8 @@
 //! the header alone, then a decoding test row by row (the README's "Safety" section).
 //!
 //! - An image larger than [`MAX_IMAGE_SIDE_PX`] a side (the largest texture GPUs take), or whose
-//!   decoded pixels would need more than a quarter of `--memory-budget`, is refused: the run
+//!   decoded pixels would need more than a quarter of `--memory-budget` (and at least 64 MiB), is
+//!   refused: the run
 //!   fails with one line naming the file and the image. A 78-byte PNG may claim 65535 x 65535.
 //! - An image that cannot be decoded is dropped with a warning naming it: its materials draw their
 //!   base colour, and no undecodable bytes are written as a texture that viewers would reject.
@@ -21,6 +22,10 @@ pub const MAX_IMAGE_SIDE_PX: u32 = 16_384;
 /// may each hold one image's pyramid, beside the geometry.
 const BUDGET_SHARE_PER_IMAGE: u64 = 4;
 
+/// What an image may need decoded under any budget (a 4096 x 4096 RGBA texture): a budget set
+/// small to make the geometry spill to disk should not refuse ordinary textures.
+pub const MIN_DECODED_BYTES_PER_IMAGE: u64 = 64 << 20;
+
 /// What images are allowed to cost.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ImageLimits {
@@ -34,7 +39,8 @@ impl ImageLimits {
     pub fn under_budget(budget_bytes: Option<u64>) -> ImageLimits {
         ImageLimits {
             max_side_px: MAX_IMAGE_SIDE_PX,
-            max_decoded_bytes: budget_bytes.map(|b| b / BUDGET_SHARE_PER_IMAGE),
+            max_decoded_bytes: budget_bytes
+                .map(|b| (b / BUDGET_SHARE_PER_IMAGE).max(MIN_DECODED_BYTES_PER_IMAGE)),
         }
     }
 }
@@ -77,7 +83,7 @@ pub enum ImageRefused {
         max_px: u32,
     },
     #[error(
-        "image {image}{name}: {width_px}x{height_px} px needs {decoded_bytes} bytes decoded, more than a quarter of --memory-budget allows ({max_bytes})",
+        "image {image}{name}: {width_px}x{height_px} px needs {decoded_bytes} bytes decoded, more than --memory-budget allows for one image ({max_bytes} bytes: a quarter of it, at least 64 MiB)",
         name = quoted(name)
     )]
     OverBudget {
@@ -254,17 +260,21 @@ mod tests {
 
     #[test]
     fn decoded_size_is_held_to_the_budget() {
-        let mut s = scene_with(vec![png_header_only(4000, 3000)]);
-        let limits = ImageLimits::under_budget(Some(4 * 40_000_000));
+        let mut s = scene_with(vec![png_header_only(8000, 6000)]);
+        let limits = ImageLimits::under_budget(Some(4 * 100_000_000));
         let (_, refused) = admit_images(&mut s, &limits).unwrap_err();
         assert!(matches!(
             refused,
             ImageRefused::OverBudget {
-                decoded_bytes: 48_000_000,
-                max_bytes: 40_000_000,
+                decoded_bytes: 192_000_000,
+                max_bytes: 100_000_000,
                 ..
             }
         ));
+        // A budget set tiny to spill geometry still admits a 4096 x 4096 texture.
+        let mut s = scene_with(vec![png_header_only(4096, 4096)]);
+        let limits = ImageLimits::under_budget(Some(64 << 10));
+        assert!(admit_images(&mut s, &limits).is_ok());
     }
 
     #[test]
