@@ -13,9 +13,20 @@ import json
 import math
 import pathlib
 
+import json.encoder
+
 import pytest
 
+# cjio replaces the json module's float encoding for the whole process when imported (it sets
+# json.encoder.c_make_encoder and json.encoder.float): put them back, so the other tests' JSON
+# keeps full precision.
+_SAVED_ENCODER = {k: json.encoder.__dict__[k] for k in ("c_make_encoder", "float") if k in json.encoder.__dict__}
 cityjson = pytest.importorskip("cjio.cityjson")
+for _k in ("c_make_encoder", "float"):
+    if _k in _SAVED_ENCODER:
+        setattr(json.encoder, _k, _SAVED_ENCODER[_k])
+    else:
+        json.encoder.__dict__.pop(_k, None)
 
 from test_metadata_reader import decode_table, read_glb, tileset_dirs  # noqa: E402
 
