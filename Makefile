@@ -11,7 +11,7 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
-APT_PKGS := pkg-config g++ libdraco-dev nodejs npm python3 python3-venv chromium fonts-dejavu-core
+APT_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data nodejs npm python3 python3-venv chromium fonts-dejavu-core
 
 .PHONY: run test lint test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
 

@@ -3,6 +3,8 @@
 //! Native parts are built here, one function each, so more can be added:
 //! - `draco()`: our C++ shim over Debian's libdraco (no C API ships with it),
 //!   found with pkg-config and linked dynamically.
+//! - `proj()`: Debian's PROJ (libproj-dev, >= 9.1), found with pkg-config and linked dynamically;
+//!   `src/geodesy/proj.rs` declares the few C functions used.
 
 use std::env;
 use std::path::PathBuf;
@@ -11,6 +13,22 @@ fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     draco(&manifest_dir);
+    proj();
+}
+
+/// Links the system PROJ library (coordinate reference systems and their transformations).
+fn proj() {
+    match pkg_config::Config::new()
+        .atleast_version("9.1")
+        .probe("proj")
+    {
+        Ok(_) => {}
+        Err(e) => fail(&format!(
+            "bimtiles needs the PROJ library (libproj-dev >= 9.1), found with pkg-config.\n\
+             On Debian/Ubuntu run:\n\n    apt-get install -y libproj-dev proj-data pkg-config\n\n\
+             (`make` installs it too.) pkg-config said: {e}"
+        )),
+    }
 }
 
 /// Compiles `shim/draco_shim.cc` and links `libdraco` (dynamic).

@@ -10,7 +10,7 @@ use crate::build::TileWriter;
 use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
-use crate::output_dir::{check_output, StagingDir};
+use crate::output_dir::StagingDir;
 use crate::prepare::{prepare, read_scene};
 use crate::scene::Scene;
 use crate::simplify::model::{simplify_scene, SimplifiedModel};
@@ -30,10 +30,12 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
 /// Reads an input set (sample, model files or a campus manifest) and converts it.
 pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
-    check_output(&opts.out_dir, opts.force)?;
-    let mut scene = read_scene(inputs)?;
+    // The output is locked and checked before the input is read: a second run to the same
+    // output, or a folder that may not be replaced, fails at once.
+    let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
+    let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
-    convert_scene(&mut scene, opts, t0, t_ingest)
+    build_into(staging, &mut scene, opts, t0, t_ingest)
 }
 
 /// Converts an already-read scene (used by `convert` and by tests that build scenes in memory).
@@ -45,11 +47,20 @@ pub fn convert_scene(
     t0: Instant,
     t_ingest: f64,
 ) -> Result<Report> {
-    check_output(&opts.out_dir, opts.force)?;
+    let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
+    build_into(staging, scene, opts, t0, t_ingest)
+}
+
+/// Prepares `scene` and builds its tileset in `staging`, which is then put in place.
+fn build_into(
+    staging: StagingDir,
+    scene: &mut Scene,
+    opts: &ConvertOptions,
+    t0: Instant,
+    t_ingest: f64,
+) -> Result<Report> {
     let prep = prepare(scene, opts)?;
     let plan = &prep.plan;
-
-    let staging = StagingDir::beside(&opts.out_dir)?;
     let tmp = staging.path().to_path_buf();
     let uses = &prep.textures_prepared.uses;
     let texture_levels =
@@ -64,8 +75,10 @@ pub fn convert_scene(
         let records = writer.merge(vec![job], &[0], prep.origin, prep.anchor)?;
         Ok((records, t_encode, t.elapsed().as_secs_f64()))
     })();
-    // On an error the staging folder is removed when `staging` is dropped.
-    let (records, t_encode, t_tileset) = result?;
+    // On an error the staging folder is removed when `staging` is dropped; the error names the
+    // output, not the temporary folder.
+    let (records, t_encode, t_tileset) =
+        result.map_err(|e: Error| e.relocated(&tmp, &opts.out_dir))?;
     let timings = Timings {
         ingest: t_ingest,
         dedup: prep.t_dedup,

@@ -48,6 +48,21 @@ fn located(path: &Path, message: &str) -> String {
 }
 
 impl Error {
+    /// The same error, its path moved from under `from` to under `to` (a build's temporary folder
+    /// to the output the user named).
+    pub fn relocated(mut self, from: &Path, to: &Path) -> Self {
+        let path = match &mut self {
+            Error::Input { path, .. }
+            | Error::Output { path, .. }
+            | Error::Simplify { path, .. }
+            | Error::Encode { path, .. } => path,
+            Error::Options(_) => return self,
+        };
+        if let Ok(rest) = path.strip_prefix(from) {
+            *path = to.join(rest);
+        }
+        self
+    }
     /// Bad input described by a message alone.
     pub fn input(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Error::Input {

@@ -30,6 +30,16 @@ pub struct TilesetSummary {
     /// From `report.json`, when bimtiles wrote one with levels of detail.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lod_levels: Vec<crate::report::LodLevelReport>,
+    /// Where the tileset was placed (`report.json`'s `georeference`), when bimtiles wrote one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub placement: Option<crate::report::GeoReport>,
+}
+
+/// The `georeference` of the `report.json` in `dir`, if it has a readable one.
+fn read_placement(dir: &Path) -> Option<crate::report::GeoReport> {
+    let text = std::fs::read(dir.join("report.json")).ok()?;
+    let r: Value = serde_json::from_slice(&text).ok()?;
+    serde_json::from_value(r.get("georeference")?.clone()).ok()
 }
 
 /// The `lod_levels` table of the `report.json` in `dir`, empty if there is none (other tools,
@@ -98,7 +108,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         l.geometric_error_min_m = l.geometric_error_min_m.min(ge);
         l.geometric_error_max_m = l.geometric_error_max_m.max(ge);
         if let Some(uri) = tile.pointer("/content/uri").and_then(Value::as_str) {
-            let p = dir.join(uri);
+            let p = inside_tileset(dir, dir, uri)?;
             l.tiles_with_content += 1;
             l.bytes += std::fs::metadata(&p)
                 .map_err(|e| Error::input_from(&p, "cannot read", e))?
@@ -126,6 +136,7 @@ pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
         bytes: levels.iter().map(|l| l.bytes).sum(),
         levels,
         lod_levels: read_lod_levels(dir)?,
+        placement: read_placement(dir),
     })
 }
 
@@ -167,6 +178,42 @@ impl std::fmt::Display for TilesetSummary {
                 l.geometric_error_min_m,
                 l.geometric_error_max_m
             )?;
+        }
+        if let Some(g) = &self.placement {
+            writeln!(
+                f,
+                "placed at {:.7}° E, {:.7}° N, {:.3} m (origin: {}); anchor {:.3}, {:.3}, {:.3}: {}",
+                g.origin.longitude_deg,
+                g.origin.latitude_deg,
+                g.origin.height_m,
+                g.origin_source,
+                g.anchor_m[0],
+                g.anchor_m[1],
+                g.anchor_m[2],
+                g.anchor_rule
+            )?;
+            for c in &g.crs {
+                writeln!(
+                    f,
+                    "  {}: {} ({}, from {}) E {:.3} N {:.3} -> {:.7}° E, {:.7}° N; convergence {:.5}°, scale factor {:.7}; PROJ: {} (accuracy {}); height {}",
+                    c.file,
+                    c.crs,
+                    c.crs_name,
+                    c.source,
+                    c.easting,
+                    c.northing,
+                    c.longitude_deg,
+                    c.latitude_deg,
+                    c.convergence_deg,
+                    c.scale_factor,
+                    c.operation,
+                    c.accuracy_m.map_or("unknown".into(), |a| format!("{a} m")),
+                    c.height_reference
+                )?;
+            }
+            for w in &g.warnings {
+                writeln!(f, "  warning: {w}")?;
+            }
         }
         if !self.lod_levels.is_empty() {
             writeln!(
@@ -295,6 +342,43 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
     }
 }
 
+/// The file a URI of the tileset at `dir` names, relative to `base` (a folder of the tileset),
+/// refused unless it stays inside the tileset's folder, by its text and through symlinks: a
+/// tileset from elsewhere must not make `inspect` read other files.
+fn inside_tileset(dir: &Path, base: &Path, uri: &str) -> Result<std::path::PathBuf> {
+    use std::path::Component;
+    let refuse = || {
+        Error::input(
+            dir.join("tileset.json"),
+            format!("URI '{uri}' leads outside the tileset's folder (refused)"),
+        )
+    };
+    let decoded = percent_encoding::percent_decode_str(uri)
+        .decode_utf8()
+        .map_err(|_| refuse())?;
+    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
+        return Err(refuse());
+    }
+    let mut path = base.to_path_buf();
+    for c in Path::new(decoded.as_ref()).components() {
+        match c {
+            Component::Normal(n) => path.push(n),
+            Component::CurDir => {}
+            Component::ParentDir if path != dir => {
+                path.pop();
+            }
+            _ => return Err(refuse()),
+        }
+    }
+    if !path.starts_with(dir) {
+        return Err(refuse());
+    }
+    if crate::ingest::leads_outside(&path, dir) {
+        return Err(refuse());
+    }
+    Ok(path)
+}
+
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
 pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let summary_tiles = {
@@ -318,7 +402,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let mut found: Option<FeatureSummary> = None;
     let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
     for uri in summary_tiles {
-        let path = dir.join(&uri);
+        let path = inside_tileset(dir, dir, &uri)?;
         let bytes = std::fs::read(&path).map_err(|e| Error::input_from(&path, "cannot read", e))?;
         let glb = gltf::binary::Glb::from_slice(&bytes)
             .map_err(|e| Error::input_from(&path, "not a GLB", e))?;
@@ -333,7 +417,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
         ) {
             (Some(s), _) => s.clone(),
             (None, Some(u)) => {
-                let p = path.parent().unwrap_or(dir).join(u);
+                let p = inside_tileset(dir, path.parent().unwrap_or(dir), u)?;
                 if !schemas.contains_key(&p) {
                     let t =
                         std::fs::read(&p).map_err(|e| Error::input_from(&p, "cannot read", e))?;

@@ -114,7 +114,8 @@ mod layering {
         out
     }
 
-    fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
+    /// Every `.rs` file under `dir` (also used by the function-length test).
+    pub(super) fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
         for e in std::fs::read_dir(dir).unwrap().flatten() {
             let p = e.path();
             if p.is_dir() {
@@ -196,7 +197,7 @@ mod layering {
 /// counts braces, so a brace in a string or comment does not end a function.
 #[cfg(test)]
 mod function_length {
-    use std::path::{Path, PathBuf};
+    use std::path::Path;
 
     pub const MAX_FUNCTION_LINES: usize = 150;
 
@@ -364,16 +365,7 @@ mod function_length {
         out
     }
 
-    fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
-        for e in std::fs::read_dir(dir).unwrap().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                sources(&p, out);
-            } else if p.extension().is_some_and(|x| x == "rs") {
-                out.push(p);
-            }
-        }
-    }
+    use super::layering::sources;
 
     #[test]
     fn no_function_is_longer_than_the_limit() {

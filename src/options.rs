@@ -16,6 +16,11 @@ pub struct ConvertOptions {
     pub force: bool,
     /// Where the model's anchor goes on Earth; `None` = [`GeoOrigin::DEFAULT`].
     pub origin: Option<GeoOrigin>,
+    /// The projected CRS of the inputs' map coordinates (`--crs EPSG:CODE`): glTF/GLB positions
+    /// and IFC map conversions that name no CRS.
+    pub crs: Option<String>,
+    /// A georeference that cannot be used is an error instead of a warning (`--strict-georef`).
+    pub strict_georef: bool,
     pub octree: OctreeOptions,
     /// Geometry compression of the tiles.
     pub compression: Compression,
@@ -57,6 +62,8 @@ impl ConvertOptions {
             out_dir: out_dir.into(),
             force: false,
             origin: None,
+            crs: None,
+            strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),
             lod: LodMode::default(),

@@ -24,6 +24,8 @@ pub struct InputReport {
     pub bytes: u64,
     /// Elements a reader could not use (e.g. IFC elements that failed to triangulate).
     pub skipped_elements: usize,
+    /// IFC products left out because their only geometry is a curve (alignments, footprints).
+    pub curve_only_elements: usize,
     pub triangles: usize,
     pub vertices: usize,
     pub components: usize,
@@ -35,9 +37,16 @@ pub struct InputReport {
     pub renamed_ids: usize,
 }
 
-/// Reads an input set into one scene; an input without triangles is an error.
-pub(crate) fn read_scene(inputs: &InputSet) -> Result<Scene> {
-    let scene = inputs.read()?;
+/// Reads an input set into one scene; an input without triangles is an error, and so is a
+/// georeference that could not be used under `--strict-georef`.
+pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
+    let scene = inputs.read_in_crs(opts.crs.as_deref())?;
+    if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
+        return Err(Error::input(
+            &w.file,
+            format!("{} (--strict-georef)", w.message),
+        ));
+    }
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -57,6 +66,11 @@ pub(crate) struct Prepared {
     pub anchor_rule: String,
     pub origin: GeoOrigin,
     pub origin_source: &'static str,
+    /// The projected CRSs that placed inputs, and georeferences that could not be used.
+    pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
+    pub georef_warnings: Vec<String>,
+    /// What the readers left out (one line each, naming the file).
+    pub reader_warnings: Vec<String>,
     pub dedup: Option<DedupReport>,
     pub textures_prepared: crate::texture::Prepared,
     /// White twin materials added to the scene for merging plain colours per tile.
@@ -79,6 +93,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
             .collect(),
         bytes: scene.sources.iter().map(|s| s.bytes).sum(),
         skipped_elements: scene.skipped_elements,
+        curve_only_elements: scene.curve_only_elements,
         triangles: scene.triangle_count(),
         vertices: scene.vertex_count(),
         components: scene.components.len(),
@@ -104,7 +119,11 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
                 latitude_deg: g.latitude_deg,
                 height_m: g.height_m,
             },
-            "input-site",
+            if g.map_linear.is_some() {
+                "input-crs"
+            } else {
+                "input-site"
+            },
         ),
         (None, None) => (GeoOrigin::DEFAULT, "default"),
     };
@@ -142,6 +161,19 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
         anchor_rule,
         origin,
         origin_source,
+        crs_used: scene.crs_used.clone(),
+        georef_warnings: scene
+            .georef_warnings
+            .iter()
+            .map(|w| {
+                format!(
+                    "{}: {}; the model is placed without it",
+                    w.file.display(),
+                    w.message
+                )
+            })
+            .collect(),
+        reader_warnings: std::mem::take(&mut scene.reader_warnings),
         dedup,
         textures_prepared,
         appearance,

@@ -68,11 +68,19 @@ pub struct LevelReport {
     pub geometric_error_max_m: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct GeoReport {
     pub origin: GeoOrigin,
-    /// "option" (from --origin), "input-site" (the input's georeference) or "default".
+    /// "option" (from --origin), "input-crs" (a projected CRS: an IFC map conversion, --crs),
+    /// "input-site" (an IFC site reference, a manifest's origin) or "default".
     pub origin_source: String,
+    /// Every projected CRS that placed an input: which, where it came from, the PROJ operation
+    /// and its accuracy, convergence and scale factor, and how heights were read.
+    #[serde(default)]
+    pub crs: Vec<crate::geodesy::crs::CrsUse>,
+    /// Georeferences that could not be used (the input was placed without them).
+    #[serde(default)]
+    pub warnings: Vec<String>,
     /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
     pub anchor_m: [f64; 3],
     pub anchor_rule: String,
@@ -223,6 +231,8 @@ pub(crate) fn make_report(
         georeference: GeoReport {
             origin: prep.origin,
             origin_source: prep.origin_source.into(),
+            crs: prep.crs_used,
+            warnings: prep.georef_warnings.clone(),
             anchor_m: prep.anchor.to_array(),
             anchor_rule: prep.anchor_rule,
         },
@@ -253,10 +263,16 @@ pub(crate) fn make_report(
         peak_memory_bytes: 0,
         memory: None,
         warnings: prep
-            .textures_prepared
-            .dropped_images
+            .reader_warnings
             .iter()
-            .map(|d| d.to_string())
+            .chain(&prep.georef_warnings)
+            .cloned()
+            .chain(
+                prep.textures_prepared
+                    .dropped_images
+                    .iter()
+                    .map(|d| d.to_string()),
+            )
             .collect(),
         textures: (prep.textures_prepared.images_bound > 0)
             .then(|| texture_levels.report(prep.textures_prepared)),

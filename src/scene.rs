@@ -407,6 +407,19 @@ pub struct SourceGeoreference {
     /// Angle of true north from the model's +y axis, counter-clockwise positive (IFC TrueNorth).
     pub true_north_deg: Option<f64>,
     pub anchor: DVec3,
+    /// Map coordinates (an IfcMapConversion, or `--crs`): model metres around the anchor → local
+    /// east-north-up metres (the map's rotation and scales, the grid's convergence and scale
+    /// factor); replaces the true-north turn.
+    pub map_linear: Option<glam::DMat3>,
+}
+
+/// A georeference an input asked for but that could not be used (unknown CRS, a unit that is not
+/// a length, a point far outside the CRS's area of use): the input falls back to the default
+/// placement, with this warning; `--strict-georef` makes it an error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GeorefWarning {
+    pub file: std::path::PathBuf,
+    pub message: String,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -414,8 +427,17 @@ pub struct Scene {
     pub sources: Vec<SourceFile>,
     /// The first georeference an input carried, if any.
     pub georeference: Option<SourceGeoreference>,
+    /// The projected CRSs that placed inputs (report.json `georeference.crs`).
+    pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
+    /// Georeferences that could not be used.
+    pub georef_warnings: Vec<GeorefWarning>,
+    /// What the readers left out or could not use (an IFC element skipped...), one line each
+    /// naming the file: the report's `warnings`, printed by the CLI unless `--quiet`.
+    pub reader_warnings: Vec<String>,
     /// Elements a reader skipped (broken geometry), counted for the report.
     pub skipped_elements: usize,
+    /// Products left out because their only geometry is a curve (IFC alignments, footprints).
+    pub curve_only_elements: usize,
     pub nodes: Vec<Node>,
     pub components: Vec<Component>,
     /// `elements.get(i)` describes `components[i]` (same length; see [`Scene::push_component`]).
@@ -533,8 +555,12 @@ impl Scene {
             }));
         self.skipped_primitives += other.skipped_primitives;
         self.skipped_elements += other.skipped_elements;
+        self.curve_only_elements += other.curve_only_elements;
         self.renamed_ids += other.renamed_ids;
         self.georeference = self.georeference.or(other.georeference);
+        self.crs_used.extend(other.crs_used);
+        self.georef_warnings.extend(other.georef_warnings);
+        self.reader_warnings.extend(other.reader_warnings);
     }
 
     /// Pre-multiplies every component's world transform (e.g. to move the anchor to the origin).

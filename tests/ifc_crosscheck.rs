@@ -19,7 +19,8 @@
 
 mod common;
 use bimtiles::ingest::ifc::{
-    read_ifc_bytes, read_ifc_georef, read_ifc_with_report, IfcGeoref, IfcReadReport,
+    read_ifc_bytes, read_ifc_bytes_with_crs, read_ifc_georef, read_ifc_with_report, IfcGeoref,
+    IfcReadReport,
 };
 use bimtiles::scene::{AlphaMode, PropertyValue, Scene};
 use serde_json::{json, Value};
@@ -460,7 +461,9 @@ fn read_georef_of(text: &str, tag: &str) -> (Option<IfcGeoref>, IfcReadReport) {
     (g, report)
 }
 
-/// IfcOpenHouse with a site reference and an IfcMapConversion written into it.
+/// IfcOpenHouse with a site reference and an IfcMapConversion written into it: the map
+/// conversion (LoGeoRef 50, a CRS PROJ knows) wins over the site's approximate RefLatitude/Longitude;
+/// with a CRS PROJ does not know, the site reference is used and the report warns.
 #[test]
 fn georef_from_site_and_map_conversion() {
     let Some(text) = open_house_text() else {
@@ -472,29 +475,42 @@ fn georef_from_site_and_map_conversion() {
         eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
         return;
     }
-    let t = with_map_conversion(
-        &text.replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);"),
-        "EPSG:25832",
-        "0.8660254",
+    let with_site = text.replace(site, "#24=IFCSITE('3bqf5ZY_nDpfb1hfmOkxFk',#5,$,$,$,#23,#2325,$,.ELEMENT.,(49,1,2,500000),(8,26,11,0),110000.,$,$);");
+    let (g, report) = read_georef_of(
+        &with_map_conversion(&with_site, "EPSG:25832", "0.8660254"),
+        "georef",
     );
-    let (g, report) = read_georef_of(&t, "georef");
     let g = g.expect("georef");
     println!("{g:?}");
-    assert!((g.latitude_deg - (49.0 + 1.0 / 60.0 + 2.5 / 3600.0)).abs() < 1e-9);
-    assert!((g.longitude_deg - (8.0 + 26.0 / 60.0 + 11.0 / 3600.0)).abs() < 1e-9);
-    assert!((g.height_m - 110.0).abs() < 1e-9);
+    assert!(
+        (49.05..49.12).contains(&g.latitude_deg),
+        "the map point: {g:?}"
+    );
     let m = g.map_conversion.as_ref().expect("map conversion");
     assert_eq!(
         (m.eastings, m.northings, m.orthogonal_height),
         (458000.0, 5438000.0, 100.0)
     );
     assert_eq!(m.crs_name.as_deref(), Some("EPSG:25832"));
+    assert_eq!(g.crs.as_ref().unwrap().source, "ifc-name");
     assert_eq!(report.georef, Some(g));
+    assert_eq!(report.georef_warning, None);
+
+    let (g, report) = read_georef_of(
+        &with_map_conversion(&with_site, "EPSG:99999", "0.8660254"),
+        "georef-unknown",
+    );
+    let g = g.expect("the site reference");
+    assert!((g.latitude_deg - (49.0 + 1.0 / 60.0 + 2.5 / 3600.0)).abs() < 1e-9);
+    assert!((g.longitude_deg - (8.0 + 26.0 / 60.0 + 11.0 / 3600.0)).abs() < 1e-9);
+    assert!((g.height_m - 110.0).abs() < 1e-9);
+    let w = report.georef_warning.expect("a warning");
+    assert!(w.contains("EPSG:99999") && !w.contains('\n'), "{w}");
 }
 
 /// IfcOpenHouse with only an IfcMapConversion (no IfcSite reference coordinates), in ETRS89 / UTM
 /// zone 32N: the project origin is placed at the map point, turned by the map's x axis (30°) and
-/// the meridian convergence there; a CRS that is not UTM gives no georeference.
+/// the meridian convergence there; Gauss-Krüger (EPSG:31467) works the same way through PROJ.
 #[test]
 fn georef_from_a_map_conversion_alone() {
     let Some(text) = open_house_text() else {
@@ -508,7 +524,6 @@ fn georef_from_a_map_conversion_alone() {
     let with_crs = |crs: &str| with_map_conversion(&text, crs, "0.8660254037844387");
     let (g, report) = read_georef_of(&with_crs("EPSG:25832"), "mapconv-utm");
     let g = g.expect("a UTM map conversion places the model");
-    let (gauss_krueger, _) = read_georef_of(&with_crs("EPSG:31467"), "mapconv-gk");
     println!("{g:?}");
     // E 458,000 N 5,438,000 in zone 32 (9°E) lies just north of Karlsruhe: a Transverse Mercator
     // point 42 km west of the central meridian, so about 0.57° west of it.
@@ -529,7 +544,14 @@ fn georef_from_a_map_conversion_alone() {
     let north = g.true_north_deg.expect("turned");
     assert!((north - (convergence - 30.0)).abs() < 1e-6, "{north}");
     assert_eq!(report.georef, Some(g));
-    assert_eq!(gauss_krueger, None, "no projection for a non-UTM CRS");
+    // E 3,458,000 in Gauss-Krüger zone 3 (9°E) is the same neighbourhood.
+    let (gk, _) = read_georef_of(
+        &with_map_conversion(&text, "EPSG:31467", "1.").replace("458000.,", "3458000.,"),
+        "mapconv-gk",
+    );
+    let gk = gk.expect("Gauss-Krüger through PROJ");
+    assert!((8.40..8.45).contains(&gk.longitude_deg), "{gk:?}");
+    assert_eq!(gk.crs.unwrap().crs, "EPSG:31467");
 }
 
 /// Moving and turning the site (far away, 30° about z) moves every element with it, to the
@@ -706,4 +728,37 @@ fn bad_ifc_input_is_an_error() {
             Ok(Err(e)) => println!("{case}: {}", bimtiles::error::chain_text(&e)),
         }
     }
+}
+
+/// A product whose only representation is a curve (a 1 km road axis, as IfcAlignment's Axis is)
+/// is left out like grids and annotations: no component, no "skipped" warning, counted.
+#[test]
+fn curve_only_products_are_left_out_and_counted() {
+    let Some(text) = open_house_text() else {
+        return;
+    };
+    if !text.contains("#37=IFCLOCALPLACEMENT") || !text.contains("#38=IFCBUILDINGSTOREY") {
+        eprintln!("SKIPPED: IfcOpenHouse_IFC4.ifc is not the expected version");
+        return;
+    }
+    let axis = "#990001=IFCCARTESIANPOINT((0.,0.,0.));\n#990002=IFCCARTESIANPOINT((1000000.,0.,0.));\n\
+        #990003=IFCPOLYLINE((#990001,#990002));\n#990004=IFCSHAPEREPRESENTATION(#11,'Axis','Curve3D',(#990003));\n\
+        #990005=IFCPRODUCTDEFINITIONSHAPE($,$,(#990004));\n\
+        #990006=IFCBUILDINGELEMENTPROXY('0000000000000000000001',#5,'road axis',$,$,#37,#990005,$,$);\n\
+        #990007=IFCRELCONTAINEDINSPATIALSTRUCTURE('0000000000000000000002',#5,$,$,(#990006),#38);\nENDSEC;\nEND-ISO";
+    let with_axis = text.replacen("ENDSEC;\nEND-ISO", axis, 1);
+    let p = Path::new("axis.ifc");
+    let (plain, r0) = read_ifc_bytes_with_crs(p, text.as_bytes(), None).unwrap();
+    let (scene, r1) = read_ifc_bytes_with_crs(p, with_axis.as_bytes(), None).unwrap();
+    assert_eq!(r0.curve_only, 0);
+    assert_eq!(r1.curve_only, 1);
+    assert_eq!(scene.components.len(), plain.components.len());
+    assert!(r1
+        .skipped
+        .iter()
+        .all(|s| s.guid != "0000000000000000000001"));
+    assert!(scene
+        .elements
+        .iter()
+        .all(|e| e.key.as_str() != "0000000000000000000001"));
 }

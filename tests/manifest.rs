@@ -9,12 +9,10 @@ use glam::{DMat4, DVec3};
 use serde_json::Value;
 use std::path::Path;
 
-/// Links `model` into `dir` (manifest paths must stay inside the manifest's folder).
+/// Puts `model` into `dir` (manifest paths must stay inside the manifest's folder); its name.
 fn link(model: &Path, dir: &Path) -> String {
-    let name = model.file_name().unwrap().to_string_lossy().to_string();
-    let _ = std::fs::remove_file(dir.join(&name));
-    std::os::unix::fs::symlink(model, dir.join(&name)).unwrap();
-    name
+    let to = put_model_in(model, dir);
+    to.file_name().unwrap().to_string_lossy().to_string()
 }
 
 /// Every vertex of a model in its own anchored scene frame (z-up metres), read by the library.

@@ -13,11 +13,10 @@ use std::path::{Path, PathBuf};
 
 /// The sample placed four times by a manifest (2 × 2 grid, different headings).
 fn sample_campus(dir: &Path) -> PathBuf {
-    let _ = std::fs::remove_file(dir.join("sample.glb"));
-    std::os::unix::fs::symlink(sample(), dir.join("sample.glb")).unwrap();
+    put_model_in(&sample(), dir);
     let models: Vec<Value> = (0..4)
         .map(|i| {
-            serde_json::json!({"name": format!("b{i}"), "path": "sample.glb",
+            serde_json::json!({"name": format!("b{i}"), "path": "sample_building.glb",
                 "east_m": 45.0 * (i % 2) as f64, "north_m": 45.0 * (i / 2) as f64, "heading_deg": 20.0 * i as f64})
         })
         .collect();

@@ -41,8 +41,8 @@ enum Command {
         /// Which job (0 to N-1).
         #[arg(long)]
         job: usize,
-        /// Worker threads (default: all cores). The output does not depend on it.
-        #[arg(long)]
+        /// Worker threads (default: all cores; at most 1024). The output does not depend on it.
+        #[arg(long, value_parser = parse_threads)]
         threads: Option<usize>,
         /// No progress bar and no summary.
         #[arg(long, short)]
@@ -53,8 +53,8 @@ enum Command {
     Merge {
         /// The build folder written by `bimtiles plan`.
         dir: PathBuf,
-        /// Worker threads (default: all cores). The output does not depend on it.
-        #[arg(long)]
+        /// Worker threads (default: all cores; at most 1024). The output does not depend on it.
+        #[arg(long, value_parser = parse_threads)]
         threads: Option<usize>,
         /// No progress bar and no summary.
         #[arg(long, short)]
@@ -126,11 +126,21 @@ struct ConvertArgs {
     /// Geographic place of the model's anchor: LON,LAT[,HEIGHT] (degrees, degrees, metres on WGS84).
     #[arg(long, value_parser = GeoOrigin::parse, allow_hyphen_values = true)]
     origin: Option<GeoOrigin>,
+    /// Projected CRS of the inputs' map coordinates (EPSG:CODE, a bare code, or a name PROJ
+    /// knows): glTF/GLB positions are easting (+x), northing (-z), height (+y); an IFC
+    /// IfcMapConversion that names no usable CRS is in it.
+    #[arg(long)]
+    crs: Option<String>,
+    /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
+    /// area of use) is an error and nothing is written, instead of a warning and the default
+    /// placement.
+    #[arg(long)]
+    strict_georef: bool,
     /// Split an octree cell while its content has more triangles than this.
-    #[arg(long, default_value_t = OctreeOptions::default().max_tile_triangles)]
+    #[arg(long, default_value_t = OctreeOptions::default().max_tile_triangles, value_parser = parse_at_least_one)]
     max_tile_triangles: usize,
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
-    #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes)]
+    #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes, value_parser = parse_at_least_one)]
     max_tile_bytes: usize,
     /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
     /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs) or none
@@ -209,8 +219,8 @@ struct ConvertArgs {
     /// requests and bytes (UVs remapped): on or off.
     #[arg(long, value_enum, default_value = "off")]
     texture_atlas: OnOff,
-    /// Worker threads (default: all cores). The output does not depend on it.
-    #[arg(long)]
+    /// Worker threads (default: all cores; at most 1024). The output does not depend on it.
+    #[arg(long, value_parser = parse_threads)]
     threads: Option<usize>,
     /// Memory the conversion aims to stay within (e.g. 4G, 512M, 800MB; `none`: no limit). Past a
     /// quarter of it, mesh geometry is spilled to a temporary file and read back when used. The
@@ -392,6 +402,29 @@ pub fn main() -> Result<()> {
     }
 }
 
+/// Most worker threads accepted: past it a typo (`--threads 4000000000`) would exhaust the
+/// process's memory and thread limits before any work is done.
+const MAX_THREADS: usize = 1024;
+
+fn parse_threads(text: &str) -> std::result::Result<usize, String> {
+    match text.trim().parse::<usize>() {
+        Ok(n) if (1..=MAX_THREADS).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "'{text}' is not a thread count from 1 to {MAX_THREADS}"
+        )),
+    }
+}
+
+fn parse_at_least_one(text: &str) -> std::result::Result<usize, String> {
+    match text.trim().parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("'{text}' is not a whole number of at least 1")),
+    }
+}
+
+/// Largest `--memory-budget` accepted (1 PiB): anything above is a typo, not a machine.
+const MAX_BUDGET_BYTES: f64 = (1u64 << 50) as f64;
+
 /// `--memory-budget` in bytes; `None`: no limit.
 #[derive(Debug, Clone, Copy)]
 struct Budget(Option<u64>);
@@ -417,6 +450,9 @@ fn parse_budget(text: &str) -> std::result::Result<Budget, String> {
         _ => return Err(format!("unknown unit in '{text}' (use K, M, G or T)")),
     };
     match number.trim().parse::<f64>() {
+        Ok(n) if n.is_finite() && n > 0.0 && n * scale as f64 > MAX_BUDGET_BYTES => {
+            Err(format!("'{text}' is more than 1P (use none for no limit)"))
+        }
         Ok(n) if n.is_finite() && n > 0.0 => Ok(Budget(Some((n * scale as f64) as u64))),
         _ => Err(format!("'{text}' is not a size (e.g. 4G, 512M, none)")),
     }
@@ -447,7 +483,7 @@ fn set_budget(a: &ConvertArgs, out: &std::path::Path) -> Result<()> {
 fn set_threads(threads: Option<usize>) -> Result<()> {
     if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
-            .num_threads(n.max(1))
+            .num_threads(n)
             .build_global()
             .context("cannot set up worker threads")?;
     }
@@ -531,8 +567,10 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         out_dir: a.out.clone(),
         force: a.force,
         origin: a.origin,
+        crs: a.crs.clone(),
+        strict_georef: a.strict_georef,
         octree: OctreeOptions {
-            max_tile_triangles: a.max_tile_triangles.max(1),
+            max_tile_triangles: a.max_tile_triangles,
             max_tile_bytes: a.max_tile_bytes.max(1),
             ..OctreeOptions::default()
         },

@@ -1,10 +1,13 @@
-//! Geodesy, below every stage: WGS84 places and frames, and map projections ([`projection`]).
+//! Geodesy, below every stage: WGS84 places and frames, projected CRSs through PROJ ([`crs`] over
+//! the FFI of [`proj`]), and UTM zone names ([`projection`]).
 //!
 //! Georeferencing: places the scene frame (metres, x east, y north, z up) on the WGS84 ellipsoid
 //! as a local east-north-up frame at a given longitude, latitude and height. This is the root
 //! `transform` of the tileset (3D Tiles 1.1, "Coordinate reference system": tileset coordinates
 //! are ECEF, and a transform maps local frames into it).
 
+pub mod crs;
+pub mod proj;
 pub mod projection;
 
 use glam::{DMat4, DVec3, DVec4};
@@ -28,7 +31,7 @@ pub enum OriginError {
 }
 
 /// A place on WGS84: degrees, degrees, metres above the ellipsoid.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GeoOrigin {
     pub longitude_deg: f64,
     pub latitude_deg: f64,

@@ -1,18 +1,21 @@
-//! Map coordinates → WGS84 for the projected CRSs BIM files name most (IFC4 `IfcMapConversion` +
-//! `IfcProjectedCRS`): Universal Transverse Mercator, as `EPSG:326zz` / `EPSG:327zz` (WGS 84 /
-//! UTM zone zz N/S) and `EPSG:258zz` (ETRS89 / UTM zone zz N; ETRS89 and WGS84 differ by well under
-//! a metre, which is below what a tileset's placement needs), or names like
-//! "WGS 84 / UTM zone 32N".
+//! Universal Transverse Mercator zones as BIM files name them ("EPSG:326zz" / "327zz" / "258zz",
+//! "WGS 84 / UTM zone 32N", or an IfcProjectedCRS MapProjection "UTM" with MapZone "32N"), turned
+//! into EPSG codes that PROJ places ([`super::crs`]).
 //!
-//! The inverse Transverse Mercator is Krüger's series in the third flattening n, to n³
-//! (Karney, "Transverse Mercator with an accuracy of a few nanometres", J. Geodesy 2011, eqs. 15–
-//! 21): sub-millimetre within a UTM zone. Also returns the meridian convergence (the angle from
-//! true north to grid north), which turns a model's grid north to true north.
+//! The inverse Transverse Mercator below (Krüger's series in the third flattening n, to n³; Karney,
+//! "Transverse Mercator with an accuracy of a few nanometres", J. Geodesy 2011, eqs. 15–21) placed
+//! UTM models before PROJ did; it stays, in tests only, as the independent check that PROJ agrees
+//! with it to a millimetre.
 
+#[cfg(test)]
 const A: f64 = 6_378_137.0;
+#[cfg(test)]
 const F: f64 = 1.0 / 298.257_223_563;
+#[cfg(test)]
 const K0: f64 = 0.9996;
+#[cfg(test)]
 const FALSE_EASTING_M: f64 = 500_000.0;
+#[cfg(test)]
 const FALSE_NORTHING_SOUTH_M: f64 = 10_000_000.0;
 
 /// A UTM zone: number 1..=60 and hemisphere.
@@ -51,10 +54,36 @@ impl UtmZone {
         }
     }
 
+    /// The EPSG code of this zone on `datum` (an IfcProjectedCRS GeodeticDatum: "WGS84",
+    /// "ETRS89", "NAD83"...; `None` is WGS 84): 326zz/327zz, 258zz, 269zz.
+    pub fn epsg_code(self, datum: Option<&str>) -> Option<u32> {
+        let d: String = datum
+            .unwrap_or("WGS84")
+            .chars()
+            .filter(char::is_ascii_alphanumeric)
+            .collect::<String>()
+            .to_ascii_uppercase();
+        let z = u32::from(self.zone);
+        match (d.as_str(), self.north) {
+            ("WGS84" | "EPSG4326" | "WORLDGEODETICSYSTEM1984", true) => Some(32600 + z),
+            ("WGS84" | "EPSG4326" | "WORLDGEODETICSYSTEM1984", false) => Some(32700 + z),
+            ("ETRS89" | "EPSG4258" | "EUROPEANTERRESTRIALREFERENCESYSTEM1989", true)
+                if (28..=38).contains(&z) =>
+            {
+                Some(25800 + z)
+            }
+            ("NAD83" | "EPSG4269" | "NORTHAMERICANDATUM1983", true) if (1..=23).contains(&z) => {
+                Some(26900 + z)
+            }
+            _ => None,
+        }
+    }
+
     fn new(zone: u8, north: bool) -> Option<UtmZone> {
         (1..=60).contains(&zone).then_some(UtmZone { zone, north })
     }
 
+    #[cfg(test)]
     fn central_meridian_deg(self) -> f64 {
         f64::from(self.zone) * 6.0 - 183.0
     }
@@ -63,6 +92,7 @@ impl UtmZone {
 /// (latitude°, longitude°, meridian convergence°) of easting/northing `e_m`, `n_m` in `zone`.
 /// The convergence is the angle from true north to grid north, positive when grid north lies
 /// east (clockwise) of true north.
+#[cfg(test)]
 pub fn utm_to_wgs84(zone: UtmZone, e_m: f64, n_m: f64) -> (f64, f64, f64) {
     let n = F / (2.0 - F);
     let (n2, n3) = (n * n, n * n * n);

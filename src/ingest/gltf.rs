@@ -45,7 +45,7 @@ const SUPPORTED_REQUIRED: &[&str] = &[
 /// counts whole towards peak memory.
 pub fn read_gltf(path: &Path) -> Result<Scene> {
     let cannot_read = |e: std::io::Error| Error::input_from(path, "cannot read", e);
-    let file = std::fs::File::open(path).map_err(cannot_read)?;
+    let file = super::open_regular(path).map_err(cannot_read)?;
     let len = file.metadata().map_err(cannot_read)?.len();
     // SAFETY: the map is read-only and private. A file truncated by another process while it is
     // read would fault, as with any memory-mapped reader; inputs do not change during a run.
@@ -55,7 +55,7 @@ pub fn read_gltf(path: &Path) -> Result<Scene> {
     };
     let bytes = match mapped {
         Some(m) => FileBytes::Mapped(m),
-        None => FileBytes::Owned(std::fs::read(path).map_err(cannot_read)?),
+        None => FileBytes::Owned(super::read_regular(path).map_err(cannot_read)?),
     };
     read_gltf_from(path, &bytes)
 }
@@ -305,10 +305,8 @@ pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<P
     }
     let full = base_dir.join(rel);
     // A symlink inside the folder could still point out of it.
-    if let (Ok(canon), Ok(base)) = (full.canonicalize(), base_dir.canonicalize()) {
-        if !canon.starts_with(&base) {
-            return Err(UriError::LeadsOutside { uri: uri_text() });
-        }
+    if super::leads_outside(&full, base_dir) {
+        return Err(UriError::LeadsOutside { uri: uri_text() });
     }
     Ok(full)
 }
@@ -348,7 +346,7 @@ fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, UriError
         return data;
     }
     let path = resolve_relative_uri(base_dir, uri)?;
-    std::fs::read(&path).map_err(|source| UriError::Read { path, source })
+    super::read_regular(&path).map_err(|source| UriError::Read { path, source })
 }
 
 /// A buffer's bytes: the GLB BIN chunk (borrowed from the file) or loaded from a URI.

@@ -66,6 +66,10 @@ pub struct ManifestModel {
     /// Clockwise from north, degrees: the model's +y (north) axis turns to this bearing.
     #[serde(default)]
     pub heading_deg: f64,
+    /// The projected CRS of the model's map coordinates ("EPSG:28992"): the model is placed where
+    /// they are, by its own CRS, instead of by a placement.
+    #[serde(default)]
+    pub crs: Option<String>,
 }
 
 /// A checked manifest entry: the model file and its transform from the model's anchored frame into
@@ -75,19 +79,21 @@ pub struct Placement {
     pub name: String,
     pub file: PathBuf,
     pub transform: DMat4,
+    /// The model's map coordinates are in this CRS: it goes where they are.
+    pub crs: Option<String>,
 }
 
 impl Manifest {
     /// Reads and checks a manifest; every problem is one error naming the manifest.
     pub fn read(path: &Path) -> Result<(GeoOrigin, Vec<Placement>)> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
+        let text = super::read_regular(path).map_err(|e| {
             if e.kind() == std::io::ErrorKind::NotFound {
                 Error::input(path, "no such manifest file")
             } else {
                 Error::input_from(path, "cannot read the manifest", e)
             }
         })?;
-        let m: Manifest = serde_json::from_str(&text)
+        let m: Manifest = serde_json::from_slice(&text)
             .map_err(|e| Error::input_from(path, "not a valid manifest", e))?;
         m.check(path)
     }
@@ -125,11 +131,21 @@ impl Manifest {
                 )));
             }
             let file = folder.join(rel);
-            if !file.is_file() {
+            // Inside by its text, but a symlink could still lead out of the folder.
+            if super::leads_outside(&file, folder) {
                 return Err(bad(format!(
-                    "{what}: no such model file {}",
-                    file.display()
+                    "{what}: a symlink leads outside the manifest's folder (refused)"
                 )));
+            }
+            match super::open_regular(&file) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(bad(format!(
+                        "{what}: no such model file {}",
+                        file.display()
+                    )))
+                }
+                Err(e) => return Err(bad(format!("{what}: {}: {e}", file.display()))),
+                Ok(_) => {}
             }
             let name = match &e.name {
                 Some(n) if n.trim().is_empty() || n.contains('/') => {
@@ -162,6 +178,11 @@ impl Manifest {
             }
             let geographic = e.longitude_deg.is_some() || e.latitude_deg.is_some();
             let offset = e.east_m.is_some() || e.north_m.is_some() || e.up_m.is_some();
+            if e.crs.is_some() && (geographic || offset || e.height_m.is_some()) {
+                return Err(bad(format!(
+                    "{what}: a model with a \"crs\" is placed by its map coordinates; give no placement with it"
+                )));
+            }
             let heading = DMat4::from_rotation_z(-e.heading_deg.to_radians());
             let transform = match (geographic, offset) {
                 (true, true) => {
@@ -200,6 +221,7 @@ impl Manifest {
                 name,
                 file,
                 transform,
+                crs: e.crs.clone(),
             });
         }
         Ok((origin, out))
@@ -212,12 +234,29 @@ impl Manifest {
 pub fn read_manifest(path: &Path) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
+    let ecef_to_origin = origin.enu_to_ecef().inverse();
     for p in &placements {
-        let mut s = super::read_input(&p.file)?;
-        // The model's own anchor goes to its placement (the rule of `convert`).
+        let given = p.crs.as_deref().map(|crs| super::GivenCrs {
+            crs,
+            source: "manifest",
+        });
+        let mut s = super::read_input_in_crs(&p.file, given)?;
+        // The model's own anchor goes to its placement (the rule of `convert`); a model in map
+        // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;
+        let transform = match (&p.crs, s.georeference) {
+            (Some(_), Some(g)) if g.map_linear.is_some() => {
+                let here = GeoOrigin {
+                    longitude_deg: g.longitude_deg,
+                    latitude_deg: g.latitude_deg,
+                    height_m: g.height_m,
+                };
+                ecef_to_origin * here.enu_to_ecef()
+            }
+            _ => p.transform,
+        };
         s.georeference = None;
-        s.apply_transform(&(p.transform * local));
+        s.apply_transform(&(transform * local));
         parts.push(s);
     }
     // Ids used by more than one entry get the entry's name as a prefix, in every entry.
@@ -272,6 +311,7 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
         height_m: origin.height_m,
         true_north_deg: None,
         anchor: DVec3::ZERO,
+        map_linear: None,
     });
     scene.finish();
     Ok(scene)

@@ -14,13 +14,111 @@ use crate::error::{Error, Result};
 use crate::scene::Scene;
 use std::path::Path;
 
+/// Opens an input file for reading, refusing what is not a regular file: a FIFO would hold the
+/// run forever and a device such as `/dev/zero` never ends. Opened non-blocking, so a FIFO is
+/// refused without waiting for a writer (the flag changes nothing for regular files).
+pub fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)?;
+    let kind = file.metadata()?.file_type();
+    let what = if kind.is_file() {
+        return Ok(file);
+    } else if kind.is_dir() {
+        "a folder"
+    } else if kind.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if kind.is_char_device() || kind.is_block_device() {
+        "a device"
+    } else {
+        "a socket"
+    };
+    Err(std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("{what}, not a regular file"),
+    ))
+}
+
+/// Whether `path` (inside `folder` by its text) leads out of it through a symlink. A path or
+/// folder that does not resolve leads nowhere: its read fails on its own.
+pub fn leads_outside(path: &Path, folder: &Path) -> bool {
+    let folder = if folder.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        folder
+    };
+    match (path.canonicalize(), folder.canonicalize()) {
+        (Ok(path), Ok(folder)) => !path.starts_with(folder),
+        _ => false,
+    }
+}
+
+/// Reads a whole input file ([`open_regular`]).
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    open_regular(path)?.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
 /// Reads any supported input, chosen by content (GLB magic, JSON) and extension.
 pub fn read_input(path: &Path) -> Result<Scene> {
-    if !path.exists() {
+    read_input_in_crs(path, None)
+}
+
+/// A CRS given for inputs: the text (`EPSG:28992`) and where it came from (`option` for
+/// `--crs`, `manifest` for an entry's `"crs"`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GivenCrs<'a> {
+    pub crs: &'a str,
+    pub source: &'a str,
+}
+
+/// Like [`read_input`], with a CRS for the input's coordinates: an IFC file's IfcMapConversion
+/// that names no usable CRS is in it, and an input with no georeference of its own (glTF, IFC in
+/// map coordinates) has map coordinates of it. A CRS that cannot be used is one warning
+/// ([`Scene::georef_warnings`]) and the default placement.
+pub fn read_input_in_crs(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+    let mut scene = read_input_as_is(path, crs)?;
+    if let (Some(given), None) = (crs, scene.georeference) {
+        if let Err(e) = crate::scene::placement::georeference_map_coordinates(
+            &mut scene,
+            given.crs,
+            given.source,
+        ) {
+            warn_georef(&mut scene, path, format!("--crs {}: {e}", given.crs));
+        }
+    }
+    if let Some(given) = crs {
+        for u in &mut scene.crs_used {
+            if u.source == "option" {
+                u.source = given.source.into();
+            }
+        }
+    }
+    Ok(scene)
+}
+
+/// Records a georeference that could not be used (`convert` prints it, or fails under
+/// `--strict-georef`).
+fn warn_georef(scene: &mut Scene, path: &Path, message: String) {
+    scene.georef_warnings.push(crate::scene::GeorefWarning {
+        file: path.to_path_buf(),
+        message,
+    });
+}
+
+fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+    if std::fs::symlink_metadata(path).is_err() {
         return Err(Error::input(path, "no such file"));
     }
     if path.is_dir() {
         return Err(Error::input(path, "is a folder, not a model file"));
+    }
+    if let Err(e) = open_regular(path) {
+        return Err(Error::input_from(path, "cannot read", e));
     }
     let ext = path
         .extension()
@@ -28,7 +126,7 @@ pub fn read_input(path: &Path) -> Result<Scene> {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     if ext == "ifc" || looks_like_step(path) {
-        return read_ifc(path);
+        return read_ifc(path, crs.map(|c| c.crs));
     }
     if cityjson::is_cityjson(path) {
         return cityjson::read_cityjson(path);
@@ -40,7 +138,7 @@ pub fn read_input(path: &Path) -> Result<Scene> {
 fn looks_like_step(path: &Path) -> bool {
     use std::io::Read;
     let mut head = [0u8; 64];
-    let n = std::fs::File::open(path)
+    let n = open_regular(path)
         .and_then(|mut f| f.read(&mut head))
         .unwrap_or(0);
     let text = String::from_utf8_lossy(&head[..n]);
@@ -50,23 +148,32 @@ fn looks_like_step(path: &Path) -> bool {
 }
 
 #[cfg(feature = "ifc")]
-fn read_ifc(path: &Path) -> Result<Scene> {
-    let (mut scene, report) = ifc::read_ifc_with_report(path)?;
+fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
+    let (mut scene, report) = ifc::read_ifc_with_crs(path, crs)?;
     scene.skipped_elements += report.skipped.len();
+    scene.curve_only_elements += report.curve_only;
     // A repeated GlobalId (a broken exporter) must not make two elements one.
     keep_ids_unique(&mut scene);
-    scene.georeference = report.georef.map(|g| crate::scene::SourceGeoreference {
-        longitude_deg: g.longitude_deg,
-        latitude_deg: g.latitude_deg,
-        height_m: g.height_m,
-        true_north_deg: g.true_north_deg,
-        anchor: g.anchor,
-    });
+    scene.georeference = report
+        .georef
+        .as_ref()
+        .map(|g| crate::scene::SourceGeoreference {
+            longitude_deg: g.longitude_deg,
+            latitude_deg: g.latitude_deg,
+            height_m: g.height_m,
+            true_north_deg: g.true_north_deg,
+            anchor: g.anchor,
+            map_linear: g.map_linear,
+        });
+    scene.crs_used.extend(report.georef.and_then(|g| g.crs));
+    if let Some(w) = report.georef_warning {
+        warn_georef(&mut scene, path, w);
+    }
     Ok(scene)
 }
 
 #[cfg(not(feature = "ifc"))]
-fn read_ifc(path: &Path) -> Result<Scene> {
+fn read_ifc(path: &Path, _crs: Option<&str>) -> Result<Scene> {
     Err(Error::input(
         path,
         "IFC input needs bimtiles built with the `ifc` feature (cargo build --features ifc)",
@@ -86,11 +193,16 @@ pub fn read_embedded_sample() -> Result<Scene> {
 
 /// Reads several inputs into one scene, in the order given.
 pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
+    read_inputs_in_crs(paths, None)
+}
+
+/// Like [`read_inputs`], every file in `crs` ([`read_input_in_crs`]).
+pub fn read_inputs_in_crs(paths: &[impl AsRef<Path>], crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     // The first scene is taken as it is: appending it to an empty one would copy every vector
     // (briefly twice the metadata of a whole campus).
     let mut scene: Option<Scene> = None;
     for p in paths {
-        let next = read_input(p.as_ref())?;
+        let next = read_input_in_crs(p.as_ref(), crs)?;
         match scene.as_mut() {
             None => scene = Some(next),
             Some(s) => s.append(next),
@@ -130,9 +242,19 @@ impl InputSet {
     }
 
     pub fn read(&self) -> Result<Scene> {
+        self.read_in_crs(None)
+    }
+
+    /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_in_crs`]); a
+    /// manifest's entries name their own.
+    pub fn read_in_crs(&self, crs: Option<&str>) -> Result<Scene> {
+        let given = crs.map(|crs| GivenCrs {
+            crs,
+            source: "option",
+        });
         match self {
             InputSet::Sample => read_embedded_sample(),
-            InputSet::Files(f) => read_inputs(f),
+            InputSet::Files(f) => read_inputs_in_crs(f, given),
             InputSet::Manifest(m) => manifest::read_manifest(m),
         }
     }

@@ -1,9 +1,11 @@
 //! Placement: which point of a model's own coordinates goes to its place on Earth, and the
-//! transform that brings the model there (anchor at the origin, turned to true north). One rule
-//! for `convert` and for every entry of a campus manifest.
+//! transform that brings the model there (anchor at the origin, turned to true north; for map
+//! coordinates, also scaled from grid to ground). One rule for `convert` and for every entry of a
+//! campus manifest.
 
-use super::{Aabb, Scene};
-use glam::{DMat4, DVec3};
+use super::{Aabb, Scene, SourceGeoreference};
+use crate::geodesy::crs::{place_map_point, CrsError, CrsUse};
+use glam::{DMat3, DMat4, DVec3};
 
 /// Models whose bounding-box centre is farther than this from their own origin are taken to be in
 /// projected (map) coordinates: they are re-anchored at their footprint centre.
@@ -26,6 +28,15 @@ impl Placement {
     /// otherwise [`choose_anchor`] over the scene's bounds.
     pub fn of(scene: &Scene) -> Placement {
         match scene.georeference {
+            Some(g) if g.map_linear.is_some() => Placement {
+                anchor: g.anchor,
+                rule: format!(
+                    "the input's map point (turned {:.4}° to true north)",
+                    g.true_north_deg.unwrap_or(0.0)
+                ),
+                local: DMat4::from_mat3(g.map_linear.unwrap_or(DMat3::IDENTITY))
+                    * DMat4::from_translation(-g.anchor),
+            },
             Some(g) => Placement {
                 anchor: g.anchor,
                 rule: format!(
@@ -62,4 +73,37 @@ pub fn choose_anchor(bounds: &Aabb) -> (DVec3, String) {
             ),
         )
     }
+}
+
+/// Georeferences a scene whose coordinates are map coordinates of `crs` (`--crs`, a manifest
+/// entry's `"crs"`): x = easting, y = northing (in the CRS's units), z = height (metres, taken as
+/// ellipsoidal). The anchor is chosen by [`choose_anchor`]; its map point is placed by PROJ, and the
+/// grid's convergence and scale factor there turn and scale the model to true north and ground
+/// metres. `source` says where the CRS came from (report).
+pub fn georeference_map_coordinates(
+    scene: &mut Scene,
+    crs: &str,
+    source: &str,
+) -> Result<(), CrsError> {
+    let (anchor, _) = choose_anchor(&scene.bounds());
+    let p = place_map_point(crs, anchor.x, anchor.y, anchor.z)?;
+    let grid = p.grid_to_enu * p.unit_m;
+    let linear = DMat3::from_cols(grid.x_axis.extend(0.0), grid.y_axis.extend(0.0), DVec3::Z);
+    let file = scene
+        .sources
+        .first()
+        .map(|s| s.path.display().to_string())
+        .unwrap_or_default();
+    scene
+        .crs_used
+        .push(CrsUse::new(&file, source, &p, anchor.x, anchor.y));
+    scene.georeference = Some(SourceGeoreference {
+        longitude_deg: p.place.longitude_deg,
+        latitude_deg: p.place.latitude_deg,
+        height_m: p.place.height_m,
+        true_north_deg: Some(p.convergence_deg),
+        anchor,
+        map_linear: Some(linear),
+    });
+    Ok(())
 }

@@ -27,7 +27,7 @@ use crate::build::TileWriter;
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
 use crate::options::{ConvertOptions, LodMode};
-use crate::output_dir::write_renamed;
+use crate::output_dir::{check_replaceable, write_renamed, StagingDir};
 use crate::partition::TilePlan;
 use crate::prepare::{prepare, read_scene, Prepared};
 use crate::report::{make_report, peak_memory_bytes, MemoryReport, Report, Timings};
@@ -167,26 +167,12 @@ pub fn plan(
             "--lod-ratios is supported by convert only, not by sharded builds",
         ));
     }
-    if dir.exists() {
-        if !opts.force {
-            return Err(Error::output(
-                dir,
-                "output folder exists (use --force to replace it)",
-            ));
-        }
-        let empty = std::fs::read_dir(dir)
-            .map_err(|e| Error::output(dir, e))?
-            .next()
-            .is_none();
-        if !empty && !dir.join(PLAN_FILE).exists() && !dir.join("tileset.json").exists() {
-            return Err(Error::output(
-                dir,
-                "refusing to replace a folder that holds neither a plan nor a tileset",
-            ));
-        }
-        std::fs::remove_dir_all(dir).map_err(|e| Error::output(dir, e))?;
-    }
-    let mut scene = read_scene(inputs)?;
+    // Inputs and options are checked before anything is replaced: the old folder goes only
+    // when the new plan is complete (`StagingDir::commit`).
+    const PLAN_OR_TILESET: &[&str] = &[PLAN_FILE, "tileset.json"];
+    const WHAT: &str = "a plan or a tileset";
+    check_replaceable(dir, opts.force, PLAN_OR_TILESET, WHAT)?;
+    let mut scene = read_scene(inputs, opts)?;
     let prep = prepare(&mut scene, opts)?;
     let p = &prep.plan;
     let (top, groups) = split(p, jobs);
@@ -216,10 +202,13 @@ pub fn plan(
             })
             .collect(),
     };
-    let jobs_dir = dir.join(JOBS_DIR);
-    std::fs::create_dir_all(&jobs_dir).map_err(|e| Error::output(&jobs_dir, e))?;
-    let json = serde_json::to_vec_pretty(&file).map_err(|e| Error::output(dir, e))?;
-    write_renamed(&dir.join(PLAN_FILE), &json)?;
+    let staging = StagingDir::beside_for(dir, opts.force, PLAN_OR_TILESET, WHAT)?;
+    let jobs_dir = staging.path().join(JOBS_DIR);
+    std::fs::create_dir_all(&jobs_dir)
+        .map_err(|e| Error::output_from(dir.join(JOBS_DIR), "cannot create the folder", e))?;
+    let json = serde_json::to_vec_pretty(&file)
+        .map_err(|e| Error::output_from(dir, "cannot serialize plan.json", e))?;
+    staging.commit(&[(PLAN_FILE, &json)])?;
     Ok(file)
 }
 
@@ -261,7 +250,7 @@ struct Loaded {
 fn load(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Loaded> {
     let t0 = Instant::now();
     let file = read_plan(dir)?;
-    let mut scene = read_scene(inputs)?;
+    let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
     let prep = prepare(&mut scene, opts)?;
     if digest(&prep.plan, opts) != file.plan_digest {

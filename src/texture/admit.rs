@@ -1,5 +1,5 @@
-//! Admission of a scene's images, before any texture pass allocates for them: limits first, from
-//! the header alone, then a decoding test row by row (the README's "Safety" section).
+//! Admission of a scene's images, before any texture pass allocates for them: limits from the
+//! header alone (the README's "Safety" section), and the dropping of images that cannot be used.
 //!
 //! - An image larger than [`MAX_IMAGE_SIDE_PX`] a side (the largest texture GPUs take), or whose
 //!   decoded pixels would need more than a quarter of `--memory-budget` (and at least 64 MiB), is
@@ -9,7 +9,7 @@
 //!   base colour, and no undecodable bytes are written as a texture that viewers would reject.
 
 use super::classify::bound_images;
-use super::codec::{self, Rows};
+use super::codec;
 use crate::error::chain_text;
 use crate::scene::{ImageId, Scene};
 use serde::Serialize;
@@ -100,68 +100,74 @@ fn quoted(name: &Option<String>) -> String {
     name.as_ref().map_or(String::new(), |n| format!(" '{n}'"))
 }
 
-/// Checks every image a material uses against `limits` and decodes it once, row by row. Drops the
-/// undecodable ones from their materials and returns them; refuses the first image over a limit,
-/// with the input file it came from.
+/// Checks every image a material uses against `limits`, from its header alone. Refuses the first
+/// image over a limit, with the input file it came from; drops (and returns) those whose header
+/// does not read. Whether the pixels decode is found by the one pass that decodes them all
+/// (`identical::merge_identical`), whose failures go to [`drop_images`].
 pub fn admit_images(
     scene: &mut Scene,
     limits: &ImageLimits,
 ) -> Result<Vec<DroppedImage>, (PathBuf, ImageRefused)> {
-    let mut dropped = Vec::new();
+    let mut unreadable = Vec::new();
     for id in bound_images(scene) {
         let image = &scene.images[id.index()];
-        let name = image.name.clone();
-        let problem = match codec::dimensions(&image.bytes) {
-            Err(e) => Some(chain_text(&e)),
-            Ok((width_px, height_px)) => {
-                if width_px.max(height_px) > limits.max_side_px {
-                    let refused = ImageRefused::TooLarge {
-                        image: id.0,
-                        name,
-                        width_px,
-                        height_px,
-                        max_px: limits.max_side_px,
-                    };
-                    return Err((source_file(scene, id), refused));
-                }
-                let decoded_bytes = width_px as u64 * height_px as u64 * 4;
-                if let Some(max_bytes) = limits.max_decoded_bytes.filter(|&m| decoded_bytes > m) {
-                    let refused = ImageRefused::OverBudget {
-                        image: id.0,
-                        name,
-                        width_px,
-                        height_px,
-                        decoded_bytes,
-                        max_bytes,
-                    };
-                    return Err((source_file(scene, id), refused));
-                }
-                decodes(&image.bytes).err()
+        let (width_px, height_px) = match codec::dimensions(&image.bytes) {
+            Ok(size) => size,
+            Err(e) => {
+                unreadable.push((id, chain_text(&e)));
+                continue;
             }
         };
-        if let Some(reason) = problem {
-            let file = source_file(scene, id);
+        let name = image.name.clone();
+        if width_px.max(height_px) > limits.max_side_px {
+            let refused = ImageRefused::TooLarge {
+                image: id.0,
+                name,
+                width_px,
+                height_px,
+                max_px: limits.max_side_px,
+            };
+            return Err((source_file(scene, id), refused));
+        }
+        let decoded_bytes = width_px as u64 * height_px as u64 * 4;
+        if let Some(max_bytes) = limits.max_decoded_bytes.filter(|&m| decoded_bytes > m) {
+            let refused = ImageRefused::OverBudget {
+                image: id.0,
+                name,
+                width_px,
+                height_px,
+                decoded_bytes,
+                max_bytes,
+            };
+            return Err((source_file(scene, id), refused));
+        }
+    }
+    Ok(drop_images(scene, &unreadable))
+}
+
+/// Drops `images` (each with why it cannot be used) from the materials that use them: they draw
+/// their base colour. Returns them, named, for the report.
+pub fn drop_images(scene: &mut Scene, images: &[(ImageId, String)]) -> Vec<DroppedImage> {
+    images
+        .iter()
+        .map(|(id, reason)| {
+            let file = source_file(scene, *id);
             for m in &mut scene.materials {
-                if m.base_color_texture.as_ref().is_some_and(|t| t.image == id) {
+                if m.base_color_texture
+                    .as_ref()
+                    .is_some_and(|t| t.image == *id)
+                {
                     m.base_color_texture = None;
                 }
             }
-            dropped.push(DroppedImage {
+            DroppedImage {
                 image: id.0,
                 name: scene.images[id.index()].name.clone(),
                 file,
-                reason,
-            });
-        }
-    }
-    Ok(dropped)
-}
-
-/// Whether every row of the image decodes (row by row: no whole image is held for PNG).
-fn decodes(bytes: &[u8]) -> Result<(), String> {
-    let mut rows = Rows::open(bytes).map_err(|e| chain_text(&e))?;
-    while rows.next_row().map_err(|e| chain_text(&e))?.is_some() {}
-    Ok(())
+                reason: reason.clone(),
+            }
+        })
+        .collect()
 }
 
 /// The input file of the first component whose material uses `image` (the first input if none).
@@ -283,7 +289,13 @@ mod tests {
         let mut cut = good.clone();
         cut.truncate(good.len() - 20);
         let mut s = scene_with(vec![good, b"not an image".to_vec(), cut]);
-        let dropped = admit_images(&mut s, &ImageLimits::under_budget(None)).unwrap();
+        // The header of image 1 does not read (admission); image 2's pixels end early (found by
+        // the pass that decodes every image, identical-image merging).
+        let limits = ImageLimits::under_budget(None);
+        let options = crate::texture::TextureOptions::default();
+        let dropped = crate::texture::prepare(&mut s, &options, &limits)
+            .unwrap()
+            .dropped_images;
         assert_eq!(
             dropped.iter().map(|d| d.image).collect::<Vec<_>>(),
             vec![1, 2]

@@ -11,7 +11,8 @@
 //! confirmed by decoding both again and comparing row by row, so a collision cannot merge two
 //! different images.
 
-use super::codec::Rows;
+use super::codec::{CodecError, Rows};
+use crate::error::chain_text;
 use crate::scene::{ImageId, Scene};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -23,21 +24,25 @@ pub struct IdenticalReport {
     pub duplicates: usize,
     /// Encoded bytes of those duplicates.
     pub bytes_saved: u64,
-    /// Images that could not be decoded (kept as they are).
+    /// Images that could not be decoded (then dropped from their materials: `admit`).
     pub undecodable: usize,
+    /// Those images, each with why it does not decode.
+    #[serde(skip)]
+    pub undecodable_images: Vec<(ImageId, String)>,
 }
 
-/// A hash of the decoded pixels (size, colour type and samples), or `None` if undecodable.
-/// Decoded row by row: one row held at a time (for PNG).
-pub fn pixel_key(bytes: &[u8]) -> Option<(u32, u32, u64)> {
-    let mut rows = Rows::open(bytes).ok()?;
+/// A hash of the decoded pixels (size, colour type and samples), or why the image does not
+/// decode. Decoded row by row: one row held at a time (for PNG). This is the one pass that
+/// decodes every image before tiling, so it is also where undecodable images are found.
+pub fn pixel_key(bytes: &[u8]) -> Result<(u32, u32, u64), CodecError> {
+    let mut rows = Rows::open(bytes)?;
     // DefaultHasher::new() has fixed keys: deterministic across runs.
     let mut h = std::collections::hash_map::DefaultHasher::new();
     format!("{:?}", rows.color()).hash(&mut h);
-    while let Some(row) = rows.next_row().ok()? {
+    while let Some(row) = rows.next_row()? {
         h.write(row);
     }
-    Some((rows.width(), rows.height(), h.finish()))
+    Ok((rows.width(), rows.height(), h.finish()))
 }
 
 /// Whether two images decode to the same pixels, compared a row pair at a time; an image that
@@ -76,9 +81,13 @@ pub fn merge_identical(scene: &mut Scene) -> IdenticalReport {
             canonical.insert(id, canonical.get(&earlier).copied().unwrap_or(earlier));
             continue;
         }
-        let Some(key) = pixel_key(&bytes) else {
-            report.undecodable += 1;
-            continue;
+        let key = match pixel_key(&bytes) {
+            Ok(key) => key,
+            Err(e) => {
+                report.undecodable += 1;
+                report.undecodable_images.push((id, chain_text(&e)));
+                continue;
+            }
         };
         let list = by_key.entry(key).or_default();
         let found = list

@@ -126,8 +126,9 @@ pub fn prepare(
         .iter()
         .map(|i| scene.images[i.index()].bytes.len() as u64)
         .sum();
-    let dropped_images = admit::admit_images(scene, limits)?;
+    let mut dropped_images = admit::admit_images(scene, limits)?;
     let identical = identical::merge_identical(scene);
+    dropped_images.extend(admit::drop_images(scene, &identical.undecodable_images));
     let uses = classify::classify(scene);
     let classes = classify::counts(
         &classify::bound_images(scene)

@@ -136,6 +136,17 @@ pub fn run(args: &[&str]) -> Output {
         .expect("run bimtiles")
 }
 
+/// Puts `model` into `dir` under its own name (a hard link, or a copy across file systems): a
+/// manifest's entries must stay inside its folder, and a symlink leading out is refused.
+pub fn put_model_in(model: &Path, dir: &Path) -> PathBuf {
+    let to = dir.join(model.file_name().unwrap());
+    let _ = std::fs::remove_file(&to);
+    if std::fs::hard_link(model, &to).is_err() {
+        std::fs::copy(model, &to).unwrap();
+    }
+    to
+}
+
 /// An empty scratch folder `target/test-out/<name>`.
 pub fn tmpdir(name: &str) -> PathBuf {
     let d = repo().join("target/test-out").join(name);

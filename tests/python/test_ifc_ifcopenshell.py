@@ -42,16 +42,7 @@ ifcopenshell = pytest.importorskip(
 import ifcopenshell.geom  # noqa: E402
 import ifcopenshell.util.element  # noqa: E402
 
-EXCLUDED = (
-    "IfcOpeningElement",
-    "IfcVoidingFeature",
-    "IfcSpace",
-    "IfcSpatialZone",
-    "IfcExternalSpatialElement",
-    "IfcAnnotation",
-    "IfcGrid",
-    "IfcVirtualElement",
-)
+from ifc_classes import EXCLUDED  # noqa: E402
 TOL_M = 0.01
 
 

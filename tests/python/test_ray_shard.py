@@ -6,6 +6,7 @@ The cluster (a head and a second node, one CPU each) runs inside a private netwo
 (`unshare -n`, loopback only: ../shared/notes/ray.md), so no Ray traffic leaves the machine. Skipped,
 with a message, only where `unshare -n` is not permitted.
 """
+import shutil
 import json
 import os
 import pathlib
@@ -46,7 +47,8 @@ def run(*args):
                     "cannot be kept on loopback, so the Ray driver test is skipped")
 def test_ray_driver_retries_and_matches_convert(tmp_path):
     assert BIN.is_file(), f"{BIN} missing: build with `cargo build --release` first"
-    (tmp_path / "sample.glb").symlink_to(SAMPLE)
+    # A copy, not a symlink: manifest entries leading out of their folder are refused.
+    shutil.copyfile(SAMPLE, tmp_path / "sample.glb")
     models = [{"name": f"b{i}", "path": "sample.glb", "east_m": 45.0 * (i % 2), "north_m": 45.0 * (i // 2),
                "heading_deg": 20.0 * i} for i in range(4)]
     (tmp_path / "campus.json").write_text(json.dumps({"models": models}))

@@ -290,11 +290,11 @@ pub(super) fn assemble(
         }
         let bx = match element_box(&el) {
             Ok(bx) => bx,
-            Err(reason) => {
+            Err(problem) => {
                 report.skipped.push(SkippedElement {
                     guid,
                     class,
-                    reason,
+                    reason: problem.to_string(),
                 });
                 continue;
             }
@@ -323,25 +323,33 @@ pub(super) fn assemble(
     Ok(b.scene)
 }
 
-/// Frame-space box of an element (f64), or why it is skipped (malformed or non-finite data, no
-/// triangles).
-fn element_box(el: &engine::RawElement) -> std::result::Result<Aabb, String> {
+/// Why an element's geometry is not used (the element is skipped and reported).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum ElementGeometryProblem {
+    #[error("malformed triangle data")]
+    Malformed,
+    #[error("index {index} out of range ({vertices} vertices)")]
+    IndexOutOfRange { index: u32, vertices: u32 },
+    #[error("non-finite vertex coordinates")]
+    NonFinite,
+    #[error("no triangles")]
+    NoTriangles,
+}
+
+/// Frame-space box of an element (f64), or why it is skipped.
+fn element_box(el: &engine::RawElement) -> std::result::Result<Aabb, ElementGeometryProblem> {
     let mut bx = Aabb::EMPTY;
-    let mut bad: Option<String> = None;
     for p in &el.pieces {
         if p.positions.len() % 3 != 0 || p.indices.len() % 3 != 0 {
-            bad = Some("malformed triangle data".into());
-            break;
+            return Err(ElementGeometryProblem::Malformed);
         }
-        let nv = (p.positions.len() / 3) as u32;
-        if let Some(i) = p.indices.iter().find(|&&i| i >= nv) {
-            bad = Some(format!("index {i} out of range ({nv} vertices)"));
-            break;
+        let vertices = (p.positions.len() / 3) as u32;
+        if let Some(&index) = p.indices.iter().find(|&&i| i >= vertices) {
+            return Err(ElementGeometryProblem::IndexOutOfRange { index, vertices });
         }
         for v in p.positions.chunks_exact(3) {
             if !v.iter().all(|x| x.is_finite()) || !p.origin.iter().all(|x| x.is_finite()) {
-                bad = Some("non-finite vertex coordinates".into());
-                break;
+                return Err(ElementGeometryProblem::NonFinite);
             }
             bx.extend(DVec3::new(
                 p.origin[0] + v[0] as f64,
@@ -351,13 +359,10 @@ fn element_box(el: &engine::RawElement) -> std::result::Result<Aabb, String> {
         }
     }
     let tris: usize = el.pieces.iter().map(|p| p.indices.len() / 3).sum();
-    if bad.is_none() && (tris == 0 || bx.is_empty()) {
-        bad = Some("no triangles".into());
+    if tris == 0 || bx.is_empty() {
+        return Err(ElementGeometryProblem::NoTriangles);
     }
-    match bad {
-        Some(reason) => Err(reason),
-        None => Ok(bx),
-    }
+    Ok(bx)
 }
 
 /// A piece's vertex normals: its own when complete and finite (normalized), else area-weighted

@@ -37,6 +37,9 @@ pub struct RawMissing {
 pub struct RawGeometry {
     /// Elements with at least one piece, in file (express id) order.
     pub elements: Vec<RawElement>,
+    /// Products left out because every shape representation they have is a curve or points
+    /// (IfcAlignment axes, footprints): (express id, IFC class).
+    pub curve_only: Vec<(u32, String)>,
     pub missing: Vec<RawMissing>,
     /// Mesh frame → IFC world (metres, z-up).
     pub frame_to_world: DMat4,
@@ -153,8 +156,12 @@ impl IfcEngine for IfcLite {
             return Err(IfcError::UnusableLengthUnit { entity: unit });
         }
         let frame_to_world = frame_matrix(res.frame);
+        let curve_only = curve_only_products(content);
         let mut by_id: BTreeMap<u32, RawElement> = BTreeMap::new();
         for m in res.meshes {
+            if curve_only.contains_key(&m.express_id) {
+                continue;
+            }
             // 1 = orphan type map, 2 = instanced type map: type-library geometry, not placed.
             if m.geometry_class == 1 || m.geometry_class == 2 {
                 continue;
@@ -187,6 +194,7 @@ impl IfcEngine for IfcLite {
         while let Some((id, type_name, start, end)) = scanner.next_entity() {
             if !core::has_geometry_by_name(type_name)
                 || by_id.get(&id).is_some_and(|e| !e.pieces.is_empty())
+                || curve_only.contains_key(&id)
             {
                 continue;
             }
@@ -217,6 +225,7 @@ impl IfcEngine for IfcLite {
             .collect();
         Ok(RawGeometry {
             elements,
+            curve_only: curve_only.into_iter().collect(),
             missing,
             frame_to_world,
         })
@@ -413,10 +422,74 @@ impl IfcEngine for IfcLite {
                 x_axis_ordinate: g.x_axis_ordinate,
                 scale: g.scale,
                 crs_name: g.crs_name,
+                geodetic_datum: g.geodetic_datum,
+                map_projection: g.map_projection,
+                map_zone: g.map_zone,
+                factors: [g.factor_x, g.factor_y, g.factor_z],
+                map_unit_m: g.map_unit_scale,
+                project_unit_m: scale,
             });
         }
         Ok(out)
     }
+}
+
+/// IfcShapeRepresentation RepresentationTypes that hold no surface: curves and points (an
+/// IfcAlignment's Axis, a FootPrint outline). A product with only these draws no triangles of its
+/// own; a kernel that sweeps them into strips would make clickable walls out of set-out lines.
+const CURVE_REPRESENTATION_TYPES: &[&str] = &[
+    "Curve",
+    "Curve2D",
+    "Curve3D",
+    "GeometricCurveSet",
+    "Point",
+    "PointCloud",
+    "Segment",
+];
+
+/// Products whose every shape representation is a curve or points, by express id (IFC class).
+fn curve_only_products(content: &[u8]) -> BTreeMap<u32, String> {
+    let index = std::sync::Arc::new(core::build_entity_index(content));
+    let mut dec = core::EntityDecoder::with_arc_index(content, index);
+    let mut scanner = core::EntityScanner::new(content);
+    let mut out = BTreeMap::new();
+    while let Some((id, type_name, start, end)) = scanner.next_entity() {
+        let upper = type_name.to_ascii_uppercase();
+        if !(core::has_geometry_by_name(type_name) || upper.starts_with("IFCALIGNMENT"))
+            || upper.ends_with("TYPE")
+        {
+            continue;
+        }
+        let Ok(product) = dec.decode_at(start, end) else {
+            continue;
+        };
+        // IfcProduct.Representation (6) → IfcProductDefinitionShape.Representations (2).
+        let Some(shape) = product.get_ref(6).and_then(|r| dec.decode_by_id(r).ok()) else {
+            continue;
+        };
+        let reps: Vec<u32> = shape
+            .get_list(2)
+            .unwrap_or(&[])
+            .iter()
+            .filter_map(|v| v.as_entity_ref())
+            .collect();
+        let kinds: Vec<String> = reps
+            .iter()
+            .filter_map(|r| dec.decode_by_id(*r).ok())
+            .map(|rep| rep.get_string(2).unwrap_or("").to_string())
+            .collect();
+        if !kinds.is_empty()
+            && kinds.len() == reps.len()
+            && kinds.iter().all(|k| {
+                CURVE_REPRESENTATION_TYPES
+                    .iter()
+                    .any(|c| c.eq_ignore_ascii_case(k))
+            })
+        {
+            out.insert(id, ifc_name(type_name));
+        }
+    }
+    out
 }
 
 /// IfcLocalPlacement → world matrix (metres).

@@ -91,6 +91,8 @@ pub const SKIPPED_CLASSES: &[(&str, &str)] = &[
     ("IfcGrid", "setting-out lines, not a built object"),
     ("IfcVirtualElement", "an invisible boundary between spaces"),
 ];
+// Products of any class whose only shape representations are curves or points (IfcAlignment's
+// Axis, a FootPrint) are left out too, like grids: counted in `IfcReadReport::curve_only`.
 
 /// Roughness given to every IFC material (IFC surface styles rarely carry PBR data).
 pub const IFC_ROUGHNESS: f32 = 0.85;
@@ -116,6 +118,17 @@ pub struct IfcMapConversion {
     pub scale: f64,
     /// e.g. "EPSG:25832".
     pub crs_name: Option<String>,
+    /// IfcProjectedCRS GeodeticDatum, MapProjection, MapZone ("ETRS89", "UTM", "32N"): the CRS
+    /// when the name is not one PROJ knows.
+    pub geodetic_datum: Option<String>,
+    pub map_projection: Option<String>,
+    pub map_zone: Option<String>,
+    /// IFC4X3 IfcMapConversionScaled FactorX/Y/Z (1 when absent), on top of `scale`.
+    pub factors: [f64; 3],
+    /// Metres per IfcProjectedCRS MapUnit (`None`: not given, the project's length unit).
+    pub map_unit_m: Option<f64>,
+    /// Metres per project length unit (1 for metres, 0.001 for millimetres).
+    pub project_unit_m: f64,
 }
 
 /// Where the model sits on Earth, as the IFC file says.
@@ -133,8 +146,13 @@ pub struct IfcGeoref {
     pub true_north_deg: Option<f64>,
     pub map_conversion: Option<IfcMapConversion>,
     /// The scene-frame point (metres, z-up) that the longitude/latitude/height refer to: the
-    /// IfcSite placement's origin.
+    /// IfcSite placement's origin (the project origin for a map conversion).
     pub anchor: DVec3,
+    /// A map conversion used: project metres → local east-north-up metres (rotation, scales,
+    /// convergence and grid scale factor).
+    pub map_linear: Option<glam::DMat3>,
+    /// The CRS that placed the model, for the report.
+    pub crs: Option<crate::geodesy::crs::CrsUse>,
 }
 
 /// Read timings, seconds.
@@ -163,6 +181,11 @@ pub struct IfcReadReport {
     /// Elements of the classes in [`SKIPPED_CLASSES`] that had geometry, by class.
     pub excluded_by_class: BTreeMap<String, usize>,
     pub georef: Option<IfcGeoref>,
+    /// A georeference the file asked for that could not be used (the model falls back to its
+    /// site reference or the default placement).
+    pub georef_warning: Option<String>,
+    /// Products left out because their only geometry is a curve (IfcAlignment axes and the like).
+    pub curve_only: usize,
     pub timings: IfcTimings,
 }
 
@@ -178,27 +201,43 @@ pub fn read_ifc_bytes(path: &Path, bytes: &[u8]) -> Result<Scene> {
 
 /// Reads one IFC file and reports skipped elements, georeference and timings.
 pub fn read_ifc_with_report(path: &Path) -> Result<(Scene, IfcReadReport)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
+    let bytes = super::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     read_ifc_bytes_with_report(path, &bytes)
 }
 
 /// The georeference of an IFC file (IfcSite RefLatitude/RefLongitude/RefElevation, true north,
 /// IfcMapConversion); `None` when the site has no reference latitude/longitude or the file cannot be
-/// read. A file with only an IfcMapConversion is placed from it when its CRS is UTM
-/// ([`crate::geodesy::projection`]); other CRSs give `None`.
+/// read. An IfcMapConversion whose CRS PROJ knows wins over the site reference
+/// ([`crate::geodesy::crs`]); one that cannot be used is a warning in the result.
 pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
-    let bytes = std::fs::read(path).ok()?;
+    let bytes = super::read_regular(path).ok()?;
     check_step(&bytes).ok()?;
     let engine = engine::IfcLite;
     let raw = guarded(IfcStage::Georef, || {
         engine::IfcEngine::georef(&engine, &bytes)
     })
     .ok()?;
-    georef_from_raw(raw)
+    georef_from_raw(raw, path, None).0
 }
 
 /// Like [`read_ifc_with_report`], from bytes.
 pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, IfcReadReport)> {
+    read_ifc_bytes_with_crs(path, bytes, None)
+}
+
+/// Like [`read_ifc_with_report`]; `crs_option` (`--crs`) names the CRS of an IfcMapConversion
+/// whose IfcProjectedCRS names none PROJ knows.
+pub fn read_ifc_with_crs(path: &Path, crs_option: Option<&str>) -> Result<(Scene, IfcReadReport)> {
+    let bytes = super::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
+    read_ifc_bytes_with_crs(path, &bytes, crs_option)
+}
+
+/// Like [`read_ifc_with_crs`], from bytes.
+pub fn read_ifc_bytes_with_crs(
+    path: &Path,
+    bytes: &[u8],
+    crs_option: Option<&str>,
+) -> Result<(Scene, IfcReadReport)> {
     let t0 = Instant::now();
     // The STEP and IFC errors name the problem themselves: "<file>: <problem>".
     let header = check_step(bytes).map_err(|e| Error::input_from(path, "", e))?;
@@ -219,14 +258,16 @@ pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, I
     let data_model_s = t2.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
-    let georef = guarded(IfcStage::Georef, || {
+    let (georef, georef_warning) = guarded(IfcStage::Georef, || {
         engine::IfcEngine::georef(&engine, bytes)
     })
     .ok()
-    .and_then(georef_from_raw);
+    .map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
     let mut report = IfcReadReport {
         schema: header.schema.clone(),
         georef,
+        georef_warning,
+        curve_only: geometry.curve_only.len(),
         ..Default::default()
     };
     let mut scene = assemble(path, bytes.len() as u64, geometry, data, &mut report)?;
@@ -240,13 +281,13 @@ pub fn read_ifc_bytes_with_report(path: &Path, bytes: &[u8]) -> Result<(Scene, I
         assemble_s: t3.elapsed().as_secs_f64(),
     };
     for s in &report.skipped {
-        eprintln!(
-            "warning: {}: skipped {} {} ({})",
+        scene.reader_warnings.push(format!(
+            "{}: skipped {} {} ({})",
             path.display(),
             s.class,
             s.guid,
             s.reason
-        );
+        ));
     }
     Ok((scene, report))
 }

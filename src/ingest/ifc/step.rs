@@ -287,15 +287,8 @@ fn record_head(bytes: &[u8], rec_start: usize) -> StepResult<(u64, usize)> {
     if bytes[rec_start] != b'#' {
         return Err(malformed(None, RecordProblem::NotARecord));
     }
-    let mut i = rec_start + 1;
-    let ds = i;
-    let mut id: u64 = 0;
-    while i < n && bytes[i].is_ascii_digit() {
-        id = id
-            .saturating_mul(10)
-            .saturating_add((bytes[i] - b'0') as u64);
-        i += 1;
-    }
+    let ds = rec_start + 1;
+    let (id, mut i) = read_number(bytes, ds);
     if i == ds {
         return Err(malformed(None, RecordProblem::NoNumber));
     }
@@ -359,14 +352,7 @@ fn record_body(
                 }
             },
             b'#' => {
-                let mut j = i + 1;
-                let mut r: u64 = 0;
-                while j < n && bytes[j].is_ascii_digit() {
-                    r = r
-                        .saturating_mul(10)
-                        .saturating_add((bytes[j] - b'0') as u64);
-                    j += 1;
-                }
+                let (r, j) = read_number(bytes, i + 1);
                 if j > i + 1 {
                     if r <= u32::MAX as u64 {
                         scan.refs.push((r as u32, id.min(u32::MAX as u64) as u32));
@@ -399,6 +385,20 @@ fn record_body(
         return Err(malformed(RecordProblem::NoAttributes));
     }
     Ok(i)
+}
+
+/// The decimal number at `bytes[from..]` (saturating) and the index after its last digit
+/// (`from` when there is no digit).
+fn read_number(bytes: &[u8], from: usize) -> (u64, usize) {
+    let mut value: u64 = 0;
+    let mut i = from;
+    while i < bytes.len() && bytes[i].is_ascii_digit() {
+        value = value
+            .saturating_mul(10)
+            .saturating_add((bytes[i] - b'0') as u64);
+        i += 1;
+    }
+    (value, i)
 }
 
 #[cfg(test)]

@@ -1,0 +1,334 @@
+//! Map points of any projected CRS that PROJ knows (EPSG:28992 RD New, 2056 LV95, 27700 British
+//! National Grid, UTM...) placed on WGS84: the point's longitude and latitude, and the linear map
+//! from grid metres around it to local east-north metres (the meridian convergence, which turns
+//! grid north to true north, and the grid's scale factor there), so a model drawn in map
+//! coordinates keeps its size and its north.
+//!
+//! A CRS that cannot be used (unknown to PROJ, not projected, a unit that is not a length, a point
+//! far outside the CRS's area of use) is a [`CrsError`]; callers warn and fall back, or fail
+//! under `--strict-georef`.
+
+use super::proj::{self, Context, ProjError};
+use super::{geodetic_to_ecef, GeoOrigin};
+use glam::{DMat2, DMat3, DVec2};
+
+/// How far (degrees) a point may lie outside its CRS's area of use and still be placed: projected
+/// CRSs stay accurate somewhat beyond their nominal area, and sites sit near borders.
+pub const AREA_OF_USE_MARGIN_DEG: f64 = 1.0;
+
+/// Grid step (metres) of the finite differences that measure convergence and scale: small
+/// against the projection's curvature, large against f64 rounding of map coordinates.
+const JACOBIAN_STEP_M: f64 = 10.0;
+
+/// Why a CRS cannot place a model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CrsError {
+    #[error("CRS '{crs}' is unknown to PROJ ({why})")]
+    Unknown { crs: String, why: String },
+    #[error("CRS '{crs}' ({name}) is not a projected CRS, so its coordinates are not map eastings and northings")]
+    NotProjected { crs: String, name: String },
+    #[error("CRS '{crs}' ({name}) measures in '{unit}', which is not a length")]
+    NotALength {
+        crs: String,
+        name: String,
+        unit: String,
+    },
+    #[error("CRS '{crs}' ({name}): the point E {easting} N {northing} lies at {longitude_deg:.4}°, {latitude_deg:.4}°, far outside the CRS's area of use ({area})")]
+    OutsideAreaOfUse {
+        crs: String,
+        name: String,
+        easting: f64,
+        northing: f64,
+        longitude_deg: f64,
+        latitude_deg: f64,
+        area: String,
+    },
+    #[error("CRS '{crs}': {why}")]
+    Transform { crs: String, why: String },
+}
+
+/// A map point placed on WGS84 by PROJ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapPlace {
+    /// The CRS as PROJ identifies it ("EPSG:28992"), or the text given when it has no id.
+    pub crs: String,
+    /// Its name ("Amersfoort / RD New").
+    pub crs_name: String,
+    /// Longitude and latitude of the point; the height is the one given (taken as ellipsoidal).
+    pub place: GeoOrigin,
+    /// Grid metres (east, north offsets, in metres of the CRS's unit) → local east-north metres
+    /// at the point: the convergence turn and 1 / scale factor.
+    pub grid_to_enu: DMat2,
+    /// Angle from true north to grid north, degrees, positive when grid north lies east
+    /// (clockwise) of true north.
+    pub convergence_deg: f64,
+    /// Grid length per ground length at the point (UTM: 0.9996 on the central meridian).
+    pub scale_factor: f64,
+    /// Metres per unit of the CRS's axes (1 for metres, 0.3048006 for US survey feet).
+    pub unit_m: f64,
+    /// The operation PROJ used from the CRS to WGS 84, and its accuracy in metres.
+    pub operation: String,
+    pub accuracy_m: Option<f64>,
+}
+
+/// What placed a model through a CRS, for `report.json` and `bimtiles inspect`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CrsUse {
+    /// The input file placed.
+    pub file: String,
+    /// "EPSG:28992".
+    pub crs: String,
+    pub crs_name: String,
+    /// Where the CRS came from: `ifc-name` (IfcProjectedCRS Name), `ifc-map-projection`
+    /// (MapProjection + MapZone + GeodeticDatum), `option` (--crs), `manifest` (an entry's "crs").
+    pub source: String,
+    /// The map point placed (CRS units) and where it went.
+    pub easting: f64,
+    pub northing: f64,
+    pub longitude_deg: f64,
+    pub latitude_deg: f64,
+    pub height_m: f64,
+    /// How the height was read: heights are taken as ellipsoidal (no geoid model is applied).
+    pub height_reference: String,
+    pub convergence_deg: f64,
+    pub scale_factor: f64,
+    /// The PROJ operation to WGS 84 and its accuracy (metres; `None`: unknown).
+    pub operation: String,
+    pub accuracy_m: Option<f64>,
+}
+
+/// What [`CrsUse::height_reference`] says: PROJ is given no vertical CRS, so a height stays the
+/// number it is, taken above the WGS84 ellipsoid.
+pub const HEIGHT_TAKEN_AS_ELLIPSOIDAL: &str =
+    "ellipsoidal: taken as metres above the WGS84 ellipsoid (no geoid model applied)";
+
+impl CrsUse {
+    pub fn new(file: &str, source: &str, place: &MapPlace, easting: f64, northing: f64) -> CrsUse {
+        CrsUse {
+            file: file.into(),
+            crs: place.crs.clone(),
+            crs_name: place.crs_name.clone(),
+            source: source.into(),
+            easting,
+            northing,
+            longitude_deg: place.place.longitude_deg,
+            latitude_deg: place.place.latitude_deg,
+            height_m: place.place.height_m,
+            height_reference: HEIGHT_TAKEN_AS_ELLIPSOIDAL.into(),
+            convergence_deg: place.convergence_deg,
+            scale_factor: place.scale_factor,
+            operation: place.operation.clone(),
+            accuracy_m: place.accuracy_m,
+        }
+    }
+}
+
+/// The PROJ definition for a CRS text: a bare number is an EPSG code.
+pub fn normalize_crs_text(text: &str) -> String {
+    let t = text.trim();
+    if !t.is_empty() && t.chars().all(|c| c.is_ascii_digit()) {
+        format!("EPSG:{t}")
+    } else {
+        t.to_string()
+    }
+}
+
+/// Places the map point (`easting`, `northing`, in the CRS's units) of CRS `crs_text`, with
+/// `height_m` taken as the ellipsoidal height.
+pub fn place_map_point(
+    crs_text: &str,
+    easting: f64,
+    northing: f64,
+    height_m: f64,
+) -> Result<MapPlace, CrsError> {
+    let definition = normalize_crs_text(crs_text);
+    let fail = |why: String| CrsError::Transform {
+        crs: definition.clone(),
+        why,
+    };
+    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
+        crs: definition.clone(),
+        why: "PROJ could not start".into(),
+    })?;
+    let created = ctx.create(&definition).map_err(|why| CrsError::Unknown {
+        crs: definition.clone(),
+        // PROJ says "Unknown error (code 4096)" for a code it does not have.
+        why: if why.message.starts_with("Unknown error") {
+            "not in its database".into()
+        } else {
+            why.message
+        },
+    })?;
+    // A compound CRS (e.g. RD New + NAP height): its horizontal part places the point.
+    let crs = match created.kind() {
+        proj::PJ_TYPE_COMPOUND_CRS => created.sub_crs(0).map_err(|e: ProjError| fail(e.message))?,
+        _ => created,
+    };
+    let id = crs.id().unwrap_or_else(|| definition.clone());
+    let name = crs.name();
+    let axes = crs.axes().unwrap_or_default();
+    match crs.kind() {
+        proj::PJ_TYPE_PROJECTED_CRS => {}
+        proj::PJ_TYPE_GEOGRAPHIC_2D_CRS | proj::PJ_TYPE_GEOGRAPHIC_3D_CRS => {
+            return Err(CrsError::NotALength {
+                crs: id,
+                name,
+                unit: axes
+                    .first()
+                    .map_or("degree".into(), |a| a.unit_name.clone()),
+            })
+        }
+        _ => return Err(CrsError::NotProjected { crs: id, name }),
+    }
+    let unit_m = axes.first().map_or(1.0, |a| a.unit_to_si);
+    if axes.len() < 2 || !(unit_m.is_finite() && unit_m > 0.0) {
+        return Err(CrsError::NotALength {
+            crs: id,
+            name,
+            unit: axes.first().map_or("?".into(), |a| a.unit_name.clone()),
+        });
+    }
+    if !(easting.is_finite() && northing.is_finite() && height_m.is_finite()) {
+        return Err(fail(format!(
+            "the map point ({easting}, {northing}, {height_m}) is not finite"
+        )));
+    }
+    let wgs84 = ctx
+        .create("EPSG:4326")
+        .map_err(|e: ProjError| fail(e.message))?;
+    let op = ctx
+        .operation(&crs, &wgs84)
+        .map_err(|e: ProjError| fail(e.message))?;
+    let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
+    let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
+    let (operation, accuracy_m) = op
+        .last_used()
+        .unwrap_or_else(|| ("unknown operation".into(), None));
+    if let Some(area) = crs.area_of_use() {
+        let m = AREA_OF_USE_MARGIN_DEG;
+        let lon_inside = if area.west_deg <= area.east_deg {
+            (area.west_deg - m..=area.east_deg + m).contains(&centre.x)
+        } else {
+            // Across the antimeridian.
+            centre.x >= area.west_deg - m || centre.x <= area.east_deg + m
+        };
+        let lat_inside = (area.south_deg - m..=area.north_deg + m).contains(&centre.y);
+        if !(lon_inside && lat_inside) {
+            return Err(CrsError::OutsideAreaOfUse {
+                crs: id,
+                name,
+                easting,
+                northing,
+                longitude_deg: centre.x,
+                latitude_deg: centre.y,
+                area: format!(
+                    "{}: {:.2}°..{:.2}° E, {:.2}°..{:.2}° N",
+                    area.name, area.west_deg, area.east_deg, area.south_deg, area.north_deg
+                ),
+            });
+        }
+    }
+    if !(-90.0..=90.0).contains(&centre.y) {
+        return Err(fail(format!("latitude {} out of range", centre.y)));
+    }
+    let place = GeoOrigin {
+        longitude_deg: centre.x,
+        latitude_deg: centre.y,
+        height_m,
+    };
+    // Local east-north metres of a grid point near the centre (on the ellipsoid: the height
+    // does not change the horizontal map at this scale).
+    let ecef_to_enu = DMat3::from_mat4(place.enu_to_ecef()).transpose();
+    let origin_ecef = geodetic_to_ecef(centre.x, centre.y, 0.0);
+    let step = JACOBIAN_STEP_M / unit_m;
+    let enu_of = |de: f64, dn: f64| -> Result<DVec2, CrsError> {
+        let ll = lon_lat(easting + de, northing + dn).map_err(|e| fail(e.message))?;
+        let local = ecef_to_enu * (geodetic_to_ecef(ll.x, ll.y, 0.0) - origin_ecef);
+        Ok(local.truncate())
+    };
+    let d_east = (enu_of(step, 0.0)? - enu_of(-step, 0.0)?) / (2.0 * JACOBIAN_STEP_M);
+    let d_north = (enu_of(0.0, step)? - enu_of(0.0, -step)?) / (2.0 * JACOBIAN_STEP_M);
+    let grid_to_enu = DMat2::from_cols(d_east, d_north);
+    let det = grid_to_enu.determinant();
+    if !(det.is_finite() && det > 0.0) {
+        return Err(fail(format!(
+            "the grid around E {easting} N {northing} does not map to the ground (det {det})"
+        )));
+    }
+    Ok(MapPlace {
+        crs: id,
+        crs_name: name,
+        place,
+        grid_to_enu,
+        // Grid north (0, 1) lands at (sin γ, cos γ) / k in east-north.
+        convergence_deg: d_north.x.atan2(d_north.y).to_degrees(),
+        scale_factor: 1.0 / det.sqrt(),
+        unit_m,
+        operation,
+        accuracy_m,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geodesy::projection::{utm_to_wgs84, UtmZone};
+
+    /// PROJ and our own Transverse Mercator series (Karney's Krüger n³, kept as the independent
+    /// check) agree to a millimetre on UTM, and on the convergence to 0.1″.
+    #[test]
+    fn proj_agrees_with_our_utm_to_a_millimetre() {
+        for (crs, zone, north, e, n) in [
+            ("EPSG:32632", 32, true, 458_000.0, 5_438_000.0),
+            ("EPSG:32756", 56, false, 334_000.0, 6_252_000.0),
+            ("EPSG:32631", 31, true, 700_000.0, 10_000.0),
+            ("WGS 84 / UTM zone 17N", 17, true, 250_000.0, 4_000_000.0),
+        ] {
+            let p = place_map_point(crs, e, n, 12.0).unwrap();
+            let (lat, lon, gamma) = utm_to_wgs84(UtmZone { zone, north }, e, n);
+            let ours = geodetic_to_ecef(lon, lat, 12.0);
+            let theirs = p.place.to_ecef();
+            assert!((ours - theirs).length() < 1e-3, "{crs}: {ours} vs {theirs}");
+            assert!(
+                (p.convergence_deg - gamma).abs() < 0.1 / 3600.0,
+                "{crs}: {} vs {gamma}",
+                p.convergence_deg
+            );
+            assert_eq!(p.accuracy_m, Some(0.0), "{crs}: no datum shift");
+        }
+    }
+
+    #[test]
+    fn national_grids_convergence_and_scale() {
+        // RD New at Amersfoort: its own origin, no convergence, scale 0.9999079.
+        let rd = place_map_point("28992", 155_000.0, 463_000.0, 0.0).unwrap();
+        assert_eq!(rd.crs, "EPSG:28992");
+        assert!(rd.convergence_deg.abs() < 1e-3, "{rd:?}");
+        // (The datum shift to WGS 84 adds a few ppm of scale.)
+        assert!((rd.scale_factor - 0.9999079).abs() < 1e-5, "{rd:?}");
+        assert!(rd.accuracy_m.is_some_and(|a| a >= 1.0), "datum shift");
+        // UTM 32N at Karlsruhe: west of 9°E, grid north is west of true north; k < 1.
+        let utm = place_map_point("EPSG:25832", 458_000.0, 5_438_000.0, 0.0).unwrap();
+        assert!(utm.convergence_deg < -0.4 && utm.convergence_deg > -0.5);
+        assert!((utm.scale_factor - 0.99962).abs() < 1e-4, "{utm:?}");
+        // Gauss-Krüger's axes are northing, easting: PROJ's normalization still takes (E, N).
+        let gk = place_map_point("EPSG:31467", 3_458_000.0, 5_438_000.0, 0.0).unwrap();
+        assert!((gk.place.longitude_deg - 8.42).abs() < 0.01, "{gk:?}");
+        // US survey feet.
+        let ft = place_map_point("EPSG:2264", 2_000_000.0, 700_000.0, 0.0).unwrap();
+        assert!((ft.unit_m - 0.3048006).abs() < 1e-6, "{ft:?}");
+    }
+
+    #[test]
+    fn unusable_crs_are_errors() {
+        let e = place_map_point("EPSG:99999", 0.0, 0.0, 0.0).unwrap_err();
+        assert!(matches!(e, CrsError::Unknown { .. }), "{e}");
+        let e = place_map_point("EPSG:4326", 8.0, 49.0, 0.0).unwrap_err();
+        assert!(matches!(e, CrsError::NotALength { .. }), "{e}");
+        assert!(e.to_string().contains("degree"), "{e}");
+        // RD New coordinates read as LV95: far outside Switzerland.
+        let e = place_map_point("EPSG:2056", 155_000.0, 463_000.0, 0.0).unwrap_err();
+        assert!(matches!(e, CrsError::OutsideAreaOfUse { .. }), "{e}");
+        assert!(!e.to_string().contains('\n'));
+    }
+}
