@@ -364,6 +364,29 @@ mod tests {
         assert!((ft.unit_m - 0.3048006).abs() < 1e-6, "{ft:?}");
     }
 
+    /// Per vertex, a point 5 km from the anchor lies where PROJ puts it, below the anchor's
+    /// horizon by the Earth's curvature (about 2 m), which one linear map at the anchor misses.
+    #[test]
+    fn map_points_go_to_east_north_up_exactly() {
+        let p = place_map_point("EPSG:28992", 155_000.0, 463_000.0, 10.0).unwrap();
+        let far = glam::DVec3::new(160_000.0, 463_000.0, 10.0);
+        let (anchor, far_enu) = with_map_to_enu("EPSG:28992", &p.place, |to_enu| {
+            (
+                to_enu(glam::DVec3::new(155_000.0, 463_000.0, 10.0)).unwrap(),
+                to_enu(far).unwrap(),
+            )
+        })
+        .unwrap();
+        assert!(anchor.length() < 1e-6, "{anchor}");
+        let drop_m = 5_000.0_f64.powi(2) / (2.0 * 6_371_000.0);
+        assert!((far_enu.z + drop_m).abs() < 0.05, "{far_enu}");
+        let linear = p.grid_to_enu * glam::DVec2::new(5_000.0, 0.0);
+        assert!(
+            (far_enu.truncate() - linear).length() < 0.05,
+            "{far_enu} vs {linear}"
+        );
+    }
+
     #[test]
     fn unusable_crs_are_errors() {
         let e = place_map_point("EPSG:99999", 0.0, 0.0, 0.0).unwrap_err();

@@ -33,8 +33,9 @@ from test_metadata_reader import decode_table, read_glb, tileset_dirs  # noqa: E
 SURFACE_TYPES = {"MultiSurface", "CompositeSurface", "Solid", "MultiSolid", "CompositeSolid"}
 
 
-def cjio_objects(path):
-    """{id: (type, attributes)} of the CityObjects with surface geometry, as cjio reads them."""
+def cjio_objects(path, lod=None):
+    """{id: (type, attributes)} of the CityObjects with surface geometry (at LoD `lod`, when
+    given: --cityjson-lod), as cjio reads them."""
     path = pathlib.Path(path)
     if path.suffix == ".jsonl":
         lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
@@ -46,7 +47,10 @@ def cjio_objects(path):
             cm = cityjson.reader(f)
     out = {}
     for oid, co in cm.j["CityObjects"].items():
-        if any(g.get("type") in SURFACE_TYPES for g in co.get("geometry", [])):
+        if any(
+            g.get("type") in SURFACE_TYPES and (lod is None or float(g.get("lod", 0)) == float(lod))
+            for g in co.get("geometry", [])
+        ):
             out[oid] = (co["type"], co.get("attributes", {}))
     return out
 
@@ -62,7 +66,7 @@ def test_cityjson_elements_and_attributes_match_cjio():
         inputs = [f for f in report["input"]["files"] if f.endswith((".json", ".jsonl")) and pathlib.Path(f).is_file()]
         if len(inputs) != 1:
             continue
-        expected = cjio_objects(inputs[0])
+        expected = cjio_objects(inputs[0], report["options"].get("cityjson_lod"))
         rows = {}
         for tile in report["tiles"]:
             if not tile["content"]:

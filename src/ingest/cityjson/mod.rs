@@ -759,6 +759,37 @@ mod tests {
     }
 
     #[test]
+    fn reference_systems_name_their_epsg_code() {
+        for (text, crs) in [
+            ("https://www.opengis.net/def/crs/EPSG/0/7415", "EPSG:7415"),
+            ("http://www.opengis.net/def/crs/EPSG/0/28992", "EPSG:28992"),
+            ("urn:ogc:def:crs:EPSG::7415", "EPSG:7415"),
+            ("urn:ogc:def:crs:EPSG:6.18:3:2056", "EPSG:2056"),
+            ("ETRS89 / UTM zone 32N", "ETRS89 / UTM zone 32N"),
+        ] {
+            assert_eq!(reference_system_crs(text), crs, "{text}");
+        }
+    }
+
+    #[test]
+    fn a_lod_no_object_has_names_the_lods_present() {
+        let doc = serde_json::json!({"type": "CityJSON", "vertices": [[0,0,0],[1,0,0],[0,1,0]],
+            "CityObjects": {"x": {"type": "Building", "geometry": [
+                {"type": "MultiSurface", "lod": "1.2", "boundaries": [[[0, 1, 2]]]},
+                {"type": "MultiSurface", "lod": 2, "boundaries": [[[0, 1, 2]]]}]}}});
+        let path = Path::new("lods.city.json");
+        let read = |lod| {
+            let mut r = Reader::new(path, lod);
+            r.header(&doc).unwrap();
+            r.document(&doc, "CityObjects").unwrap();
+            r.finish()
+        };
+        assert_eq!(read(Some("2.0")).unwrap().components.len(), 1, "2 is 2.0");
+        let e = read(Some("3")).unwrap_err().to_string();
+        assert!(e.contains("lods.city.json") && e.contains("1.2, 2"), "{e}");
+    }
+
+    #[test]
     fn bad_input_is_an_error_naming_the_problem() {
         let path = Path::new("bad.city.json");
         let mut r = Reader::new(path, None);
