@@ -36,7 +36,7 @@ np = pytest.importorskip("numpy")
 DracoPy = pytest.importorskip("DracoPy")
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-FIXTURE_TEST = "draco::tests::write_independent_check_fixtures"
+FIXTURE_TEST = "draco::fixtures::write_independent_check_fixtures"
 
 
 # --------------------------------------------------------------------------- helpers
