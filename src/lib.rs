@@ -11,6 +11,7 @@
 pub mod build;
 pub mod convert;
 pub mod dedup;
+pub mod draco;
 pub mod encode;
 pub mod error;
 pub mod geodesy;
@@ -39,7 +40,13 @@ pub use error::{Error, Result};
 /// `src/cli/` (the binary) sits on top and may use anything.
 pub const LAYERS: &[&[&str]] = &[
     &["error", "memory"],
-    &["geometry", "geodesy", "glb_container", "output_dir"],
+    &[
+        "geometry",
+        "geodesy",
+        "glb_container",
+        "output_dir",
+        "draco",
+    ],
     &["scene"],
     &["ingest"],
     &["dedup"],

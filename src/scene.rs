@@ -204,7 +204,7 @@ pub struct Sampler {
     pub wrap_t: u32,
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct TextureRef {
     pub image: ImageId,
     pub sampler: Sampler,

@@ -12,54 +12,6 @@ use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// One textured primitive of a tile, read back.
-struct Textured {
-    image: Vec<u8>,
-    dims: (u32, u32),
-    positions: Vec<[f32; 3]>,
-    uvs: Vec<[f32; 2]>,
-    indices: Vec<u32>,
-}
-
-/// Textured primitives of a GLB written without Draco (`--compression none`).
-fn read_textured(path: &Path) -> Vec<Textured> {
-    let bytes = std::fs::read(path).unwrap();
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
-    let blob = g.blob.as_deref().unwrap();
-    let mut out = Vec::new();
-    for mesh in g.document.meshes() {
-        for p in mesh.primitives() {
-            let Some(info) = p.material().pbr_metallic_roughness().base_color_texture() else {
-                continue;
-            };
-            let image = match info.texture().source().source() {
-                gltf::image::Source::View { view, .. } => {
-                    blob[view.offset()..view.offset() + view.length()].to_vec()
-                }
-                // A shared file, relative to the GLB.
-                gltf::image::Source::Uri { uri, .. } => {
-                    assert!(uri.starts_with("../textures/"), "{uri}");
-                    std::fs::read(path.parent().unwrap().join(uri)).unwrap()
-                }
-            };
-            let dims = image::ImageReader::new(std::io::Cursor::new(&image))
-                .with_guessed_format()
-                .unwrap()
-                .into_dimensions()
-                .unwrap();
-            let r = p.reader(|_| Some(blob));
-            out.push(Textured {
-                image,
-                dims,
-                positions: r.read_positions().unwrap().collect(),
-                uvs: r.read_tex_coords(0).unwrap().into_f32().collect(),
-                indices: r.read_indices().unwrap().into_u32().collect(),
-            });
-        }
-    }
-    out
-}
-
 /// Level sizes: halving, rounded up, down to 1x1 (written again here, not taken from the crate).
 fn sizes(w: u32, h: u32) -> Vec<(u32, u32)> {
     let mut v = vec![(w, h)];

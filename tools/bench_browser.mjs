@@ -14,6 +14,8 @@
 //   --path-frames N    frames of the scripted far-to-near camera path (default 30)
 //   --runs-for M=N     runs for the model named M (file name without .glb), e.g. a slow big one;
 //                      repeatable as a comma list: "A=1,B=2"
+//   --raw-glb M=PATH   the raw variant of the model named M is the GLB at PATH (for a model that is
+//                      no GLB, e.g. a CityJSON file: the same data as one GLB in the tileset's frame)
 //   --no-warm          skip the repeat-visit (warm tile cache) loads
 //   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
 //   --timeout S        per-load timeout (default 180)
@@ -55,6 +57,11 @@ function parseArgs(argv) {
   for (const kv of (o["runs-for"] || "").split(",").filter(Boolean)) {
     const [k, v] = kv.split("=");
     o.runsFor[k] = Number(v);
+  }
+  o.rawGlb = {};
+  for (const kv of (o["raw-glb"] || "").split(",").filter(Boolean)) {
+    const [k, v] = kv.split("=");
+    o.rawGlb[k] = v;
   }
   o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
   return o;
@@ -312,7 +319,8 @@ async function main() {
       process.exit(130);
     });
   for (const model of opts.models) {
-    const name = basename(model).replace(/\.glb$/i, "");
+    const name = basename(model).replace(/\.(glb|city\.jsonl|city\.json|json)$/i, "");
+    const rawModel = opts.rawGlb[name] || model;
     const dir = mkdtempSync(join(tmpdir(), "bimtiles-bench-"));
     let server = null;
     let browser = null;
@@ -330,10 +338,10 @@ async function main() {
       cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
       const rawDir = join(dir, "raw");
       mkdirSync(rawDir);
-      copyFileSync(model, join(rawDir, "model.glb"));
+      copyFileSync(rawModel, join(rawDir, "model.glb"));
       writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
       // Everything a client could download: the whole tileset folder against the GLB.
-      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(model).size };
+      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(rawModel).size };
 
       server = current.server = await startServer(serveCmd.replace("{dir}", dir));
       const base = new URL(server.url);

@@ -131,6 +131,10 @@ struct ConvertArgs {
     /// IfcMapConversion that names no usable CRS is in it.
     #[arg(long)]
     crs: Option<String>,
+    /// CityJSON: the level of detail to read ("2.2", "1.3"...); an object without it is left
+    /// out. Default: each object's highest.
+    #[arg(long)]
+    cityjson_lod: Option<String>,
     /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
     /// area of use) is an error and nothing is written, instead of a warning and the default
     /// placement.
@@ -570,6 +574,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         force: a.force,
         origin: a.origin,
         crs: a.crs.clone(),
+        cityjson_lod: a.cityjson_lod.clone(),
         strict_georef: a.strict_georef,
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles,
