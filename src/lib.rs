@@ -13,6 +13,7 @@ pub mod convert;
 pub mod dedup;
 pub mod encode;
 pub mod error;
+pub mod fuzzing;
 pub mod geodesy;
 pub mod geometry;
 pub mod glb_container;
@@ -54,6 +55,7 @@ pub const LAYERS: &[&[&str]] = &[
     &["report"],
     &["convert", "inspect"],
     &["shard", "serve"],
+    &["fuzzing"],
 ];
 
 #[cfg(test)]
