@@ -7,8 +7,11 @@ use crate::texture::admit::{header_size, ImageLimits};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+/// What a fuzz target calls with each input.
+pub type EntryPoint = fn(&[u8]);
+
 /// Each fuzz target's name (its folder under `fuzz/corpus/`) and entry point.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, EntryPoint)] = &[
     ("gltf", gltf),
     ("ifc", ifc),
     ("manifest", manifest),
