@@ -13,7 +13,7 @@ BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
 APT_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data nodejs npm python3 python3-venv chromium fonts-dejavu-core
 
-.PHONY: run test lint test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
+.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
 
 run: deps build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -48,6 +48,26 @@ $(VENV)/.installed: tests/python/requirements.txt
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
 	touch $@
+
+# Fuzzing (README, "Safety"): every cargo-fuzz target in fuzz/ runs FUZZ_SECONDS, one after the
+# other, on the nightly toolchain (cargo-fuzz comes from crates.io when missing). New inputs go
+# to target/fuzz-corpus/<target>/ (the checked-in seeds in fuzz/corpus/ stay as they are), crashes
+# to fuzz/artifacts/<target>/: copy each into fuzz/corpus/<target>/ once fixed, and
+# tests/fuzz_corpus.rs replays it in `make test`. No sanitizer: the readers are safe Rust, and
+# ASan would halve the executions.
+FUZZ_SECONDS ?= 600
+FUZZ_TARGETS := gltf ifc manifest image inspect http_head
+deps-fuzz:
+	@rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
+	@command -v cargo-fuzz >/dev/null || $(CARGO) install cargo-fuzz --locked
+
+fuzz: deps-system deps-fuzz
+	cd fuzz && $(CARGO) +nightly fuzz build -s none
+	@set -e; for t in $(FUZZ_TARGETS); do mkdir -p target/fuzz-corpus/$$t; \
+	  echo "fuzz: $$t for $(FUZZ_SECONDS) s"; \
+	  (cd fuzz && $(CARGO) +nightly fuzz run -s none $$t ../target/fuzz-corpus/$$t corpus/$$t -- \
+	    -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=4096 \
+	    -print_final_stats=1); done
 
 # Formatting and lints, as CI runs them before the tests (the build script needs libdraco-dev).
 lint: deps-system

@@ -14,6 +14,7 @@ pub mod dedup;
 pub mod draco;
 pub mod encode;
 pub mod error;
+pub mod fuzzing;
 pub mod geodesy;
 pub mod geometry;
 pub mod glb_container;
@@ -61,6 +62,7 @@ pub const LAYERS: &[&[&str]] = &[
     &["report"],
     &["convert", "inspect"],
     &["shard", "serve"],
+    &["fuzzing"],
 ];
 
 #[cfg(test)]

@@ -390,6 +390,20 @@ impl Component {
     }
 }
 
+/// A number no building model holds, in an element's geometry or placement ([`Scene::first_implausible`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "element '{element}': {what} {value:e} m is not plausible (not finite, or beyond ±{bound:e} m, the Earth's circumference)",
+    bound = crate::geodesy::PLAUSIBLE_COORDINATE_M
+)]
+pub struct ImplausibleNumber {
+    /// The element's id (IFC GlobalId, glTF node path).
+    pub element: String,
+    /// "transform entry" or "vertex coordinate" (in the scene frame, after its transforms).
+    pub what: &'static str,
+    pub value: f64,
+}
+
 /// A source file that was read into the scene.
 #[derive(Debug, Clone)]
 pub struct SourceFile {
@@ -571,6 +585,30 @@ impl Scene {
         self.compute_bounds();
     }
 
+    /// The first component whose transform or placed vertices hold a number that is not
+    /// plausible (`geodesy::plausible_m`: a 1e30 extrusion, a position at f32::MAX, a NaN), with
+    /// the input file it came from. Checks the components' world boxes, not every vertex.
+    pub fn first_implausible(&self) -> Option<(std::path::PathBuf, ImplausibleNumber)> {
+        use crate::geodesy::first_implausible_m;
+        self.components.iter().enumerate().find_map(|(i, c)| {
+            let b = &c.world_bounds;
+            let corners = || b.min.to_array().into_iter().chain(b.max.to_array());
+            let (what, value) = first_implausible_m(c.world.to_cols_array())
+                .map(|v| ("transform entry", v))
+                .or_else(|| match b.is_empty() {
+                    true => None,
+                    false => first_implausible_m(corners()).map(|v| ("vertex coordinate", v)),
+                })?;
+            let file = self.sources.get(c.source as usize).map(|s| s.path.clone());
+            let number = ImplausibleNumber {
+                element: self.elements.get(i).key,
+                what,
+                value,
+            };
+            Some((file.unwrap_or_default(), number))
+        })
+    }
+
     /// Fills the derived fields (component world bounds; mesh local bounds are the store's).
     /// Called by readers once a scene is complete and after any geometry change.
     pub fn finish(&mut self) {
@@ -585,16 +623,24 @@ impl Scene {
         let meshes = &self.meshes;
         self.components.par_iter_mut().for_each(|c| {
             let mut b = Aabb::EMPTY;
+            let mut finite = true;
             for p in &meshes.get(c.mesh).primitives {
                 for v in &p.positions {
-                    b.extend(c.world.transform_point3(DVec3::new(
-                        v[0] as f64,
-                        v[1] as f64,
-                        v[2] as f64,
-                    )));
+                    let q =
+                        c.world
+                            .transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+                    finite &= q.is_finite();
+                    b.extend(q);
                 }
             }
-            c.world_bounds = b;
+            // `extend` passes over NaN: a box of NaN keeps it for `first_implausible`.
+            c.world_bounds = match finite {
+                true => b,
+                false => Aabb {
+                    min: DVec3::NAN,
+                    max: DVec3::NAN,
+                },
+            };
         });
     }
 }

@@ -233,9 +233,9 @@ pub fn place_map_point(
             unit: axes.first().map_or("?".into(), |a| a.unit_name.clone()),
         });
     }
-    if !(easting.is_finite() && northing.is_finite() && height_m.is_finite()) {
+    if let Some(v) = crate::geodesy::first_implausible_m([easting, northing, height_m]) {
         return Err(fail(format!(
-            "the map point ({easting}, {northing}, {height_m}) is not finite"
+            "the map point ({easting}, {northing}, {height_m}) holds {v:e}, not a plausible number of metres"
         )));
     }
     let wgs84 = ctx
@@ -246,6 +246,12 @@ pub fn place_map_point(
         .map_err(|e: ProjError| fail(e.message))?;
     let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
     let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
+    if !(centre.is_finite() && (-180.0..=180.0).contains(&centre.x)) {
+        return Err(fail(format!(
+            "PROJ gives no place on Earth for E {easting} N {northing} (longitude {}, latitude {})",
+            centre.x, centre.y
+        )));
+    }
     let (operation, accuracy_m) = op
         .last_used()
         .unwrap_or_else(|| ("unknown operation".into(), None));

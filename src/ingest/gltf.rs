@@ -98,6 +98,29 @@ impl FileBytes {
     }
 }
 
+/// The GLB header's version and length (glTF 2.0, 4.4.2): version 2, and the length of the whole
+/// file (the `gltf` crate checks only the magic): a file cut short or with bytes appended is
+/// refused rather than read as far as it goes.
+fn check_glb_header(bytes: &[u8]) -> std::result::Result<(), String> {
+    let word = |at: usize| {
+        let b = bytes.get(at..at + 4)?;
+        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let (Some(version), Some(length_bytes)) = (word(4), word(8)) else {
+        return Err("truncated GLB: no complete 12-byte header".into());
+    };
+    if version != 2 {
+        return Err(format!("GLB version {version}: only version 2 exists"));
+    }
+    if length_bytes as usize != bytes.len() {
+        return Err(format!(
+            "the GLB header says the file has {length_bytes} bytes, but it has {}",
+            bytes.len()
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a glTF/GLB from its bytes: a GLB's BIN chunk is read in place, never copied.
 fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     let bytes = file.bytes();
@@ -113,6 +136,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     }
     // (JSON text, BIN chunk's byte range inside `bytes`).
     let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
+        check_glb_header(bytes).map_err(err)?;
         let glb = gltf::binary::Glb::from_slice(bytes)
             .map_err(|e| Error::input_from(path, "invalid or truncated GLB", e))?;
         let json: &[u8] = match glb.json {

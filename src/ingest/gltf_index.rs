@@ -39,6 +39,10 @@ pub enum GltfIndexError {
         path: String,
         source: gltf::json::validation::Error,
     },
+    /// Something the glTF 2.0 specification forbids that the reader would otherwise pass over
+    /// (a mesh with no primitives, a byteStride that cuts elements, a version it does not read).
+    #[error("{path}: {problem}")]
+    Forbidden { path: String, problem: String },
     /// An index into another array that is past its end.
     #[error("{path}: index {index} out of bounds (of {len})")]
     OutOfBounds {
@@ -552,7 +556,66 @@ impl GltfIndex {
                 bad(format!("images[{i}].bufferView"), v, self.views.len())?;
             }
         }
+        self.check_spec_rules()
+    }
+
+    /// The glTF 2.0 rules (section 3 and 5 of the specification) a reader could pass over
+    /// without noticing: the asset's version, meshes with primitives, byte strides that hold
+    /// their elements.
+    fn check_spec_rules(&self) -> Result<(), GltfIndexError> {
+        let forbidden = |path: String, problem: String| GltfIndexError::Forbidden { path, problem };
+        check_version(&self.root.asset).map_err(|(field, problem)| forbidden(field, problem))?;
+        if let Some(i) = self.meshes.iter().position(|m| m.primitives.is_empty()) {
+            let problem = "a mesh with no primitives (glTF 2.0 requires at least one)";
+            return Err(forbidden(format!("meshes[{i}]"), problem.into()));
+        }
+        for (i, v) in self.views.iter().enumerate() {
+            let Some(stride) = v.stride else { continue };
+            if !(4..=252).contains(&stride) || stride % 4 != 0 {
+                let problem =
+                    format!("byteStride {stride} is not a multiple of 4 from 4 to 252 (glTF 2.0)");
+                return Err(forbidden(format!("bufferViews[{i}]"), problem));
+            }
+        }
+        for (i, a) in self.accessors.iter().enumerate() {
+            let Some(view) = a.view else { continue };
+            let Some(stride) = self.views[view as usize].stride else {
+                continue;
+            };
+            let element_bytes = a.data_type.size() * a.dimensions.multiplicity();
+            if stride < element_bytes {
+                let problem = format!(
+                    "its {element_bytes}-byte elements overlap: bufferViews[{view}].byteStride is {stride}"
+                );
+                return Err(forbidden(format!("accessors[{i}]"), problem));
+            }
+        }
         Ok(())
+    }
+}
+
+/// glTF 2.0 `asset.version` and `asset.minVersion` (section 5.2): "MAJOR.MINOR", major 2, and
+/// no minVersion above 2.0 (this reader implements 2.0). `Err`: the field and the problem.
+fn check_version(asset: &gltf::json::Asset) -> Result<(), (String, String)> {
+    let parse = |v: &str| -> Option<(u32, u32)> {
+        let (major, minor) = v.split_once('.')?;
+        let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+        (digits(major) && digits(minor))
+            .then(|| Some((major.parse().ok()?, minor.parse().ok()?)))?
+    };
+    match parse(&asset.version) {
+        Some((2, _)) => {}
+        _ => {
+            let problem = format!("version '{}' is not a glTF 2.x version", asset.version);
+            return Err(("asset.version".into(), problem));
+        }
+    }
+    match asset.min_version.as_deref().map(|v| (v, parse(v))) {
+        None | Some((_, Some((2, 0)))) => Ok(()),
+        Some((v, _)) => Err((
+            "asset.minVersion".into(),
+            format!("'{v}' asks for more than glTF 2.0, which bimtiles reads"),
+        )),
     }
 }
 
