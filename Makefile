@@ -96,7 +96,7 @@ test: deps
 # 2026-11-25, were tiny_http leaving a new connection unread: fixed in src/serve/, no retry.)
 BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus ktx2-LoD3_Railway cityjson-3dbag-5907-subset
 test-browser: deps build
-	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || continue; \
+	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || { echo "browser test: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; \
 	  echo "browser test: $$s"; pick=""; case $$s in sample) pick="--require-pick --check-adaptive";; cityjson-*) pick=--require-pick;; esac; \
 	  log=target/test-out/$$s.browser.log; \
 	  BIMTILES_SERVE_LOG=1 node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" \

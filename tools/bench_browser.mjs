@@ -353,7 +353,8 @@ async function main() {
         raw: new URL("/tileset/raw/tileset.json", base).href,
       };
       // Service worker on (no cache=0): the first page load installs it and it takes control.
-      await page.goto(new URL(`/?msaa=1&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      // sse=16 fixes the SSE (the viewer's adaptive strategy off), so both variants are drawn alike.
+      await page.goto(new URL(`/?msaa=1&sse=16&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
       entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);
