@@ -53,8 +53,9 @@ $(VENV)/.installed: tests/python/requirements.txt
 # other, on the nightly toolchain (cargo-fuzz comes from crates.io when missing). New inputs go
 # to target/fuzz-corpus/<target>/ (the checked-in seeds in fuzz/corpus/ stay as they are), crashes
 # to fuzz/artifacts/<target>/: copy each into fuzz/corpus/<target>/ once fixed, and
-# tests/fuzz_corpus.rs replays it in `make test`. No sanitizer: the readers are safe Rust, and
-# ASan would halve the executions.
+# tests/fuzz_corpus.rs replays it in `make test`. No sanitizer: our readers are safe Rust, the C++
+# decoders the glTF reader calls (Debian's libdraco, meshoptimizer) are not instrumented either way
+# (a memory error there shows as a crash), and ASan would halve the executions.
 FUZZ_SECONDS ?= 600
 FUZZ_TARGETS := gltf ifc manifest image inspect http_head
 deps-fuzz:
