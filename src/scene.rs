@@ -300,6 +300,22 @@ pub enum PropertyValue {
     Bool(bool),
 }
 
+impl PropertyValue {
+    /// A JSON scalar as a typed value (glTF extras, CityJSON attributes); `None` for null, arrays
+    /// and objects, which each reader treats in its own way.
+    pub fn from_json_scalar(v: &Value) -> Option<PropertyValue> {
+        Some(match v {
+            Value::String(s) => PropertyValue::Text(s.clone()),
+            Value::Bool(b) => PropertyValue::Bool(*b),
+            Value::Number(n) => match n.as_i64() {
+                Some(i) => PropertyValue::Integer(i),
+                None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
+            },
+            _ => return None,
+        })
+    }
+}
+
 /// One named property of an element, in a named set (IFC property set or quantity set; "extras"
 /// for glTF node extras).
 #[derive(Debug, Clone, PartialEq)]

@@ -106,6 +106,20 @@ fn assert_identical(convert: &Path, sharded: &Path) {
     );
 }
 
+/// `convert --manifest m --out out --quiet` with `extra` options.
+fn convert_manifest(m: &str, out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "convert",
+        "--manifest",
+        m,
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    ok(&args);
+}
+
 /// plan / build-job (reverse order, or `order`) / merge into `dir`.
 fn sharded(inputs: &[&str], dir: &Path, jobs: usize, extra: &[&str]) -> Value {
     let _ = std::fs::remove_dir_all(dir);
@@ -138,16 +152,7 @@ fn sample_campus_sharded_is_byte_identical_to_convert() {
         ("add", vec!["--max-tile-triangles", "3000", "--lod", "none"]),
     ] {
         let conv = dir.join(format!("convert-{name}"));
-        let mut args = vec![
-            "convert",
-            "--manifest",
-            m,
-            "--out",
-            conv.to_str().unwrap(),
-            "--quiet",
-        ];
-        args.extend_from_slice(&extra);
-        ok(&args);
+        convert_manifest(m, &conv, &extra);
         for jobs in [1, 4] {
             let out = dir.join(format!("shard-{name}-{jobs}"));
             let plan = sharded(&["--manifest", m], &out, jobs, &extra);
@@ -415,16 +420,7 @@ fn cityjson_manifest_sharded_and_spilled_is_byte_identical() {
     let extra = ["--max-tile-triangles", "8000"];
 
     let conv = dir.join("convert");
-    let mut args = vec![
-        "convert",
-        "--manifest",
-        m,
-        "--out",
-        conv.to_str().unwrap(),
-        "--quiet",
-    ];
-    args.extend_from_slice(&extra);
-    ok(&args);
+    convert_manifest(m, &conv, &extra);
     let report: Value =
         serde_json::from_slice(&std::fs::read(conv.join("report.json")).unwrap()).unwrap();
     assert_eq!(
@@ -444,9 +440,7 @@ fn cityjson_manifest_sharded_and_spilled_is_byte_identical() {
     assert_identical(&conv, &out);
 
     let tiny = dir.join("tiny-budget");
-    args[4] = tiny.to_str().unwrap();
-    args.extend_from_slice(&["--memory-budget", "64K"]);
-    ok(&args);
+    convert_manifest(m, &tiny, &[extra[0], extra[1], "--memory-budget", "64K"]);
     let (spilled, resident) = spilled_bytes(&tiny);
     assert!(
         spilled > 20 * resident,

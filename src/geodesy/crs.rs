@@ -176,11 +176,8 @@ pub fn with_map_to_enu<R>(
     };
     let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
     let crs = horizontal_crs(&ctx, &definition)?;
-    let wgs84 = ctx
-        .create("EPSG:4326")
-        .map_err(|e: ProjError| fail(e.message))?;
     let op = ctx
-        .operation(&crs, &wgs84)
+        .operation_to_wgs84(&crs)
         .map_err(|e: ProjError| fail(e.message))?;
     let ecef_to_enu = DMat3::from_mat4(origin.enu_to_ecef()).transpose();
     let origin_ecef = origin.to_ecef();
@@ -238,11 +235,8 @@ pub fn place_map_point(
             "the map point ({easting}, {northing}, {height_m}) holds {v:e}, not a plausible number of metres"
         )));
     }
-    let wgs84 = ctx
-        .create("EPSG:4326")
-        .map_err(|e: ProjError| fail(e.message))?;
     let op = ctx
-        .operation(&crs, &wgs84)
+        .operation_to_wgs84(&crs)
         .map_err(|e: ProjError| fail(e.message))?;
     let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
     let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;

@@ -471,14 +471,8 @@ fn element_info(extras: Option<&Value>, texts: &mut TextInterner) -> ElementInfo
             "site" => info.site = shared(),
             "material" => info.material = shared(),
             _ => {
-                let value = match v {
-                    Value::String(s) => PropertyValue::Text(s.clone()),
-                    Value::Bool(b) => PropertyValue::Bool(*b),
-                    Value::Number(n) => match n.as_i64() {
-                        Some(i) => PropertyValue::Integer(i),
-                        None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
-                    },
-                    _ => continue,
+                let Some(value) = PropertyValue::from_json_scalar(v) else {
+                    continue;
                 };
                 info.properties.push(Property {
                     set: texts.get("extras"),

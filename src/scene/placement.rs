@@ -4,7 +4,7 @@
 //! campus manifest.
 
 use super::{Aabb, Scene, SourceGeoreference};
-use crate::geodesy::crs::{place_map_point, with_map_to_enu, CrsError, CrsUse};
+use crate::geodesy::crs::{place_map_point, with_map_to_enu, CrsError, CrsUse, MapPlace};
 use glam::{DMat3, DMat4, DVec3};
 
 /// Models whose bounding-box centre is farther than this from their own origin are taken to be in
@@ -58,6 +58,19 @@ impl Placement {
     }
 }
 
+/// Adds where the anchor's map point went (`p`) to the report's `georeference.crs`, under the
+/// scene's first file.
+fn record_crs_use(scene: &mut Scene, source: &str, p: &MapPlace, anchor: DVec3) {
+    let file = scene
+        .sources
+        .first()
+        .map(|s| s.path.display().to_string())
+        .unwrap_or_default();
+    scene
+        .crs_used
+        .push(CrsUse::new(&file, source, p, anchor.x, anchor.y));
+}
+
 /// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
 /// model lies far from it (projected coordinates), then its footprint centre at ground level.
 pub fn choose_anchor(bounds: &Aabb) -> (DVec3, String) {
@@ -89,14 +102,7 @@ pub fn georeference_map_coordinates(
     let p = place_map_point(crs, anchor.x, anchor.y, anchor.z)?;
     let grid = p.grid_to_enu * p.unit_m;
     let linear = DMat3::from_cols(grid.x_axis.extend(0.0), grid.y_axis.extend(0.0), DVec3::Z);
-    let file = scene
-        .sources
-        .first()
-        .map(|s| s.path.display().to_string())
-        .unwrap_or_default();
-    scene
-        .crs_used
-        .push(CrsUse::new(&file, source, &p, anchor.x, anchor.y));
+    record_crs_use(scene, source, &p, anchor);
     scene.georeference = Some(SourceGeoreference {
         longitude_deg: p.place.longitude_deg,
         latitude_deg: p.place.latitude_deg,
@@ -162,14 +168,7 @@ pub fn georeference_map_coordinates_per_vertex(
         }
         Ok(())
     })??;
-    let file = scene
-        .sources
-        .first()
-        .map(|s| s.path.display().to_string())
-        .unwrap_or_default();
-    scene
-        .crs_used
-        .push(CrsUse::new(&file, source, &p, anchor.x, anchor.y));
+    record_crs_use(scene, source, &p, anchor);
     scene.georeference = Some(SourceGeoreference {
         longitude_deg: p.place.longitude_deg,
         latitude_deg: p.place.latitude_deg,

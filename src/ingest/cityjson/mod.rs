@@ -377,15 +377,11 @@ impl<'a> Reader<'a> {
             return;
         };
         for (k, v) in attributes {
-            let value = match v {
-                Value::String(s) => PropertyValue::Text(s.clone()),
-                Value::Bool(b) => PropertyValue::Bool(*b),
-                Value::Number(n) => match n.as_i64() {
-                    Some(i) => PropertyValue::Integer(i),
-                    None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
-                },
-                Value::Null => continue,
-                other => PropertyValue::Text(other.to_string()),
+            // Arrays and objects (addresses, say) are kept as their JSON text.
+            let value = match PropertyValue::from_json_scalar(v) {
+                Some(value) => value,
+                None if v.is_null() => continue,
+                None => PropertyValue::Text(v.to_string()),
             };
             if k == "name" {
                 info.name = v.as_str().map(str::to_string);
