@@ -26,6 +26,8 @@ pub enum MeshoptError {
     BadFilter { filter: String, stride: usize },
     #[error("count {count} x byteStride {stride} overflows")]
     TooLarge { count: usize, stride: usize },
+    #[error("mode TRIANGLES with count {0}, which is not a multiple of 3")]
+    PartialTriangle(usize),
     #[error("meshopt decoding failed")]
     Decode(#[source] meshopt::Error),
 }
@@ -61,6 +63,8 @@ pub fn decode_meshopt_view(view: &MeshoptView, source: &[u8]) -> Result<Vec<u8>,
             decode_vertices(encoded, count, s / 4)?
         }
         ("ATTRIBUTES", _) => return Err(bad_stride()),
+        // The spec's rule, which meshoptimizer asserts (an abort, not an error): checked first.
+        ("TRIANGLES", _) if count % 3 != 0 => return Err(MeshoptError::PartialTriangle(count)),
         ("TRIANGLES", 2) => bytes_of(
             meshopt::encoding::decode_index_buffer::<u16>(encoded, count)
                 .map_err(MeshoptError::Decode)?,
@@ -271,6 +275,9 @@ mod tests {
         assert!(matches!(e, MeshoptError::Decode(_)), "{e}");
         let e = decode_meshopt_view(&view("ATTRIBUTES", 4, 1 << 40, 4, None), &[0; 4]).unwrap_err();
         assert!(matches!(e, MeshoptError::TooLarge { .. }), "{e}");
+        // Found by the fuzzer: meshoptimizer's index decoder aborts the process on this.
+        let e = decode_meshopt_view(&view("TRIANGLES", 2, 4, 4, None), &[0; 4]).unwrap_err();
+        assert!(matches!(e, MeshoptError::PartialTriangle(4)), "{e}");
     }
 
     #[test]
