@@ -73,26 +73,15 @@ fn polygon_area(rings: &[Vec<DVec3>]) -> f64 {
 /// (objects with surface geometry, total polygon area of their highest LoD, or of LoD `at_lod`).
 fn expected(path: &Path, at_lod: Option<f64>) -> (usize, f64) {
     let (header, docs) = documents(path);
-    let scale = header["transform"]["scale"]
-        .as_array()
-        .map(|a| {
-            DVec3::new(
-                a[0].as_f64().unwrap(),
-                a[1].as_f64().unwrap(),
-                a[2].as_f64().unwrap(),
-            )
+    let transform = |key: &str, absent: DVec3| {
+        header["transform"][key].as_array().map_or(absent, |a| {
+            DVec3::from_array([0, 1, 2].map(|i| a[i].as_f64().unwrap()))
         })
-        .unwrap_or(DVec3::ONE);
-    let translate = header["transform"]["translate"]
-        .as_array()
-        .map(|a| {
-            DVec3::new(
-                a[0].as_f64().unwrap(),
-                a[1].as_f64().unwrap(),
-                a[2].as_f64().unwrap(),
-            )
-        })
-        .unwrap_or(DVec3::ZERO);
+    };
+    let (scale, translate) = (
+        transform("scale", DVec3::ONE),
+        transform("translate", DVec3::ZERO),
+    );
     let (mut count, mut area) = (0, 0.0);
     for doc in docs {
         let vertices: Vec<DVec3> = doc["vertices"]
