@@ -5,6 +5,8 @@
 //!   found with pkg-config and linked dynamically.
 //! - `proj()`: Debian's PROJ (libproj-dev, >= 9.1), found with pkg-config and linked dynamically;
 //!   `src/geodesy/proj.rs` declares the few C functions used.
+//! - `basisu()`: our C shim over the Basis Universal encoder that the crate basis-universal-sys
+//!   compiles and links (KTX2 output, which that crate's API does not offer).
 
 use std::env;
 use std::path::PathBuf;
@@ -14,6 +16,20 @@ fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     draco(&manifest_dir);
     proj();
+    basisu(&manifest_dir);
+}
+
+/// Compiles `shim/basisu_shim.cc` (needs no headers: it declares the three encoder functions it
+/// calls; their code is in basis-universal-sys's static library).
+fn basisu(manifest_dir: &std::path::Path) {
+    let source = manifest_dir.join("shim").join("basisu_shim.cc");
+    println!("cargo:rerun-if-changed={}", source.display());
+    cc::Build::new()
+        .cpp(true)
+        .std("c++11")
+        .file(&source)
+        .flag_if_supported("-fexceptions")
+        .compile("bimtiles_basisu_shim");
 }
 
 /// Links the system PROJ library (coordinate reference systems and their transformations).

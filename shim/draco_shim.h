@@ -11,7 +11,7 @@
  *    matching *_free function; the caller owns everything it passes in and
  *    the shim never keeps a pointer to caller memory after returning.
  *
- * The Rust side (src/encode/draco.rs) is the only user; keep the two in sync.
+ * The Rust side (src/draco/) is the only user; keep the two in sync.
  */
 #ifndef BIMTILES_DRACO_SHIM_H_
 #define BIMTILES_DRACO_SHIM_H_

@@ -32,6 +32,10 @@ pub enum Error {
     /// A tile could not be encoded (Draco, an image, the glTF JSON), with its reason as the source.
     #[error("{path}: encoding failed")]
     Encode { path: PathBuf, source: Source },
+    /// bimtiles itself went wrong on this input (a defect, caught before anything was written),
+    /// e.g. a tile box that came out not finite.
+    #[error("{}: internal error (a bimtiles defect; nothing was written): {message}", path.display())]
+    Internal { path: PathBuf, message: String },
 }
 
 /// The cause of an error from a stage (its own error type), kept whole so the CLI prints the
@@ -55,7 +59,8 @@ impl Error {
             Error::Input { path, .. }
             | Error::Output { path, .. }
             | Error::Simplify { path, .. }
-            | Error::Encode { path, .. } => path,
+            | Error::Encode { path, .. }
+            | Error::Internal { path, .. } => path,
             Error::Options(_) => return self,
         };
         if let Ok(rest) = path.strip_prefix(from) {

@@ -60,7 +60,8 @@ fn read_lod_levels(dir: &Path) -> Result<Vec<crate::report::LodLevelReport>> {
 
 /// Triangle count of a GLB: sum of index counts (or vertex counts) / 3 over triangle primitives.
 pub fn glb_triangle_count(path: &Path) -> Result<u64> {
-    let bytes = std::fs::read(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
+    let bytes =
+        crate::ingest::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
     let g = gltf::Gltf::from_slice_without_validation(&bytes)
         .map_err(|e| Error::input_from(path, "not a valid GLB", e))?;
     let mut tris = 0u64;
@@ -81,10 +82,17 @@ pub fn glb_triangle_count(path: &Path) -> Result<u64> {
 
 pub fn inspect(dir: &Path) -> Result<TilesetSummary> {
     let ts_path = dir.join("tileset.json");
-    let text =
-        std::fs::read(&ts_path).map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
-    let ts: Value = serde_json::from_slice(&text)
-        .map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
+    let text = crate::ingest::read_regular(&ts_path)
+        .map_err(|e| Error::input_from(&ts_path, "cannot read", e))?;
+    inspect_text(dir, &text)
+}
+
+/// [`inspect`] of the tileset.json text `text` of the tileset in `dir` (its tiles are read from
+/// `dir`).
+pub fn inspect_text(dir: &Path, text: &[u8]) -> Result<TilesetSummary> {
+    let ts_path = dir.join("tileset.json");
+    let ts: Value =
+        serde_json::from_slice(text).map_err(|e| Error::input_from(&ts_path, "invalid JSON", e))?;
     let root = ts
         .get("root")
         .ok_or_else(|| Error::input(&ts_path, "no root tile"))?;

@@ -11,8 +11,10 @@
 pub mod build;
 pub mod convert;
 pub mod dedup;
+pub mod draco;
 pub mod encode;
 pub mod error;
+pub mod fuzzing;
 pub mod geodesy;
 pub mod geometry;
 pub mod glb_container;
@@ -39,7 +41,13 @@ pub use error::{Error, Result};
 /// `src/cli/` (the binary) sits on top and may use anything.
 pub const LAYERS: &[&[&str]] = &[
     &["error", "memory"],
-    &["geometry", "geodesy", "glb_container", "output_dir"],
+    &[
+        "geometry",
+        "geodesy",
+        "glb_container",
+        "output_dir",
+        "draco",
+    ],
     &["scene"],
     &["ingest"],
     &["dedup"],
@@ -54,6 +62,7 @@ pub const LAYERS: &[&[&str]] = &[
     &["report"],
     &["convert", "inspect"],
     &["shard", "serve"],
+    &["fuzzing"],
 ];
 
 #[cfg(test)]

@@ -19,6 +19,8 @@ pub struct ConvertOptions {
     /// The projected CRS of the inputs' map coordinates (`--crs EPSG:CODE`): glTF/GLB positions
     /// and IFC map conversions that name no CRS.
     pub crs: Option<String>,
+    /// The CityJSON LoD to read ("2.2"; `--cityjson-lod`); `None`: each object's highest.
+    pub cityjson_lod: Option<String>,
     /// A georeference that cannot be used is an error instead of a warning (`--strict-georef`).
     pub strict_georef: bool,
     pub octree: OctreeOptions,
@@ -63,6 +65,7 @@ impl ConvertOptions {
             force: false,
             origin: None,
             crs: None,
+            cityjson_lod: None,
             strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),

@@ -40,13 +40,14 @@ pub struct InputReport {
 /// Reads an input set into one scene; an input without triangles is an error, and so is a
 /// georeference that could not be used under `--strict-georef`.
 pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
-    let scene = inputs.read_in_crs(opts.crs.as_deref())?;
+    let scene = inputs.read_with(opts.crs.as_deref(), opts.cityjson_lod.as_deref())?;
     if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
         return Err(Error::input(
             &w.file,
             format!("{} (--strict-georef)", w.message),
         ));
     }
+    refuse_implausible(&scene)?;
     if scene.triangle_count() == 0 {
         let name = scene
             .sources
@@ -56,6 +57,15 @@ pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Sce
         return Err(Error::input(name, "the input has no triangles to tile"));
     }
     Ok(scene)
+}
+
+/// Refuses a scene with a coordinate or transform that is not plausible (README, "Safety"),
+/// naming the file, the element and the value.
+fn refuse_implausible(scene: &Scene) -> Result<()> {
+    match scene.first_implausible() {
+        Some((file, number)) => Err(Error::input_from(file, "", number)),
+        None => Ok(()),
+    }
 }
 
 /// A scene placed, deduplicated and planned: everything before the tiles are built. A pure
@@ -110,6 +120,8 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
     let placed = Placement::of(scene);
     if scene.georeference.is_some() || placed.anchor != DVec3::ZERO {
         scene.apply_transform(&placed.local);
+        // The input's own georeference (a map conversion's scales) placed it.
+        refuse_implausible(scene)?;
     }
     let (origin, origin_source) = match (scene.georeference, opts.origin) {
         (_, Some(user)) => (user, "option"),

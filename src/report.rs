@@ -258,6 +258,7 @@ pub(crate) fn make_report(
             "min_instanced_triangles_saved": opts.min_instanced_triangles_saved
                 .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression)),
             "texture": opts.texture,
+            "cityjson_lod": opts.cityjson_lod,
         }),
         timings_s: timings,
         peak_memory_bytes: 0,

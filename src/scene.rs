@@ -204,7 +204,7 @@ pub struct Sampler {
     pub wrap_t: u32,
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct TextureRef {
     pub image: ImageId,
     pub sampler: Sampler,
@@ -300,6 +300,22 @@ pub enum PropertyValue {
     Bool(bool),
 }
 
+impl PropertyValue {
+    /// A JSON scalar as a typed value (glTF extras, CityJSON attributes); `None` for null, arrays
+    /// and objects, which each reader treats in its own way.
+    pub fn from_json_scalar(v: &Value) -> Option<PropertyValue> {
+        Some(match v {
+            Value::String(s) => PropertyValue::Text(s.clone()),
+            Value::Bool(b) => PropertyValue::Bool(*b),
+            Value::Number(n) => match n.as_i64() {
+                Some(i) => PropertyValue::Integer(i),
+                None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
+            },
+            _ => return None,
+        })
+    }
+}
+
 /// One named property of an element, in a named set (IFC property set or quantity set; "extras"
 /// for glTF node extras).
 #[derive(Debug, Clone, PartialEq)]
@@ -388,6 +404,20 @@ impl Component {
     pub fn mirrors(&self) -> bool {
         glam::DMat3::from_mat4(self.world).determinant() < 0.0
     }
+}
+
+/// A number no building model holds, in an element's geometry or placement ([`Scene::first_implausible`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "element '{element}': {what} {value:e} m is not plausible (not finite, or beyond ±{bound:e} m, the Earth's circumference)",
+    bound = crate::geodesy::PLAUSIBLE_COORDINATE_M
+)]
+pub struct ImplausibleNumber {
+    /// The element's id (IFC GlobalId, glTF node path).
+    pub element: String,
+    /// "transform entry" or "vertex coordinate" (in the scene frame, after its transforms).
+    pub what: &'static str,
+    pub value: f64,
 }
 
 /// A source file that was read into the scene.
@@ -571,6 +601,30 @@ impl Scene {
         self.compute_bounds();
     }
 
+    /// The first component whose transform or placed vertices hold a number that is not
+    /// plausible (`geodesy::plausible_m`: a 1e30 extrusion, a position at f32::MAX, a NaN), with
+    /// the input file it came from. Checks the components' world boxes, not every vertex.
+    pub fn first_implausible(&self) -> Option<(std::path::PathBuf, ImplausibleNumber)> {
+        use crate::geodesy::first_implausible_m;
+        self.components.iter().enumerate().find_map(|(i, c)| {
+            let b = &c.world_bounds;
+            let corners = || b.min.to_array().into_iter().chain(b.max.to_array());
+            let (what, value) = first_implausible_m(c.world.to_cols_array())
+                .map(|v| ("transform entry", v))
+                .or_else(|| match b.is_empty() {
+                    true => None,
+                    false => first_implausible_m(corners()).map(|v| ("vertex coordinate", v)),
+                })?;
+            let file = self.sources.get(c.source as usize).map(|s| s.path.clone());
+            let number = ImplausibleNumber {
+                element: self.elements.get(i).key,
+                what,
+                value,
+            };
+            Some((file.unwrap_or_default(), number))
+        })
+    }
+
     /// Fills the derived fields (component world bounds; mesh local bounds are the store's).
     /// Called by readers once a scene is complete and after any geometry change.
     pub fn finish(&mut self) {
@@ -585,16 +639,24 @@ impl Scene {
         let meshes = &self.meshes;
         self.components.par_iter_mut().for_each(|c| {
             let mut b = Aabb::EMPTY;
+            let mut finite = true;
             for p in &meshes.get(c.mesh).primitives {
                 for v in &p.positions {
-                    b.extend(c.world.transform_point3(DVec3::new(
-                        v[0] as f64,
-                        v[1] as f64,
-                        v[2] as f64,
-                    )));
+                    let q =
+                        c.world
+                            .transform_point3(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+                    finite &= q.is_finite();
+                    b.extend(q);
                 }
             }
-            c.world_bounds = b;
+            // `extend` passes over NaN: a box of NaN keeps it for `first_implausible`.
+            c.world_bounds = match finite {
+                true => b,
+                false => Aabb {
+                    min: DVec3::NAN,
+                    max: DVec3::NAN,
+                },
+            };
         });
     }
 }

@@ -316,3 +316,222 @@ fn undecodable_images_are_dropped_with_a_warning() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// The shared IfcOpenHouse GLB, the real model the glTF cases below patch.
+fn open_house_glb() -> Option<Vec<u8>> {
+    shared_file("IfcOpenHouse_IFC4.glb").map(|p| std::fs::read(p).unwrap())
+}
+
+/// `model`'s GLB with the first vertex of the first primitive's POSITION set to `value` (x).
+fn with_first_position(model: &[u8], value: f32) -> Vec<u8> {
+    let (json, mut bin) = glb_chunks(model);
+    let accessor = &json["accessors"][json["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+        .as_u64()
+        .unwrap() as usize];
+    let view = &json["bufferViews"][accessor["bufferView"].as_u64().unwrap() as usize];
+    let at = (view["byteOffset"].as_u64().unwrap_or(0)
+        + accessor["byteOffset"].as_u64().unwrap_or(0)) as usize;
+    bin[at..at + 4].copy_from_slice(&value.to_le_bytes());
+    glb(&serde_json::to_vec(&json).unwrap(), &bin)
+}
+
+/// A copy of a real IFC with `from` replaced by `to` (once, and it must be there).
+fn patched_ifc(ifc: &Path, from: &str, to: &str) -> Vec<u8> {
+    let text = std::fs::read_to_string(ifc).unwrap();
+    assert!(text.contains(from), "{from} not in {}", ifc.display());
+    text.replacen(from, to, 1).into_bytes()
+}
+
+/// Absurd numbers (README, "Safety": finite and within 4e7 m, the Earth's circumference) are
+/// refused with one line naming the file, the element and the value, and nothing is written:
+/// positions at f32::MAX or 1e38, node transforms of 1e30 and 1e300, in a real model.
+#[test]
+fn absurd_gltf_numbers_are_refused() {
+    let Some(model) = open_house_glb() else {
+        return;
+    };
+    let d = tmpdir("bad-absurd-gltf");
+    for (case, value, shown) in [("max", f32::MAX, "e38"), ("1e38", 1e38, "e37")] {
+        let p = write(
+            &d,
+            &format!("{case}.glb"),
+            &with_first_position(&model, value),
+        );
+        let err = expect_failure(&p, case, &["element '", "vertex coordinate", shown]);
+        assert!(err.contains("not plausible"), "{err}");
+    }
+    let node_edits: [(&str, serde_json::Value, &str); 3] = [
+        (
+            "translation",
+            serde_json::json!({"translation": [1e30, 0, 0]}),
+            "1e30",
+        ),
+        (
+            "scale",
+            serde_json::json!({"scale": [1, 1e300, 1]}),
+            "1e300",
+        ),
+        (
+            "matrix",
+            serde_json::json!({"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,-2e300,0,1]}),
+            "2e300",
+        ),
+    ];
+    for (case, edit, shown) in node_edits {
+        let g = edit_glb(&model, |j| {
+            let nodes = j["nodes"].as_array_mut().unwrap();
+            let node = nodes.iter_mut().find(|n| n.get("mesh").is_some()).unwrap();
+            for k in ["matrix", "translation", "rotation", "scale"] {
+                node.as_object_mut().unwrap().remove(k);
+            }
+            node.as_object_mut()
+                .unwrap()
+                .extend(edit.as_object().unwrap().clone());
+        });
+        let p = write(&d, &format!("node-{case}.glb"), &g);
+        expect_failure(&p, case, &["element '", "transform entry", shown]);
+    }
+}
+
+/// A 1e30 m extrusion in a real IFC, and map conversions with a Scale of 0 or 1e300, are refused
+/// by name.
+#[test]
+fn absurd_ifc_numbers_are_refused() {
+    let (Some(haus), Some(house)) = (
+        shared_file("AC20-FZK-Haus.ifc"),
+        shared_file("IfcOpenHouse_IFC4.ifc"),
+    ) else {
+        return;
+    };
+    let d = tmpdir("bad-absurd-ifc");
+    let line = "#15006= IFCEXTRUDEDAREASOLID(#14994,#15003,#15004,2.5);";
+    let deep = line.replace("2.5)", "1.E30)");
+    let p = write(&d, "deep.ifc", &patched_ifc(&haus, line, &deep));
+    // ifc-lite centres the solid: its transform or its vertices hold the 1e30.
+    let err = expect_failure(&p, "extrusion", &["element '", "not plausible"]);
+    assert!(err.contains("e29") || err.contains("e30"), "{err}");
+
+    let context = "#11=IFCGEOMETRICREPRESENTATIONCONTEXT('Plan','Model',3,1.E-005,#10,#6);";
+    for (case, scale, shown) in [
+        ("scale0", "0.", "Scale 0e0"),
+        ("scale1e300", "1.E300", "Scale 1e300"),
+    ] {
+        let map = format!(
+            "{context}\n#900001=IFCPROJECTEDCRS('EPSG:25832',$,$,$,$,$,$);\n#900002=IFCMAPCONVERSION(#11,#900001,458000.,5437000.,110.,1.,0.,{scale});"
+        );
+        let p = write(
+            &d,
+            &format!("{case}.ifc"),
+            &patched_ifc(&house, context, &map),
+        );
+        expect_failure(
+            &p,
+            case,
+            &["IfcMapConversion", shown, "not a plausible scale"],
+        );
+    }
+}
+
+/// `--origin` with a height of 1e308 or a latitude past the pole, and a manifest offset of
+/// 1e300, are refused by name.
+#[test]
+fn absurd_placements_are_refused() {
+    let d = tmpdir("bad-absurd-place");
+    let p = write(&d, "sample.glb", &std::fs::read(sample()).unwrap());
+    // A bad option is a usage error (exit code 2, clap's usage hint after the line).
+    for (case, origin, shown) in [
+        ("height", "8,49,1e308", "height 1e308"),
+        ("latitude", "8,91", "latitude in [-90,90]"),
+    ] {
+        let out = d.join(format!("out-{case}"));
+        let (input, out_arg) = (p.to_str().unwrap(), out.to_str().unwrap());
+        let o = run(&["convert", input, "--out", out_arg, "--origin", origin]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.lines().next().unwrap().contains(shown), "{err}");
+        assert!(!out.exists());
+    }
+    let manifest = serde_json::json!({"models": [{"path": "sample.glb", "east_m": 1e300}]});
+    let m = write(&d, "campus.json", &serde_json::to_vec(&manifest).unwrap());
+    let out = d.join("out-manifest");
+    let o = run(&[
+        "convert",
+        "--manifest",
+        m.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("campus.json") && err.contains("east_m 1e300"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
+/// What the glTF 2.0 specification forbids is refused, in a real model: a GLB header length that
+/// disagrees with the file, byte strides that cut elements or break the 4..=252 rule, a mesh with
+/// no primitives, an asset version other than 2.x or a minVersion above 2.0.
+#[test]
+fn gltf_the_specification_forbids_is_refused() {
+    let Some(model) = open_house_glb() else {
+        return;
+    };
+    let d = tmpdir("bad-lenient-gltf");
+    let mut longer = model.clone();
+    longer.extend_from_slice(&[0; 8]);
+    let p = write(&d, "longer.glb", &longer);
+    expect_failure(&p, "glb-length", &["GLB header says the file has"]);
+
+    let position_view = |j: &serde_json::Value| {
+        let a = j["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+            .as_u64()
+            .unwrap();
+        j["accessors"][a as usize]["bufferView"].as_u64().unwrap() as usize
+    };
+    for (case, stride, shown) in [
+        ("stride-cuts", 8, "overlap"),
+        ("stride-odd", 14, "byteStride 14"),
+        ("stride-big", 256, "byteStride 256"),
+    ] {
+        let g = edit_glb(&model, |j| {
+            let v = position_view(j);
+            j["bufferViews"][v]["byteStride"] = stride.into();
+        });
+        let p = write(&d, &format!("{case}.glb"), &g);
+        expect_failure(&p, case, &[shown]);
+    }
+    let g = edit_glb(&model, |j| {
+        j["meshes"]
+            .as_array_mut()
+            .unwrap()
+            .push(serde_json::json!({"primitives": []}));
+    });
+    let p = write(&d, "no-primitives.glb", &g);
+    expect_failure(&p, "no-primitives", &["no primitives"]);
+    for (case, field, value) in [
+        ("version-3", "version", "3.0"),
+        ("version-text", "version", "2"),
+        ("min-version", "minVersion", "2.1"),
+    ] {
+        let g = edit_glb(&model, |j| j["asset"][field] = value.into());
+        let p = write(&d, &format!("{case}.glb"), &g);
+        expect_failure(&p, case, &[&format!("asset.{field}"), value]);
+    }
+}
+
+/// An IFC file that defines an entity id twice (a real file with one record repeated) is
+/// refused, naming the id.
+#[test]
+fn duplicate_ifc_entity_ids_are_refused() {
+    let Some(house) = shared_file("IfcOpenHouse_IFC4.ifc") else {
+        return;
+    };
+    let d = tmpdir("bad-ifc-duplicate");
+    let context = "#11=IFCGEOMETRICREPRESENTATIONCONTEXT('Plan','Model',3,1.E-005,#10,#6);";
+    let twice = format!("{context}\n#11=IFCCARTESIANPOINT((0.,0.,0.));");
+    let p = write(&d, "twice.ifc", &patched_ifc(&house, context, &twice));
+    expect_failure(&p, "duplicate-id", &["#11 is defined twice"]);
+}

@@ -3,7 +3,7 @@
 //! report.json apart from timings, memory and the texture tallies of the merging process. A job
 //! killed mid-write (simulated by its leftover temporary files) is not accepted by `merge`, and
 //! rerunning only that job completes the build. A tiny `--memory-budget` (geometry spilled to disk
-//! and read back) gives the same tileset too.
+//! and read back) gives the same tileset too, for a campus of GLBs and for CityJSON districts.
 
 mod common;
 use common::*;
@@ -106,6 +106,20 @@ fn assert_identical(convert: &Path, sharded: &Path) {
     );
 }
 
+/// `convert --manifest m --out out --quiet` with `extra` options.
+fn convert_manifest(m: &str, out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "convert",
+        "--manifest",
+        m,
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    ok(&args);
+}
+
 /// plan / build-job (reverse order, or `order`) / merge into `dir`.
 fn sharded(inputs: &[&str], dir: &Path, jobs: usize, extra: &[&str]) -> Value {
     let _ = std::fs::remove_dir_all(dir);
@@ -138,16 +152,7 @@ fn sample_campus_sharded_is_byte_identical_to_convert() {
         ("add", vec!["--max-tile-triangles", "3000", "--lod", "none"]),
     ] {
         let conv = dir.join(format!("convert-{name}"));
-        let mut args = vec![
-            "convert",
-            "--manifest",
-            m,
-            "--out",
-            conv.to_str().unwrap(),
-            "--quiet",
-        ];
-        args.extend_from_slice(&extra);
-        ok(&args);
+        convert_manifest(m, &conv, &extra);
         for jobs in [1, 4] {
             let out = dir.join(format!("shard-{name}-{jobs}"));
             let plan = sharded(&["--manifest", m], &out, jobs, &extra);
@@ -384,4 +389,62 @@ fn bad_memory_options_are_refused_clearly() {
         );
         assert!(!out.exists(), "{args:?} left {}", out.display());
     }
+}
+
+/// CityJSON goes through campus manifests, sharded builds and the memory budget as any input does
+/// (issue 31): two real Dutch datasets, each placed by its CRS, in one manifest; `convert`,
+/// three jobs, and a tiny budget give the same tileset.
+#[test]
+fn cityjson_manifest_sharded_and_spilled_is_byte_identical() {
+    let Some(data) = shared_data() else {
+        return;
+    };
+    let dir = tmpdir("shard-cityjson");
+    let models: Vec<Value> = [
+        (
+            "bag",
+            "3dbag-5907-subset/3dbag_v210908_fd2cee53_5907_subset.json",
+        ),
+        ("denhaag", "denhaag-lod2/DenHaag_01.json"),
+    ]
+    .iter()
+    .map(|(name, rel)| {
+        let placed = put_model_in(&data.join("cityjson").join(rel), &dir);
+        let file = placed.file_name().unwrap().to_str().unwrap();
+        serde_json::json!({"name": name, "path": file, "crs": "EPSG:28992"})
+    })
+    .collect();
+    let m = dir.join("district.json");
+    std::fs::write(&m, serde_json::json!({ "models": models }).to_string()).unwrap();
+    let m = m.to_str().unwrap();
+    let extra = ["--max-tile-triangles", "8000"];
+
+    let conv = dir.join("convert");
+    convert_manifest(m, &conv, &extra);
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(conv.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        report["input"]["files"].as_array().unwrap().len(),
+        2,
+        "{}",
+        report["input"]
+    );
+    assert!(
+        report["input"]["components"].as_u64().unwrap() > 100,
+        "{}",
+        report["input"]
+    );
+
+    let out = dir.join("shard");
+    sharded(&["--manifest", m], &out, 3, &extra);
+    assert_identical(&conv, &out);
+
+    let tiny = dir.join("tiny-budget");
+    convert_manifest(m, &tiny, &[extra[0], extra[1], "--memory-budget", "64K"]);
+    let (spilled, resident) = spilled_bytes(&tiny);
+    assert!(
+        spilled > 20 * resident,
+        "{spilled} bytes spilled, {resident} kept"
+    );
+    assert_identical(&conv, &tiny);
 }

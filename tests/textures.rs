@@ -12,54 +12,6 @@ use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// One textured primitive of a tile, read back.
-struct Textured {
-    image: Vec<u8>,
-    dims: (u32, u32),
-    positions: Vec<[f32; 3]>,
-    uvs: Vec<[f32; 2]>,
-    indices: Vec<u32>,
-}
-
-/// Textured primitives of a GLB written without Draco (`--compression none`).
-fn read_textured(path: &Path) -> Vec<Textured> {
-    let bytes = std::fs::read(path).unwrap();
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
-    let blob = g.blob.as_deref().unwrap();
-    let mut out = Vec::new();
-    for mesh in g.document.meshes() {
-        for p in mesh.primitives() {
-            let Some(info) = p.material().pbr_metallic_roughness().base_color_texture() else {
-                continue;
-            };
-            let image = match info.texture().source().source() {
-                gltf::image::Source::View { view, .. } => {
-                    blob[view.offset()..view.offset() + view.length()].to_vec()
-                }
-                // A shared file, relative to the GLB.
-                gltf::image::Source::Uri { uri, .. } => {
-                    assert!(uri.starts_with("../textures/"), "{uri}");
-                    std::fs::read(path.parent().unwrap().join(uri)).unwrap()
-                }
-            };
-            let dims = image::ImageReader::new(std::io::Cursor::new(&image))
-                .with_guessed_format()
-                .unwrap()
-                .into_dimensions()
-                .unwrap();
-            let r = p.reader(|_| Some(blob));
-            out.push(Textured {
-                image,
-                dims,
-                positions: r.read_positions().unwrap().collect(),
-                uvs: r.read_tex_coords(0).unwrap().into_f32().collect(),
-                indices: r.read_indices().unwrap().into_u32().collect(),
-            });
-        }
-    }
-    out
-}
-
 /// Level sizes: halving, rounded up, down to 1x1 (written again here, not taken from the crate).
 fn sizes(w: u32, h: u32) -> Vec<(u32, u32)> {
     let mut v = vec![(w, h)];
@@ -855,4 +807,119 @@ fn atlas_sharded_build_is_byte_identical() {
         std::fs::read(whole.dir.join("tileset.json")).unwrap()
             == std::fs::read(dir.join("tileset.json")).unwrap()
     );
+}
+
+/// Mean RGB (0-255) of each input image of a GLB, decoded with the `image` crate.
+fn input_image_means(model: &Path) -> Vec<[f64; 3]> {
+    input_images(model)
+        .keys()
+        .map(|bytes| {
+            let img = image::load_from_memory(bytes).unwrap().to_rgb8();
+            let n = (img.width() * img.height()) as f64;
+            let mut sum = [0.0; 3];
+            for p in img.pixels() {
+                for c in 0..3 {
+                    sum[c] += p[c] as f64;
+                }
+            }
+            sum.map(|s| s / n)
+        })
+        .collect()
+}
+
+/// `--texture-format ktx2` on LoD3_Railway (also the KTX2 tileset of the browser test,
+/// `target/test-out/ktx2-LoD3_Railway`): every texture is a KHR_texture_basisu source, required,
+/// with no PNG/JPEG left; gltf-validator finds no error; npm ktx-parse and the Basis transcoder
+/// CesiumJS ships (tools/check_ktx2.mjs) read and decode every level of every KTX2 file, sized in
+/// multiples of 4 with the full mip chain, and each decodes to the mean colour of an input image
+/// (crop off: levels are averages of the whole image).
+#[test]
+fn lod3_railway_ktx2_textures_decode_with_an_independent_reader() {
+    let Some(model) = shared_file("LoD3_Railway.glb") else {
+        return;
+    };
+    let run = run(
+        &model,
+        "ktx2-LoD3_Railway",
+        &[
+            "--texture-format",
+            "ktx2",
+            "--texture-crop",
+            "off",
+            "--max-tile-triangles",
+            "3000",
+        ],
+    );
+    let mut textured_tiles = 0;
+    for t in &run.tiles {
+        let Some(uri) = &t.uri else { continue };
+        let json = glb_json(&std::fs::read(run.dir.join(uri)).unwrap());
+        let Some(textures) = json["textures"].as_array() else {
+            continue;
+        };
+        textured_tiles += 1;
+        for key in ["extensionsUsed", "extensionsRequired"] {
+            let list = json[key].as_array().unwrap();
+            assert!(list.contains(&"KHR_texture_basisu".into()), "{uri}: {key}");
+        }
+        for tex in textures {
+            assert!(tex.get("source").is_none(), "{uri}: no fallback source");
+            let source = tex["extensions"]["KHR_texture_basisu"]["source"]
+                .as_u64()
+                .unwrap();
+            assert_eq!(
+                json["images"][source as usize]["mimeType"], "image/ktx2",
+                "{uri}"
+            );
+        }
+    }
+    assert!(textured_tiles > 0);
+    gltf_validator(&run.dir);
+
+    if !repo().join("tools/node_modules/ktx-parse").is_dir() {
+        assert!(
+            !tools_required(),
+            "ktx-parse is not installed (run `make test`)"
+        );
+        eprintln!("SKIPPED KTX2 decoding: tools/node_modules missing (run `make test`)");
+        return;
+    }
+    let o = std::process::Command::new("node")
+        .arg(repo().join("tools/check_ktx2.mjs"))
+        .arg(&run.dir)
+        .output()
+        .expect("run node");
+    let v: Value = serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("check_ktx2: {e}: {}", String::from_utf8_lossy(&o.stderr)));
+    assert!(o.status.success(), "check_ktx2 errors: {}", v["errors"]);
+    let means = input_image_means(&model);
+    let files = v["files"].as_array().unwrap();
+    assert!(files.len() >= means.len() / 2, "{} KTX2 files", files.len());
+    for f in files {
+        let (w, h) = (f["width"].as_u64().unwrap(), f["height"].as_u64().unwrap());
+        assert_eq!(
+            f["levels"].as_u64().unwrap(),
+            64 - w.max(h).leading_zeros() as u64,
+            "{f}"
+        );
+        assert_eq!(
+            (f["codec"].as_str(), f["srgb"].as_bool()),
+            (Some("etc1s"), Some(true))
+        );
+        let mean: Vec<f64> = f["meanRgb"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        let nearest = means
+            .iter()
+            .map(|m| (0..3).map(|c| (m[c] - mean[c]).abs()).fold(0.0, f64::max))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            nearest <= 8.0,
+            "{}: mean {mean:?} is {nearest:.1} from every input image",
+            f["name"]
+        );
+    }
 }

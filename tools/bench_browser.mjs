@@ -19,6 +19,8 @@
 //   --stops R,R,...    fly-in stops in bounding radii (default 20,6,2.5,1.2,0.6; "none": no fly-in)
 //   --runs-for M=N     runs for the model named M (file name without .glb), e.g. a slow big one;
 //                      repeatable as a comma list: "A=1,B=2"
+//   --raw-glb M=PATH   the raw variant of the model named M is the GLB at PATH (for a model that is
+//                      no GLB, e.g. a CityJSON file: the same data as one GLB in the tileset's frame)
 //   --no-warm          skip the repeat-visit (warm tile cache) loads
 //   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
 //   --timeout S        per-load timeout (default 180)
@@ -68,6 +70,11 @@ function parseArgs(argv) {
   for (const kv of (o["runs-for"] || "").split(",").filter(Boolean)) {
     const [k, v] = kv.split("=");
     o.runsFor[k] = Number(v);
+  }
+  o.rawGlb = {};
+  for (const kv of (o["raw-glb"] || "").split(",").filter(Boolean)) {
+    const [k, v] = kv.split("=");
+    o.rawGlb[k] = v;
   }
   o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
   o.stopRadii = o.stops === "none" ? [] : o.stops.split(",").map(Number);
@@ -427,7 +434,7 @@ async function main() {
       process.exit(130);
     });
   for (const model of opts.models) {
-    const name = basename(model).replace(/\.glb$/i, "");
+    const name = basename(model).replace(/\.(glb|city\.jsonl|city\.json|json)$/i, "");
     const dir = mkdtempSync(join(tmpdir(), "bimtiles-bench-"));
     let server = null;
     let browser = null;
@@ -442,15 +449,16 @@ async function main() {
       const t = Date.now();
       execFileSync(opts.bimtiles, ["convert", model, "--out", oursDir, "--quiet", ...extra], { stdio: "inherit" });
       entry.convertMs = Date.now() - t;
-      const rawGlb = /\.ifc$/i.test(model) ? singleTileGlb(opts.bimtiles, model, join(dir, "single")) : model;
+      // The raw variant: a given GLB, else an IFC file as our own one-tile GLB, else the model itself.
+      const rawModel = opts.rawGlb[name] || (/\.ifc$/i.test(model) ? singleTileGlb(opts.bimtiles, model, join(dir, "single")) : model);
       const ours = JSON.parse(readFileSync(join(oursDir, "tileset.json")));
       cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
       const rawDir = join(dir, "raw");
       mkdirSync(rawDir);
-      copyFileSync(rawGlb, join(rawDir, "model.glb"));
+      copyFileSync(rawModel, join(rawDir, "model.glb"));
       writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
       // Everything a client could download: the whole tileset folder against the GLB.
-      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(rawGlb).size };
+      entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(rawModel).size };
 
       server = current.server = await startServer(serveCmd.replace("{dir}", dir));
       const base = new URL(server.url);
@@ -462,11 +470,12 @@ async function main() {
         raw: new URL("/tileset/raw/tileset.json", base).href,
       };
       // Service worker on (no cache=0): the first page load installs it and it takes control.
+      // sse=16 fixes the SSE (the viewer's adaptive strategy off), so both variants are drawn alike.
       // Throttled: no worker at all (a fresh profile and ?cache=0 never register it), and the
       // emulated network on from the first page load.
       if (opts.network) throttled = await throttle(page, opts.network);
       const cacheQuery = opts.network ? "&cache=0" : "";
-      await page.goto(new URL(`/?msaa=1${cacheQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      await page.goto(new URL(`/?msaa=1&sse=16${cacheQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
       entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);

@@ -17,11 +17,13 @@
 //   --require-pick       fail if clicking the centre of the view picks nothing
 //   --min-drawn-pct P    the share of pixels the tileset must change (default 1; a wide, sparse
 //                        scene framed whole covers less)
+//   --check-adaptive     also check the adaptive strategy (checkAdaptive): SSE up for ?fps=1000,
+//                        down for ?fps=0.1, within bounds; ?sse=N fixed
 //   --json FILE          also write the summary there
 //
 // Checks: the page reaches "all tiles loaded" (browser.md's condition), no tile failed, no console
 // error, no request to anything but the loopback host, the view is not blank (more than 1% of
-// the pixels change when the tileset is hidden). Prints a JSON summary; exits 1 on failure.
+// the pixels change when the tileset is hidden), the adaptive status line is shown. Prints a JSON summary; exits 1 on failure.
 // On a failure it also prints the requests still open (how long, how far they got) and, with
 // --server-cmd, the server's stderr (`bimtiles serve` logs each connection and request there
 // when BIMTILES_SERVE_LOG=1).
@@ -47,7 +49,7 @@ export const CHROME_ARGS = [
 
 function parseArgs(argv) {
   const o = { query: "msaa=1", timeout: 120, width: 1280, height: 720, "min-drawn-pct": 1 };
-  const flags = new Set(["second-load", "require-pick"]);
+  const flags = new Set(["second-load", "require-pick", "check-adaptive"]);
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     if (!a.startsWith("--")) throw new Error(`unexpected argument ${a}`);
@@ -352,6 +354,59 @@ export async function notBlank(page) {
   return changedShare(page, shown, hidden);
 }
 
+/** The adaptive strategy's state (viewer/adaptive.js) and the status line's text. */
+export async function adaptiveState(page) {
+  return page.evaluate(() => ({
+    ...(window.bimtilesStatus.adaptive || {}),
+    line: document.getElementById("adaptive").textContent,
+    tilesetSse: window.bimtiles.tileset ? window.bimtiles.tileset.maximumScreenSpaceError : null,
+  }));
+}
+
+/** Polls the adaptive state until `done(state)` or `timeoutMs`; returns the last state. */
+async function waitAdaptive(page, done, timeoutMs) {
+  const start = Date.now();
+  for (;;) {
+    const s = await adaptiveState(page);
+    if (done(s) || Date.now() - start > timeoutMs) return s;
+    await page.waitForTimeout(250);
+  }
+}
+
+/**
+ * In SwiftShader frames are slow (a few fps): a target of 1000 fps must drive the SSE up to the
+ * strategy's maximum, a target of 0.1 fps down to its minimum, and it must stay within the bounds;
+ * ?sse=N fixes it. Returns the failures.
+ */
+export async function checkAdaptive(context, url, timeoutMs = 90000) {
+  const failures = [];
+  const page = await context.newPage();
+  const inBounds = (s) => s.sse >= s.sseMin && s.sse <= s.sseMax && s.tilesetSse >= s.sseMin && s.tilesetSse <= s.sseMax;
+  try {
+    for (const [fps, bound, dir] of [[1000, "sseMax", "up"], [0.1, "sseMin", "down"]]) {
+      await page.goto(withQuery(url, `msaa=1&fps=${fps}`), { waitUntil: "load" });
+      const s = await waitAdaptive(page, (s) => s.sse !== undefined && s.sse === s[bound], timeoutMs);
+      if (s.targetFps !== fps) failures.push(`?fps=${fps}: target ${s.targetFps}`);
+      if (!s.adaptive || s.sse !== s[bound]) failures.push(`?fps=${fps}: SSE did not go ${dir} to ${s[bound]}: ${s.line}`);
+      await page.waitForTimeout(2500); // two more windows: it stays at the bound
+      const after = await adaptiveState(page);
+      if (after.sse !== s[bound] || !inBounds(after)) failures.push(`?fps=${fps}: SSE left its bounds: ${after.line}`);
+      if (!/SSE/.test(after.line) || !/fps/.test(after.line)) failures.push(`status line lacks SSE / fps: ${after.line}`);
+    }
+    await page.goto(withQuery(url, "msaa=1&fps=1000&sse=12"), { waitUntil: "load" });
+    const s = await waitAdaptive(page, (s) => s.fps !== null && s.fps !== undefined, timeoutMs);
+    await page.waitForTimeout(2500);
+    const f = await adaptiveState(page);
+    if (f.adaptive || f.sse !== 12 || f.tilesetSse !== 12 || s.fps === undefined)
+      failures.push(`?sse=12 is not a fixed SSE: ${f.line} (tileset SSE ${f.tilesetSse})`);
+  } catch (e) {
+    failures.push("adaptive check: " + String(e && e.message ? e.message : e));
+  } finally {
+    await page.close().catch(() => {});
+  }
+  return failures;
+}
+
 function withQuery(url, q) {
   if (!q) return url;
   return url + (url.includes("?") ? "&" : "?") + q;
@@ -422,7 +477,10 @@ async function main() {
         [Math.round(opts.width / 2), Math.round(opts.height / 2)],
       );
       if (opts["require-pick"] && !summary.pick) failures.push("clicking the centre of the view picked nothing");
+      summary.adaptive = await adaptiveState(page);
+      if (!summary.adaptive.strategy || !summary.adaptive.line) failures.push("no adaptive strategy status line");
     }
+    if (opts["check-adaptive"] && wait.ok) failures.push(...(await checkAdaptive(browser.context, summary.url)));
 
     if (opts["second-load"] && wait.ok) {
       const t2 = Date.now();

@@ -4,10 +4,19 @@
 //   tileset=URL   tileset to load (default /tileset/tileset.json)
 //   cache=0       do not use the service-worker tile cache for this load; cache=clear empties it first
 //   msaa=N        MSAA samples (default 4; 1 is much faster under software WebGL)
-//   sse=N         tileset maximumScreenSpaceError (default 16)
+//   sse=N         fixed maximumScreenSpaceError, adaptation off (default: adaptive, see below)
+//   fps=N         target frame rate of the adaptive strategy (default 30)
+//   adaptive=0    no adaptation: the strategy's starting SSE stays (same as a fixed sse)
+//   strategy=NAME force a strategy (detail, balanced, economy) instead of choosing one
 //   debug=1       show tile bounding volumes
 //   dracoWorkers=N  Draco decoding workers (default max(4, cores - 1); 0 = Cesium's cores - 1)
 //   sky=1         sky and ground atmosphere (off by default: costly under software rendering)
+//
+// Adaptive rendering (paper IV.B, strategy pattern): adaptive.js picks a strategy from the scene's
+// size (tiles in tileset.json) and the device (cores, navigator.deviceMemory), sets the tile cache
+// budget from the device memory, raises the SSE while the camera moves (and uses Cesium's own
+// foveated / dynamic SSE), and moves the SSE within the strategy's bounds to hold the target
+// frame rate. The status line (#adaptive) shows strategy, SSE and frame rate.
 //
 // For tests, window.bimtilesStatus holds the figures below (times in ms since navigation start),
 // and window.bimtiles exposes {viewer, tileset, pickAt(x, y), swStats(), describe(pick)}.
@@ -43,6 +52,7 @@
     frames: 0,
     cpuFrameMs: [], // Cesium CPU time per frame (preUpdate -> postRender), last 600 frames
     cache: { serviceWorker: false, reason: null },
+    adaptive: null, // the adaptive strategy's state (adaptive.js): strategy, sse, fps, bounds...
     selected: null, // properties shown for the last picked element
   });
 
@@ -341,6 +351,7 @@
   // --- viewer --------------------------------------------------------------------------------
   let viewer = null;
   let tileset = null;
+  let adaptive = null; // BimtilesAdaptive controller of the current tileset
 
   async function main() {
     status.cache = await setupCache();
@@ -403,6 +414,8 @@
   // Loads (or replaces) the tileset and frames it; resets the per-load figures. Used by the page
   // itself and by the benchmark (to compare tilesets in one warmed-up page).
   async function loadTileset(url, options = {}) {
+    if (adaptive) adaptive.destroy(); // it drives the tileset about to go
+    adaptive = null;
     if (tileset) {
       highlight(null);
       showProps(null);
@@ -418,9 +431,11 @@
     });
     status.tilesetRequestedMs = performance.now();
     let ts;
+    const fixedSse = options.maximumScreenSpaceError || parseFloat(params.get("sse") || "NaN");
+    const plan = BimtilesAdaptive.plan(params, navigator, fixedSse);
     try {
       ts = await Cesium.Cesium3DTileset.fromUrl(url, {
-        maximumScreenSpaceError: options.maximumScreenSpaceError || parseFloat(params.get("sse") || "16"),
+        ...plan.tilesetOptions,
         debugShowBoundingVolume: params.get("debug") === "1",
       });
     } catch (e) {
@@ -438,6 +453,10 @@
     });
     tileset = ts;
     window.bimtiles.tileset = ts;
+    adaptive = BimtilesAdaptive.start(viewer.scene, ts, plan, (state) => {
+      status.adaptive = state;
+      document.getElementById("adaptive").textContent = BimtilesAdaptive.describe(state);
+    });
     viewer.scene.primitives.add(ts);
     await viewer.zoomTo(ts, HOME_OFFSET);
     status.ready = true;

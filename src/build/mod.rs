@@ -320,6 +320,10 @@ impl<'a> TileWriter<'a> {
         };
         let mut ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
         ts["schemaUri"] = json!("schema.json");
+        crate::tileset::check_numbers(&ts).map_err(|message| Error::Internal {
+            path: (self.scene.sources.first()).map_or_else(Default::default, |s| s.path.clone()),
+            message,
+        })?;
         let bytes = serde_json::to_vec_pretty(&ts)
             .map_err(|e| Error::output_from(tmp, "cannot serialize tileset.json", e))?;
         write_renamed(&tmp.join("tileset.json"), &bytes)?;

@@ -131,6 +131,10 @@ struct ConvertArgs {
     /// IfcMapConversion that names no usable CRS is in it.
     #[arg(long)]
     crs: Option<String>,
+    /// CityJSON: the level of detail to read ("2.2", "1.3"...); an object without it is left
+    /// out. Default: each object's highest.
+    #[arg(long)]
+    cityjson_lod: Option<String>,
     /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
     /// area of use) is an error and nothing is written, instead of a warning and the default
     /// placement.
@@ -201,7 +205,8 @@ struct ConvertArgs {
     /// Crop the area of standalone and shared textures that no UV reaches (UVs remapped).
     #[arg(long, value_enum, default_value = "on")]
     texture_crop: OnOff,
-    /// Encoding of coarser texture levels: auto (PNG stays PNG, JPEG stays JPEG), png or jpeg.
+    /// Encoding of coarser texture levels: auto (PNG stays PNG, JPEG stays JPEG), png or jpeg;
+    /// ktx2: every level, the finest included, as KTX2 / Basis Universal (KHR_texture_basisu).
     #[arg(long, value_enum, default_value = "auto")]
     texture_format: TextureFormatArg,
     /// JPEG quality (1-100) of re-encoded JPEG texture levels.
@@ -275,6 +280,7 @@ enum TextureFormatArg {
     Auto,
     Png,
     Jpeg,
+    Ktx2,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -568,6 +574,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         force: a.force,
         origin: a.origin,
         crs: a.crs.clone(),
+        cityjson_lod: a.cityjson_lod.clone(),
         strict_georef: a.strict_georef,
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles,
@@ -613,6 +620,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
                 TextureFormatArg::Auto => TextureFormat::Auto,
                 TextureFormatArg::Png => TextureFormat::Png,
                 TextureFormatArg::Jpeg => TextureFormat::Jpeg,
+                TextureFormatArg::Ktx2 => TextureFormat::Ktx2,
             },
             jpeg_quality: a.jpeg_quality,
             atlas: a.texture_atlas == OnOff::On,

@@ -1,6 +1,8 @@
 //! Encoders: tile content as glTF binary (GLB), geometry compressed with Draco.
 
-pub mod draco;
+/// Draco lives below the readers (they decode compressed glTF with it); re-exported here, where
+/// tiles are encoded with it.
+pub use crate::draco;
 pub mod glb;
 pub mod metadata;
 pub mod record;

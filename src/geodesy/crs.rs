@@ -133,6 +133,61 @@ pub fn normalize_crs_text(text: &str) -> String {
     }
 }
 
+/// The CRS of a PROJ definition; of a compound CRS (e.g. RD New + NAP height), its horizontal
+/// part, which places points (heights are taken as ellipsoidal).
+fn horizontal_crs<'c>(ctx: &'c Context, definition: &str) -> Result<proj::Object<'c>, CrsError> {
+    let created = ctx.create(definition).map_err(|why| CrsError::Unknown {
+        crs: definition.to_string(),
+        // PROJ says "Unknown error (code 4096)" for a code it does not have.
+        why: if why.message.starts_with("Unknown error") {
+            "not in its database".into()
+        } else {
+            why.message
+        },
+    })?;
+    match created.kind() {
+        proj::PJ_TYPE_COMPOUND_CRS => {
+            created
+                .sub_crs(0)
+                .map_err(|e: ProjError| CrsError::Transform {
+                    crs: definition.to_string(),
+                    why: e.message,
+                })
+        }
+        _ => Ok(created),
+    }
+}
+
+/// Converts map points of `crs_text` (easting, northing in the CRS's units, height in metres taken
+/// as ellipsoidal) to east-north-up metres around `origin`, each point exactly: through PROJ to
+/// longitude and latitude, then the ellipsoid and ECEF. Unlike the linear map of
+/// [`place_map_point`] (exact at its point only), this keeps millimetres across a district of
+/// kilometres, where the Earth's curvature alone lowers the far edge by metres. `convert` is
+/// called with the converter, which fails on a point PROJ cannot transform.
+pub fn with_map_to_enu<R>(
+    crs_text: &str,
+    origin: &GeoOrigin,
+    convert: impl FnOnce(&mut dyn FnMut(glam::DVec3) -> Result<glam::DVec3, CrsError>) -> R,
+) -> Result<R, CrsError> {
+    let definition = normalize_crs_text(crs_text);
+    let fail = |why: String| CrsError::Transform {
+        crs: definition.clone(),
+        why,
+    };
+    let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
+    let crs = horizontal_crs(&ctx, &definition)?;
+    let op = ctx
+        .operation_to_wgs84(&crs)
+        .map_err(|e: ProjError| fail(e.message))?;
+    let ecef_to_enu = DMat3::from_mat4(origin.enu_to_ecef()).transpose();
+    let origin_ecef = origin.to_ecef();
+    let mut to_enu = |p: glam::DVec3| -> Result<glam::DVec3, CrsError> {
+        let ll = op.forward(p.x, p.y, 0.0).map_err(|e| fail(e.message))?;
+        Ok(ecef_to_enu * (geodetic_to_ecef(ll[0], ll[1], p.z) - origin_ecef))
+    };
+    Ok(convert(&mut to_enu))
+}
+
 /// Places the map point (`easting`, `northing`, in the CRS's units) of CRS `crs_text`, with
 /// `height_m` taken as the ellipsoidal height.
 pub fn place_map_point(
@@ -150,20 +205,7 @@ pub fn place_map_point(
         crs: definition.clone(),
         why: "PROJ could not start".into(),
     })?;
-    let created = ctx.create(&definition).map_err(|why| CrsError::Unknown {
-        crs: definition.clone(),
-        // PROJ says "Unknown error (code 4096)" for a code it does not have.
-        why: if why.message.starts_with("Unknown error") {
-            "not in its database".into()
-        } else {
-            why.message
-        },
-    })?;
-    // A compound CRS (e.g. RD New + NAP height): its horizontal part places the point.
-    let crs = match created.kind() {
-        proj::PJ_TYPE_COMPOUND_CRS => created.sub_crs(0).map_err(|e: ProjError| fail(e.message))?,
-        _ => created,
-    };
+    let crs = horizontal_crs(&ctx, &definition)?;
     let id = crs.id().unwrap_or_else(|| definition.clone());
     let name = crs.name();
     let axes = crs.axes().unwrap_or_default();
@@ -188,19 +230,22 @@ pub fn place_map_point(
             unit: axes.first().map_or("?".into(), |a| a.unit_name.clone()),
         });
     }
-    if !(easting.is_finite() && northing.is_finite() && height_m.is_finite()) {
+    if let Some(v) = crate::geodesy::first_implausible_m([easting, northing, height_m]) {
         return Err(fail(format!(
-            "the map point ({easting}, {northing}, {height_m}) is not finite"
+            "the map point ({easting}, {northing}, {height_m}) holds {v:e}, not a plausible number of metres"
         )));
     }
-    let wgs84 = ctx
-        .create("EPSG:4326")
-        .map_err(|e: ProjError| fail(e.message))?;
     let op = ctx
-        .operation(&crs, &wgs84)
+        .operation_to_wgs84(&crs)
         .map_err(|e: ProjError| fail(e.message))?;
     let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
     let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
+    if !(centre.is_finite() && (-180.0..=180.0).contains(&centre.x)) {
+        return Err(fail(format!(
+            "PROJ gives no place on Earth for E {easting} N {northing} (longitude {}, latitude {})",
+            centre.x, centre.y
+        )));
+    }
     let (operation, accuracy_m) = op
         .last_used()
         .unwrap_or_else(|| ("unknown operation".into(), None));
@@ -317,6 +362,29 @@ mod tests {
         // US survey feet.
         let ft = place_map_point("EPSG:2264", 2_000_000.0, 700_000.0, 0.0).unwrap();
         assert!((ft.unit_m - 0.3048006).abs() < 1e-6, "{ft:?}");
+    }
+
+    /// Per vertex, a point 5 km from the anchor lies where PROJ puts it, below the anchor's
+    /// horizon by the Earth's curvature (about 2 m), which one linear map at the anchor misses.
+    #[test]
+    fn map_points_go_to_east_north_up_exactly() {
+        let p = place_map_point("EPSG:28992", 155_000.0, 463_000.0, 10.0).unwrap();
+        let far = glam::DVec3::new(160_000.0, 463_000.0, 10.0);
+        let (anchor, far_enu) = with_map_to_enu("EPSG:28992", &p.place, |to_enu| {
+            (
+                to_enu(glam::DVec3::new(155_000.0, 463_000.0, 10.0)).unwrap(),
+                to_enu(far).unwrap(),
+            )
+        })
+        .unwrap();
+        assert!(anchor.length() < 1e-6, "{anchor}");
+        let drop_m = 5_000.0_f64.powi(2) / (2.0 * 6_371_000.0);
+        assert!((far_enu.z + drop_m).abs() < 0.05, "{far_enu}");
+        let linear = p.grid_to_enu * glam::DVec2::new(5_000.0, 0.0);
+        assert!(
+            (far_enu.truncate() - linear).length() < 0.05,
+            "{far_enu} vs {linear}"
+        );
     }
 
     #[test]

@@ -15,6 +15,34 @@ use glam::{DMat4, DVec3, DVec4};
 const WGS84_A: f64 = 6_378_137.0;
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
 
+/// The largest coordinate, offset or extent taken as plausible, in metres (README, "Safety"): the
+/// Earth's circumference. Every place on Earth is nearer in ECEF (at most 6.4e6 m from the
+/// centre) and in any projected CRS (web Mercator reaches 2.0e7 m), and no building model spans
+/// more; a number beyond it is a broken or hostile input (a 1e30 extrusion, a 1e300 offset) that
+/// would give tile boxes no viewer can use. Heights of a place (`--origin`) keep to it too.
+pub const PLAUSIBLE_COORDINATE_M: f64 = 4.0e7;
+
+/// The largest (and, inverted, the smallest) scale factor taken as plausible, for map
+/// conversion scales: one million converts between any two length units in use (micrometres to
+/// metres, millimetres to kilometres). Zero or beyond it collapses or explodes the model.
+pub const PLAUSIBLE_SCALE: f64 = 1.0e6;
+
+/// Whether `v` is finite and within [`PLAUSIBLE_COORDINATE_M`] of zero.
+pub fn plausible_m(v: f64) -> bool {
+    v.is_finite() && v.abs() <= PLAUSIBLE_COORDINATE_M
+}
+
+/// Whether `s` is a plausible scale factor: finite, positive, within [1/[`PLAUSIBLE_SCALE`],
+/// [`PLAUSIBLE_SCALE`]].
+pub fn plausible_scale(s: f64) -> bool {
+    s.is_finite() && (1.0 / PLAUSIBLE_SCALE..=PLAUSIBLE_SCALE).contains(&s)
+}
+
+/// The first number of `values` that is not [`plausible_m`].
+pub fn first_implausible_m(values: impl IntoIterator<Item = f64>) -> Option<f64> {
+    values.into_iter().find(|v| !plausible_m(*v))
+}
+
 /// Why a `LON,LAT[,HEIGHT]` text is not a place.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum OriginError {
@@ -28,6 +56,8 @@ pub enum OriginError {
     },
     #[error("origin '{text}': longitude must be in [-180,180] and latitude in [-90,90]")]
     OutOfRange { text: String },
+    #[error("origin '{text}': height {height_m:e} m is not plausible (beyond ±{bound:e} m, the Earth's circumference)", bound = PLAUSIBLE_COORDINATE_M)]
+    Height { text: String, height_m: f64 },
 }
 
 /// A place on WGS84: degrees, degrees, metres above the ellipsoid.
@@ -76,6 +106,12 @@ impl GeoOrigin {
         if !(-180.0..=180.0).contains(&o.longitude_deg) || !(-90.0..=90.0).contains(&o.latitude_deg)
         {
             return Err(OriginError::OutOfRange { text: s.into() });
+        }
+        if !plausible_m(o.height_m) {
+            return Err(OriginError::Height {
+                text: s.into(),
+                height_m: o.height_m,
+            });
         }
         Ok(o)
     }

@@ -175,6 +175,12 @@ impl Context {
         // SAFETY: as above.
         self.wrap(unsafe { proj_normalize_for_visualization(self.ptr, op.ptr) })
     }
+
+    /// The operation from `source` to WGS 84 longitude, latitude (degrees), as [`Self::operation`].
+    pub fn operation_to_wgs84(&self, source: &Object<'_>) -> Result<Object<'_>, ProjError> {
+        let wgs84 = self.create("EPSG:4326")?;
+        self.operation(source, &wgs84)
+    }
 }
 
 impl Drop for Context {

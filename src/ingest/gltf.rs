@@ -11,7 +11,11 @@
 //! types, the rest a small `gltf_json::Root`). We run the crate's validator only for broken
 //! references (it rejects extensions 3D Tiles content needs), then read every accessor ourselves
 //! with explicit bounds checks, so malformed input gives an error and never a panic.
+//!
+//! Compressed input (`EXT_meshopt_compression` views, `KHR_draco_mesh_compression` primitives)
+//! and `KHR_texture_transform` are undone through [`super::gltf_compressed`].
 
+use super::gltf_compressed::{decode_meshopt_view, draco_vectors, UvTransform};
 use super::gltf_index::{
     AccessorDesc, GltfIndex, GltfIndexError, IndexNode, MeshDesc, PrimitiveDesc, ViewDesc,
 };
@@ -29,6 +33,9 @@ use std::sync::Arc;
 /// declares them required.
 const SUPPORTED_REQUIRED: &[&str] = &[
     "KHR_mesh_quantization",
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "KHR_texture_transform",
     "KHR_materials_unlit",
     "KHR_materials_emissive_strength",
 ];
@@ -91,6 +98,29 @@ impl FileBytes {
     }
 }
 
+/// The GLB header's version and length (glTF 2.0, 4.4.2): version 2, and the length of the whole
+/// file (the `gltf` crate checks only the magic): a file cut short or with bytes appended is
+/// refused rather than read as far as it goes.
+fn check_glb_header(bytes: &[u8]) -> std::result::Result<(), String> {
+    let word = |at: usize| {
+        let b = bytes.get(at..at + 4)?;
+        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let (Some(version), Some(length_bytes)) = (word(4), word(8)) else {
+        return Err("truncated GLB: no complete 12-byte header".into());
+    };
+    if version != 2 {
+        return Err(format!("GLB version {version}: only version 2 exists"));
+    }
+    if length_bytes as usize != bytes.len() {
+        return Err(format!(
+            "the GLB header says the file has {length_bytes} bytes, but it has {}",
+            bytes.len()
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a glTF/GLB from its bytes: a GLB's BIN chunk is read in place, never copied.
 fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     let bytes = file.bytes();
@@ -106,6 +136,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     }
     // (JSON text, BIN chunk's byte range inside `bytes`).
     let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
+        check_glb_header(bytes).map_err(err)?;
         let glb = gltf::binary::Glb::from_slice(bytes)
             .map_err(|e| Error::input_from(path, "invalid or truncated GLB", e))?;
         let json: &[u8] = match glb.json {
@@ -145,7 +176,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
         scene: default_scene,
         meshes,
         accessors,
-        views,
+        mut views,
     } = index;
     let doc = gltf::Document::from_json_without_validation(root);
     check_references(&doc)
@@ -154,20 +185,31 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     for ext in doc.extensions_required() {
         if !SUPPORTED_REQUIRED.contains(&ext) {
             return Err(err(format!(
-                "requires extension {ext}, which bimtiles does not read yet"
+                "requires extension {ext}, which bimtiles does not read"
             )));
         }
     }
 
     let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let external = load_buffers(&doc, bin, &base_dir, path)?;
-    let buffers: Vec<&[u8]> = external
+    let mut buffers: Vec<&[u8]> = external
         .iter()
         .map(|b| match b {
             BufferData::Bin => bin.unwrap_or(&[]),
             BufferData::Owned(v) => &v[..],
         })
         .collect();
+    // Compressed views are decoded into buffers of their own, appended after the file's, and
+    // the views pointed at them: the accessor reader then sees plain data.
+    let decoded_views = decode_meshopt_views(path, &buffers, &views)?;
+    for (k, (view, bytes)) in decoded_views.iter().enumerate() {
+        let v = &mut views[*view];
+        v.buffer = buffers.len() + k;
+        v.offset = 0;
+        v.length = bytes.len();
+        v.meshopt = None;
+    }
+    buffers.extend(decoded_views.iter().map(|(_, b)| &b[..]));
     let mut reader = Reader {
         texts: TextInterner::default(),
         path,
@@ -183,6 +225,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
             })
             .collect(),
         scene: Scene::default(),
+        uv_transforms: Vec::new(),
     };
     reader.scene.sources.push(SourceFile {
         path: path.to_path_buf(),
@@ -201,6 +244,28 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     let mut scene = reader.scene;
     scene.finish();
     Ok(scene)
+}
+
+/// Decodes every `EXT_meshopt_compression` bufferView: (view index, its decoded bytes).
+fn decode_meshopt_views(
+    path: &Path,
+    buffers: &[&[u8]],
+    views: &[ViewDesc],
+) -> Result<Vec<(usize, Vec<u8>)>> {
+    use rayon::prelude::*;
+    views
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, v)| v.meshopt.as_deref().map(|m| (i, m)))
+        .map(|(i, m)| {
+            // The buffer index was checked with the other references.
+            decode_meshopt_view(m, buffers[m.buffer])
+                .map(|bytes| (i, bytes))
+                .map_err(|e| {
+                    Error::input_from(path, format!("bufferView {i} (EXT_meshopt_compression)"), e)
+                })
+        })
+        .collect()
 }
 
 /// Broken indices (an accessor naming a missing bufferView, a node naming a missing mesh...) are
@@ -322,6 +387,20 @@ fn load_buffers(
 ) -> Result<Vec<BufferData>> {
     let mut out = Vec::new();
     for b in doc.buffers() {
+        // A meshopt fallback buffer holds nothing: only compressed views name it, and they are
+        // read from their extension's buffer.
+        let fallback = b
+            .extensions()
+            .and_then(|e| e.get("EXT_meshopt_compression"))
+            .and_then(|m| m.get("fallback"))
+            .and_then(Value::as_bool)
+            .unwrap_or(false);
+        if fallback && (b.index() > 0 || bin.is_none()) {
+            if let gltf::buffer::Source::Bin = b.source() {
+                out.push(BufferData::Owned(Vec::new()));
+                continue;
+            }
+        }
         let (data, len) = match b.source() {
             gltf::buffer::Source::Bin => {
                 let bin = bin.ok_or_else(|| {
@@ -367,6 +446,9 @@ struct Reader<'a> {
     scene: Scene,
     /// Repeated metadata text (classes, storeys, property names), one copy each.
     texts: TextInterner,
+    /// Each material's `KHR_texture_transform` on its base-colour texture, applied to the UVs
+    /// of the primitives that use it.
+    uv_transforms: Vec<Option<UvTransform>>,
 }
 
 /// BIM semantics from a node's `extras`, as BIM exporters write them (IfcOpenShell:
@@ -389,14 +471,8 @@ fn element_info(extras: Option<&Value>, texts: &mut TextInterner) -> ElementInfo
             "site" => info.site = shared(),
             "material" => info.material = shared(),
             _ => {
-                let value = match v {
-                    Value::String(s) => PropertyValue::Text(s.clone()),
-                    Value::Bool(b) => PropertyValue::Bool(*b),
-                    Value::Number(n) => match n.as_i64() {
-                        Some(i) => PropertyValue::Integer(i),
-                        None => PropertyValue::Number(n.as_f64().unwrap_or(f64::NAN)),
-                    },
-                    _ => continue,
+                let Some(value) = PropertyValue::from_json_scalar(v) else {
+                    continue;
                 };
                 info.properties.push(Property {
                     set: texts.get("extras"),
@@ -510,6 +586,11 @@ impl Reader<'_> {
     fn read_materials(&mut self, doc: &gltf::Document) {
         for m in doc.materials() {
             let pbr = m.pbr_metallic_roughness();
+            let transform = pbr
+                .base_color_texture()
+                .and_then(|info| info.extensions()?.get("KHR_texture_transform").cloned());
+            self.uv_transforms
+                .push(transform.as_ref().and_then(UvTransform::from_json));
             let tex = pbr.base_color_texture().map(|info| {
                 let s = info.texture().sampler();
                 TextureRef {
@@ -609,6 +690,20 @@ impl Reader<'_> {
                 return Err(self.err(format!("node {idx} has a non-finite transform")));
             }
             if let Some(mesh) = node.mesh {
+                // gltfpack (and other quantizers) move a mesh into an unnamed child node that
+                // carries only its dequantization transform: the element is the named parent.
+                let idx = match parent[idx] {
+                    Some(p)
+                        if self.scene.nodes[idx].name.is_none()
+                            && self.scene.nodes[idx].extras.is_none()
+                            && node.children.is_empty()
+                            && nodes[p.index()].mesh.is_none()
+                            && nodes[p.index()].children.len() == 1 =>
+                    {
+                        p.index()
+                    }
+                    _ => idx,
+                };
                 let mesh_id = *mesh_ids[mesh as usize].get_or_insert_with(|| {
                     mesh_order.push(mesh as usize);
                     MeshId(mesh_order.len() as u32 - 1)
@@ -739,9 +834,6 @@ impl Reader<'_> {
     /// `Ok(None)` for primitives that are not surfaces (points, lines).
     fn read_primitive(&self, prim: &PrimitiveDesc, what: &str) -> Result<Option<Primitive>> {
         use gltf::mesh::Mode;
-        if prim.draco {
-            return Err(self.err(format!("{what}: Draco-compressed input is not read yet")));
-        }
         let mode = prim.mode;
         if !matches!(
             mode,
@@ -749,11 +841,17 @@ impl Reader<'_> {
         ) {
             return Ok(None);
         }
-        let pos_acc = prim
-            .positions
-            .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
-        let pos_acc = self.accessor(pos_acc)?;
-        let positions: Vec<[f32; 3]> = self.read_vec::<3>(pos_acc, &format!("{what} POSITION"))?;
+        let data = match &prim.draco {
+            Some(draco) => self.read_draco(prim, draco, what)?,
+            None => self.read_attributes(prim, what)?,
+        };
+        let RawPrimitive {
+            positions,
+            normals,
+            mut uvs,
+            colors,
+            indices: raw_indices,
+        } = data;
         let n = positions.len();
         if let Some(i) = positions
             .iter()
@@ -763,55 +861,28 @@ impl Reader<'_> {
                 "{what}: POSITION {i} is not finite (NaN or infinity)"
             )));
         }
-        let attr = |acc: Option<u32>, name: &str| -> Result<Option<&AccessorDesc>> {
-            let Some(a) = acc else {
-                return Ok(None);
-            };
-            let a = self.accessor(a)?;
-            match a.count != n {
-                true => Err(self.err(format!(
-                    "{what}: {name} has {} elements, POSITION has {n}",
-                    a.count
-                ))),
-                false => Ok(Some(a)),
+        if let Some(v) = &uvs {
+            if v.iter().any(|t| !t[0].is_finite() || !t[1].is_finite()) {
+                return Err(self.err(format!("{what}: TEXCOORD_0 has non-finite values")));
             }
-        };
-        let normals = match attr(prim.normals, "NORMAL")? {
-            Some(a) => {
-                let v = self.read_vec::<3>(a, &format!("{what} NORMAL"))?;
-                Some(v.into_iter().map(sanitize_normal).collect())
-            }
-            None => None,
-        };
-        let uvs = match attr(prim.uvs, "TEXCOORD_0")? {
-            Some(a) => {
-                let v = self.read_vec::<2>(a, &format!("{what} TEXCOORD_0"))?;
-                if v.iter().any(|t| !t[0].is_finite() || !t[1].is_finite()) {
-                    return Err(self.err(format!("{what}: TEXCOORD_0 has non-finite values")));
-                }
-                Some(v)
-            }
-            None => None,
-        };
-        let colors = match attr(prim.colors, "COLOR_0")? {
-            Some(a) if a.dimensions == gltf::accessor::Dimensions::Vec3 => Some(
-                self.read_vec::<3>(a, &format!("{what} COLOR_0"))?
-                    .into_iter()
-                    .map(|c| [c[0], c[1], c[2], 1.0])
-                    .collect(),
-            ),
-            Some(a) => Some(self.read_vec::<4>(a, &format!("{what} COLOR_0"))?),
-            None => None,
-        };
-        let raw_indices: Vec<u32> = match prim.indices {
-            Some(a) => self.read_indices(self.accessor(a)?, what)?,
-            None => (0..n as u32).collect(),
-        };
+        }
+        let transform = prim
+            .material
+            .and_then(|m| self.uv_transforms.get(m as usize).copied().flatten());
+        if let (Some(t), Some(v)) = (transform, uvs.as_mut()) {
+            v.iter_mut().for_each(|uv| *uv = t.apply(*uv));
+        }
         if let Some(bad) = raw_indices.iter().find(|&&i| i as usize >= n) {
             return Err(self.err(format!(
                 "{what}: index {bad} is out of range ({n} vertices)"
             )));
         }
+        // A Draco stream decodes to a triangle list whatever the primitive's mode.
+        let mode = if prim.draco.is_some() {
+            Mode::Triangles
+        } else {
+            mode
+        };
         let indices = match mode {
             Mode::Triangles => {
                 let mut v = raw_indices;
@@ -835,11 +906,122 @@ impl Reader<'_> {
         Ok(Some(Primitive {
             material: prim.material.map(MaterialId),
             positions,
-            normals,
+            normals: normals.map(|v| v.into_iter().map(sanitize_normal).collect()),
             uvs,
             colors,
             indices,
         }))
+    }
+
+    /// A primitive's attributes and indices read from its accessors.
+    fn read_attributes(&self, prim: &PrimitiveDesc, what: &str) -> Result<RawPrimitive> {
+        let pos_acc = prim
+            .positions
+            .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
+        let pos_acc = self.accessor(pos_acc)?;
+        let positions: Vec<[f32; 3]> = self.read_vec::<3>(pos_acc, &format!("{what} POSITION"))?;
+        let n = positions.len();
+        let attr = |acc: Option<u32>, name: &str| -> Result<Option<&AccessorDesc>> {
+            let Some(a) = acc else {
+                return Ok(None);
+            };
+            let a = self.accessor(a)?;
+            match a.count != n {
+                true => Err(self.err(format!(
+                    "{what}: {name} has {} elements, POSITION has {n}",
+                    a.count
+                ))),
+                false => Ok(Some(a)),
+            }
+        };
+        let normals = match attr(prim.normals, "NORMAL")? {
+            Some(a) => Some(self.read_vec::<3>(a, &format!("{what} NORMAL"))?),
+            None => None,
+        };
+        let uvs = match attr(prim.uvs, "TEXCOORD_0")? {
+            Some(a) => Some(self.read_vec::<2>(a, &format!("{what} TEXCOORD_0"))?),
+            None => None,
+        };
+        let colors = match attr(prim.colors, "COLOR_0")? {
+            Some(a) if a.dimensions == gltf::accessor::Dimensions::Vec3 => Some(
+                self.read_vec::<3>(a, &format!("{what} COLOR_0"))?
+                    .into_iter()
+                    .map(|c| [c[0], c[1], c[2], 1.0])
+                    .collect(),
+            ),
+            Some(a) => Some(self.read_vec::<4>(a, &format!("{what} COLOR_0"))?),
+            None => None,
+        };
+        let indices: Vec<u32> = match prim.indices {
+            Some(a) => self.read_indices(self.accessor(a)?, what)?,
+            None => (0..n as u32).collect(),
+        };
+        Ok(RawPrimitive {
+            positions,
+            normals,
+            uvs,
+            colors,
+            indices,
+        })
+    }
+
+    /// A `KHR_draco_mesh_compression` primitive decoded by libdraco; each attribute is the one
+    /// the extension's `attributes` map names, typed by its accessor.
+    fn read_draco(
+        &self,
+        prim: &PrimitiveDesc,
+        draco: &super::gltf_index::DracoDesc,
+        what: &str,
+    ) -> Result<RawPrimitive> {
+        let stream = self.view_bytes(draco.view)?;
+        let mesh = crate::draco::decode_mesh(stream).map_err(|e| {
+            Error::input_from(self.path, format!("{what} (KHR_draco_mesh_compression)"), e)
+        })?;
+        // (Draco unique id, its accessor) of an attribute both name.
+        let attribute = |id: Option<u32>, acc: Option<u32>, name: &str| -> Result<_> {
+            let (Some(id), Some(acc)) = (id, acc) else {
+                return Ok(None);
+            };
+            let normalized = self.accessor(acc)?.normalized;
+            let decoded = mesh.attribute(id).ok_or_else(|| {
+                self.err(format!(
+                    "{what}: {name} names Draco attribute {id}, which the stream does not have"
+                ))
+            })?;
+            Ok(Some((decoded, normalized)))
+        };
+        let short = |name: &str| self.err(format!("{what}: Draco {name} has too few components"));
+        let (p, norm) = attribute(draco.positions, prim.positions, "POSITION")?
+            .ok_or_else(|| self.err(format!("{what} has no POSITION")))?;
+        let positions = draco_vectors::<3>(p, norm).ok_or_else(|| short("POSITION"))?;
+        let normals = match attribute(draco.normals, prim.normals, "NORMAL")? {
+            Some((a, norm)) => Some(draco_vectors::<3>(a, norm).ok_or_else(|| short("NORMAL"))?),
+            None => None,
+        };
+        let uvs = match attribute(draco.uvs, prim.uvs, "TEXCOORD_0")? {
+            Some((a, norm)) => {
+                Some(draco_vectors::<2>(a, norm).ok_or_else(|| short("TEXCOORD_0"))?)
+            }
+            None => None,
+        };
+        let colors = match attribute(draco.colors, prim.colors, "COLOR_0")? {
+            Some((a, norm)) if a.components == 3 => Some(
+                draco_vectors::<3>(a, norm)
+                    .ok_or_else(|| short("COLOR_0"))?
+                    .into_iter()
+                    .map(|c| [c[0], c[1], c[2], 1.0])
+                    .collect(),
+            ),
+            Some((a, norm)) => Some(draco_vectors::<4>(a, norm).ok_or_else(|| short("COLOR_0"))?),
+            None => None,
+        };
+        Ok(RawPrimitive {
+            positions,
+            normals,
+            uvs,
+            colors,
+            indices: mesh.indices,
+        })
     }
 
     fn read_indices(&self, acc: &AccessorDesc, what: &str) -> Result<Vec<u32>> {
@@ -977,6 +1159,15 @@ impl Reader<'_> {
         }
         Ok((out, elem))
     }
+}
+
+/// A primitive's data as read, before the checks and fixes every source shares.
+struct RawPrimitive {
+    positions: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
+    uvs: Option<Vec<[f32; 2]>>,
+    colors: Option<Vec<[f32; 4]>>,
+    indices: Vec<u32>,
 }
 
 fn decode_component(b: &[u8], dt: gltf::accessor::DataType, normalized: bool) -> f32 {

@@ -39,6 +39,10 @@ pub enum GltfIndexError {
         path: String,
         source: gltf::json::validation::Error,
     },
+    /// Something the glTF 2.0 specification forbids that the reader would otherwise pass over
+    /// (a mesh with no primitives, a byteStride that cuts elements, a version it does not read).
+    #[error("{path}: {problem}")]
+    Forbidden { path: String, problem: String },
     /// An index into another array that is past its end.
     #[error("{path}: index {index} out of bounds (of {len})")]
     OutOfBounds {
@@ -129,12 +133,41 @@ struct SceneJson {
 }
 
 /// A bufferView reduced to what decoding needs.
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 pub struct ViewDesc {
     pub buffer: usize,
     pub offset: usize,
     pub length: usize,
     pub stride: Option<usize>,
+    /// `EXT_meshopt_compression`: where the compressed bytes are (boxed: rare). The reader
+    /// decodes them before any accessor is read and points the view at the decoded bytes.
+    pub meshopt: Option<Box<MeshoptView>>,
+}
+
+/// A bufferView's `EXT_meshopt_compression` object.
+#[derive(Clone, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct MeshoptView {
+    pub buffer: usize,
+    #[serde(default)]
+    pub byte_offset: usize,
+    pub byte_length: usize,
+    pub byte_stride: usize,
+    pub count: usize,
+    pub mode: String,
+    #[serde(default)]
+    pub filter: Option<String>,
+}
+
+/// A primitive's `KHR_draco_mesh_compression` object: the bufferView of the Draco stream and the
+/// Draco unique id of each attribute we read.
+#[derive(Default)]
+pub struct DracoDesc {
+    pub view: u32,
+    pub positions: Option<u32>,
+    pub normals: Option<u32>,
+    pub uvs: Option<u32>,
+    pub colors: Option<u32>,
 }
 
 /// An accessor's sparse substitution: `count` indices and values, each in its bufferView.
@@ -173,7 +206,7 @@ impl AccessorDesc {
 /// is decoded.
 pub struct PrimitiveDesc {
     pub mode: gltf::mesh::Mode,
-    pub draco: bool,
+    pub draco: Option<Box<DracoDesc>>,
     pub material: Option<u32>,
     pub positions: Option<u32>,
     pub normals: Option<u32>,
@@ -213,13 +246,65 @@ fn checked<T: Copy>(c: &Checked<T>, what: impl FnOnce() -> String) -> Result<T, 
     }
 }
 
-fn view_of(_: usize, v: gltf::json::buffer::View) -> Result<ViewDesc, GltfIndexError> {
+fn view_of(i: usize, v: gltf::json::buffer::View) -> Result<ViewDesc, GltfIndexError> {
+    let meshopt = match v
+        .extensions
+        .as_ref()
+        .and_then(|e| e.others.get("EXT_meshopt_compression"))
+    {
+        None => None,
+        Some(ext) => Some(Box::new(MeshoptView::deserialize(ext).map_err(|_| {
+            GltfIndexError::InvalidValue {
+                path: format!("bufferViews[{i}].extensions.EXT_meshopt_compression"),
+            }
+        })?)),
+    };
     Ok(ViewDesc {
         buffer: v.buffer.value(),
         offset: v.byte_offset.map_or(0, usize_of),
         length: usize_of(v.byte_length),
         stride: v.byte_stride.map(|s| s.0),
+        meshopt,
     })
+}
+
+/// A primitive's `KHR_draco_mesh_compression`, if it has one.
+fn draco_of(
+    path: impl Fn() -> String,
+    ext: Option<&gltf::json::extensions::mesh::Primitive>,
+) -> Result<Option<Box<DracoDesc>>, GltfIndexError> {
+    let Some(value) = ext.and_then(|e| e.others.get("KHR_draco_mesh_compression")) else {
+        return Ok(None);
+    };
+    let invalid = || GltfIndexError::InvalidValue {
+        path: format!("{}.extensions.KHR_draco_mesh_compression", path()),
+    };
+    let view = value
+        .get("bufferView")
+        .and_then(Value::as_u64)
+        .and_then(|v| u32::try_from(v).ok())
+        .ok_or_else(invalid)?;
+    let attributes = value
+        .get("attributes")
+        .and_then(Value::as_object)
+        .ok_or_else(invalid)?;
+    let id = |name: &str| -> Result<Option<u32>, GltfIndexError> {
+        match attributes.get(name) {
+            None => Ok(None),
+            Some(v) => v
+                .as_u64()
+                .and_then(|v| u32::try_from(v).ok())
+                .map(Some)
+                .ok_or_else(invalid),
+        }
+    };
+    Ok(Some(Box::new(DracoDesc {
+        view,
+        positions: id("POSITION")?,
+        normals: id("NORMAL")?,
+        uvs: id("TEXCOORD_0")?,
+        colors: id("COLOR_0")?,
+    })))
 }
 
 fn accessor_of(i: usize, a: gltf::json::Accessor) -> Result<AccessorDesc, GltfIndexError> {
@@ -277,10 +362,10 @@ fn mesh_of(i: usize, m: gltf::json::Mesh) -> Result<MeshDesc, GltfIndexError> {
         }
         primitives.push(PrimitiveDesc {
             mode: checked(&p.mode, || format!("meshes[{i}].primitives[{pi}].mode"))?,
-            draco: p
-                .extensions
-                .as_ref()
-                .is_some_and(|e| e.others.contains_key("KHR_draco_mesh_compression")),
+            draco: draco_of(
+                || format!("meshes[{i}].primitives[{pi}]"),
+                p.extensions.as_ref(),
+            )?,
             material: p.material.map(|m| m.value() as u32),
             positions: attr(Semantic::Positions),
             normals: attr(Semantic::Normals),
@@ -432,6 +517,17 @@ impl GltfIndex {
                 }
             }
         }
+        for (i, m) in self.meshes.iter().enumerate() {
+            for (pi, p) in m.primitives.iter().enumerate() {
+                if let Some(d) = &p.draco {
+                    bad(
+                        format!("meshes[{i}].primitives[{pi}].extensions.KHR_draco_mesh_compression.bufferView"),
+                        d.view,
+                        self.views.len(),
+                    )?;
+                }
+            }
+        }
         for (i, a) in self.accessors.iter().enumerate() {
             for v in a.views() {
                 bad(format!("accessors[{i}].bufferView"), v, self.views.len())?;
@@ -445,13 +541,81 @@ impl GltfIndex {
                     len: self.root.buffers.len(),
                 });
             }
+            if let Some(m) = &v.meshopt {
+                if m.buffer >= self.root.buffers.len() {
+                    return Err(GltfIndexError::OutOfBounds {
+                        path: format!("bufferViews[{i}].extensions.EXT_meshopt_compression.buffer"),
+                        index: m.buffer,
+                        len: self.root.buffers.len(),
+                    });
+                }
+            }
         }
         for (i, v) in self.image_views.iter().enumerate() {
             if let Some(v) = *v {
                 bad(format!("images[{i}].bufferView"), v, self.views.len())?;
             }
         }
+        self.check_spec_rules()
+    }
+
+    /// The glTF 2.0 rules (section 3 and 5 of the specification) a reader could pass over
+    /// without noticing: the asset's version, meshes with primitives, byte strides that hold
+    /// their elements.
+    fn check_spec_rules(&self) -> Result<(), GltfIndexError> {
+        let forbidden = |path: String, problem: String| GltfIndexError::Forbidden { path, problem };
+        check_version(&self.root.asset).map_err(|(field, problem)| forbidden(field, problem))?;
+        if let Some(i) = self.meshes.iter().position(|m| m.primitives.is_empty()) {
+            let problem = "a mesh with no primitives (glTF 2.0 requires at least one)";
+            return Err(forbidden(format!("meshes[{i}]"), problem.into()));
+        }
+        for (i, v) in self.views.iter().enumerate() {
+            let Some(stride) = v.stride else { continue };
+            if !(4..=252).contains(&stride) || stride % 4 != 0 {
+                let problem =
+                    format!("byteStride {stride} is not a multiple of 4 from 4 to 252 (glTF 2.0)");
+                return Err(forbidden(format!("bufferViews[{i}]"), problem));
+            }
+        }
+        for (i, a) in self.accessors.iter().enumerate() {
+            let Some(view) = a.view else { continue };
+            let Some(stride) = self.views[view as usize].stride else {
+                continue;
+            };
+            let element_bytes = a.data_type.size() * a.dimensions.multiplicity();
+            if stride < element_bytes {
+                let problem = format!(
+                    "its {element_bytes}-byte elements overlap: bufferViews[{view}].byteStride is {stride}"
+                );
+                return Err(forbidden(format!("accessors[{i}]"), problem));
+            }
+        }
         Ok(())
+    }
+}
+
+/// glTF 2.0 `asset.version` and `asset.minVersion` (section 5.2): "MAJOR.MINOR", major 2, and
+/// no minVersion above 2.0 (this reader implements 2.0). `Err`: the field and the problem.
+fn check_version(asset: &gltf::json::Asset) -> Result<(), (String, String)> {
+    let parse = |v: &str| -> Option<(u32, u32)> {
+        let (major, minor) = v.split_once('.')?;
+        let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+        (digits(major) && digits(minor))
+            .then(|| Some((major.parse().ok()?, minor.parse().ok()?)))?
+    };
+    match parse(&asset.version) {
+        Some((2, _)) => {}
+        _ => {
+            let problem = format!("version '{}' is not a glTF 2.x version", asset.version);
+            return Err(("asset.version".into(), problem));
+        }
+    }
+    match asset.min_version.as_deref().map(|v| (v, parse(v))) {
+        None | Some((_, Some((2, 0)))) => Ok(()),
+        Some((v, _)) => Err((
+            "asset.minVersion".into(),
+            format!("'{v}' asks for more than glTF 2.0, which bimtiles reads"),
+        )),
     }
 }
 

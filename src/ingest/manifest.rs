@@ -93,7 +93,13 @@ impl Manifest {
                 Error::input_from(path, "cannot read the manifest", e)
             }
         })?;
-        let m: Manifest = serde_json::from_slice(&text)
+        Manifest::from_bytes(path, &text)
+    }
+
+    /// [`Manifest::read`] of the manifest text `text` at `path` (its models are looked up beside
+    /// `path`).
+    pub fn from_bytes(path: &Path, text: &[u8]) -> Result<(GeoOrigin, Vec<Placement>)> {
+        let m: Manifest = serde_json::from_slice(text)
             .map_err(|e| Error::input_from(path, "not a valid manifest", e))?;
         m.check(path)
     }
@@ -165,16 +171,28 @@ impl Manifest {
                 )));
             }
             let numbers = [
-                e.longitude_deg,
-                e.latitude_deg,
-                e.height_m,
-                e.east_m,
-                e.north_m,
-                e.up_m,
-                Some(e.heading_deg),
+                ("longitude_deg", e.longitude_deg),
+                ("latitude_deg", e.latitude_deg),
+                ("height_m", e.height_m),
+                ("east_m", e.east_m),
+                ("north_m", e.north_m),
+                ("up_m", e.up_m),
             ];
-            if numbers.iter().flatten().any(|v| !v.is_finite()) {
-                return Err(bad(format!("{what}: placement numbers must be finite")));
+            let implausible = numbers.iter().find_map(|(field, v)| {
+                v.filter(|v| !crate::geodesy::plausible_m(*v))
+                    .map(|v| (field, v))
+            });
+            if let Some((field, v)) = implausible {
+                return Err(bad(format!(
+                    "{what}: {field} {v:e} is not plausible (beyond ±{:e}, the Earth's circumference in metres)",
+                    crate::geodesy::PLAUSIBLE_COORDINATE_M
+                )));
+            }
+            if !e.heading_deg.is_finite() || e.heading_deg.abs() > 360.0 {
+                return Err(bad(format!(
+                    "{what}: heading_deg {:e} is not within ±360",
+                    e.heading_deg
+                )));
             }
             let geographic = e.longitude_deg.is_some() || e.latitude_deg.is_some();
             let offset = e.east_m.is_some() || e.north_m.is_some() || e.up_m.is_some();
@@ -231,7 +249,7 @@ impl Manifest {
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
 /// origin, no turn), so `convert` places the campus there unless `--origin` moves it.
-pub fn read_manifest(path: &Path) -> Result<Scene> {
+pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
     let ecef_to_origin = origin.enu_to_ecef().inverse();
@@ -240,7 +258,13 @@ pub fn read_manifest(path: &Path) -> Result<Scene> {
             crs,
             source: "manifest",
         });
-        let mut s = super::read_input_in_crs(&p.file, given)?;
+        let mut s = super::read_input_with(
+            &p.file,
+            super::ReadOptions {
+                crs: given,
+                cityjson_lod,
+            },
+        )?;
         // The model's own anchor goes to its placement (the rule of `convert`); a model in map
         // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;

@@ -1,8 +1,10 @@
-//! Readers: turn input files into a [`Scene`](crate::scene::Scene). One file per format; each
+//! Readers: turn input files (glTF/GLB, IFC, CityJSON) into a [`Scene`](crate::scene::Scene). One file per format; each
 //! checks its input completely and reports problems as [`Error::Input`](crate::error::Error)
 //! naming the file.
 
+pub mod cityjson;
 pub mod gltf;
+mod gltf_compressed;
 mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
@@ -63,7 +65,7 @@ pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
 
 /// Reads any supported input, chosen by content (GLB magic, JSON) and extension.
 pub fn read_input(path: &Path) -> Result<Scene> {
-    read_input_in_crs(path, None)
+    read_input_with(path, ReadOptions::default())
 }
 
 /// A CRS given for inputs: the text (`EPSG:28992`) and where it came from (`option` for
@@ -74,22 +76,37 @@ pub struct GivenCrs<'a> {
     pub source: &'a str,
 }
 
-/// Like [`read_input`], with a CRS for the input's coordinates: an IFC file's IfcMapConversion
-/// that names no usable CRS is in it, and an input with no georeference of its own (glTF, IFC in
-/// map coordinates) has map coordinates of it. A CRS that cannot be used is one warning
-/// ([`Scene::georef_warnings`]) and the default placement.
-pub fn read_input_in_crs(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
-    let mut scene = read_input_as_is(path, crs)?;
-    if let (Some(given), None) = (crs, scene.georeference) {
-        if let Err(e) = crate::scene::placement::georeference_map_coordinates(
-            &mut scene,
-            given.crs,
-            given.source,
-        ) {
-            warn_georef(&mut scene, path, format!("--crs {}: {e}", given.crs));
+/// How inputs are read: the CRS of their map coordinates (`--crs`, a manifest entry's `"crs"`)
+/// and which CityJSON LoD to read (`--cityjson-lod`; `None`: each object's highest).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ReadOptions<'a> {
+    pub crs: Option<GivenCrs<'a>>,
+    pub cityjson_lod: Option<&'a str>,
+}
+
+/// Like [`read_input`], with [`ReadOptions`]. A given CRS is the CRS of the input's coordinates:
+/// an IFC file's IfcMapConversion that names no usable CRS is in it, and an input with no
+/// georeference of its own (glTF, IFC in map coordinates) has map coordinates of it; a CityJSON
+/// file is in it whatever its `metadata.referenceSystem` says. A CRS that cannot be used is one
+/// warning ([`Scene::georef_warnings`]) and the default placement.
+pub fn read_input_with(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
+    check_input_file(path)?;
+    let mut scene = if cityjson::is_cityjson(path) {
+        read_cityjson(path, opts)?
+    } else {
+        let mut scene = read_model(path, opts.crs)?;
+        if let (Some(given), None) = (opts.crs, scene.georeference) {
+            if let Err(e) = crate::scene::placement::georeference_map_coordinates(
+                &mut scene,
+                given.crs,
+                given.source,
+            ) {
+                warn_georef(&mut scene, path, format!("--crs {}: {e}", given.crs));
+            }
         }
-    }
-    if let Some(given) = crs {
+        scene
+    };
+    if let Some(given) = opts.crs {
         for u in &mut scene.crs_used {
             if u.source == "option" {
                 u.source = given.source.into();
@@ -108,7 +125,8 @@ fn warn_georef(scene: &mut Scene, path: &Path, message: String) {
     });
 }
 
-fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+/// An input must be a readable regular file ([`open_regular`]).
+fn check_input_file(path: &Path) -> Result<()> {
     if std::fs::symlink_metadata(path).is_err() {
         return Err(Error::input(path, "no such file"));
     }
@@ -118,6 +136,11 @@ fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     if let Err(e) = open_regular(path) {
         return Err(Error::input_from(path, "cannot read", e));
     }
+    Ok(())
+}
+
+/// An IFC or glTF/GLB file.
+fn read_model(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -127,6 +150,43 @@ fn read_input_as_is(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
         return read_ifc(path, crs.map(|c| c.crs));
     }
     gltf::read_gltf(path)
+}
+
+/// A CityJSON file, placed by the given CRS or else its own `metadata.referenceSystem`, every
+/// vertex on its own ([`georeference_map_coordinates_per_vertex`](crate::scene::placement::georeference_map_coordinates_per_vertex)).
+/// With neither, it stays in its local coordinates, with a warning when they look like map
+/// coordinates.
+fn read_cityjson(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
+    let cityjson::CityModel {
+        mut scene,
+        reference_system,
+    } = cityjson::read_cityjson(path, opts.cityjson_lod)?;
+    let (crs, source) = match (opts.crs, reference_system) {
+        (Some(given), _) => (given.crs.to_string(), "option"),
+        (None, Some(own)) => (own, "cityjson-reference-system"),
+        (None, None) => {
+            let (_, rule) = crate::scene::placement::choose_anchor(&scene.bounds());
+            if scene.bounds().center().length()
+                > crate::scene::placement::PROJECTED_COORDINATES_THRESHOLD_M
+            {
+                scene.reader_warnings.push(format!(
+                    "{}: no metadata.referenceSystem, and the coordinates look like map coordinates ({rule}): the model is placed at the default origin; give --crs EPSG:CODE to place it",
+                    path.display()
+                ));
+            }
+            return Ok(scene);
+        }
+    };
+    if let Err(e) =
+        crate::scene::placement::georeference_map_coordinates_per_vertex(&mut scene, &crs, source)
+    {
+        let what = match source {
+            "option" => "--crs",
+            _ => "metadata.referenceSystem",
+        };
+        warn_georef(&mut scene, path, format!("{what} {crs}: {e}"));
+    }
+    Ok(scene)
 }
 
 /// IFC files are ISO 10303-21 (STEP) text, whatever their extension.
@@ -188,16 +248,16 @@ pub fn read_embedded_sample() -> Result<Scene> {
 
 /// Reads several inputs into one scene, in the order given.
 pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
-    read_inputs_in_crs(paths, None)
+    read_inputs_with(paths, ReadOptions::default())
 }
 
-/// Like [`read_inputs`], every file in `crs` ([`read_input_in_crs`]).
-pub fn read_inputs_in_crs(paths: &[impl AsRef<Path>], crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+/// Like [`read_inputs`], every file read with `opts` ([`read_input_with`]).
+pub fn read_inputs_with(paths: &[impl AsRef<Path>], opts: ReadOptions<'_>) -> Result<Scene> {
     // The first scene is taken as it is: appending it to an empty one would copy every vector
     // (briefly twice the metadata of a whole campus).
     let mut scene: Option<Scene> = None;
     for p in paths {
-        let next = read_input_in_crs(p.as_ref(), crs)?;
+        let next = read_input_with(p.as_ref(), opts)?;
         match scene.as_mut() {
             None => scene = Some(next),
             Some(s) => s.append(next),
@@ -237,20 +297,26 @@ impl InputSet {
     }
 
     pub fn read(&self) -> Result<Scene> {
-        self.read_in_crs(None)
+        self.read_with(None, None)
     }
 
-    /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_in_crs`]); a
-    /// manifest's entries name their own.
-    pub fn read_in_crs(&self, crs: Option<&str>) -> Result<Scene> {
+    /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_with`]), a
+    /// manifest's entries name their own; CityJSON objects at `cityjson_lod`.
+    pub fn read_with(&self, crs: Option<&str>, cityjson_lod: Option<&str>) -> Result<Scene> {
         let given = crs.map(|crs| GivenCrs {
             crs,
             source: "option",
         });
         match self {
             InputSet::Sample => read_embedded_sample(),
-            InputSet::Files(f) => read_inputs_in_crs(f, given),
-            InputSet::Manifest(m) => manifest::read_manifest(m),
+            InputSet::Files(f) => read_inputs_with(
+                f,
+                ReadOptions {
+                    crs: given,
+                    cityjson_lod,
+                },
+            ),
+            InputSet::Manifest(m) => manifest::read_manifest(m, cityjson_lod),
         }
     }
 }

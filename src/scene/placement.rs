@@ -4,7 +4,7 @@
 //! campus manifest.
 
 use super::{Aabb, Scene, SourceGeoreference};
-use crate::geodesy::crs::{place_map_point, CrsError, CrsUse};
+use crate::geodesy::crs::{place_map_point, with_map_to_enu, CrsError, CrsUse, MapPlace};
 use glam::{DMat3, DMat4, DVec3};
 
 /// Models whose bounding-box centre is farther than this from their own origin are taken to be in
@@ -58,6 +58,19 @@ impl Placement {
     }
 }
 
+/// Adds where the anchor's map point went (`p`) to the report's `georeference.crs`, under the
+/// scene's first file.
+fn record_crs_use(scene: &mut Scene, source: &str, p: &MapPlace, anchor: DVec3) {
+    let file = scene
+        .sources
+        .first()
+        .map(|s| s.path.display().to_string())
+        .unwrap_or_default();
+    scene
+        .crs_used
+        .push(CrsUse::new(&file, source, p, anchor.x, anchor.y));
+}
+
 /// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
 /// model lies far from it (projected coordinates), then its footprint centre at ground level.
 pub fn choose_anchor(bounds: &Aabb) -> (DVec3, String) {
@@ -89,14 +102,7 @@ pub fn georeference_map_coordinates(
     let p = place_map_point(crs, anchor.x, anchor.y, anchor.z)?;
     let grid = p.grid_to_enu * p.unit_m;
     let linear = DMat3::from_cols(grid.x_axis.extend(0.0), grid.y_axis.extend(0.0), DVec3::Z);
-    let file = scene
-        .sources
-        .first()
-        .map(|s| s.path.display().to_string())
-        .unwrap_or_default();
-    scene
-        .crs_used
-        .push(CrsUse::new(&file, source, &p, anchor.x, anchor.y));
+    record_crs_use(scene, source, &p, anchor);
     scene.georeference = Some(SourceGeoreference {
         longitude_deg: p.place.longitude_deg,
         latitude_deg: p.place.latitude_deg,
@@ -105,5 +111,72 @@ pub fn georeference_map_coordinates(
         anchor,
         map_linear: Some(linear),
     });
+    Ok(())
+}
+
+/// Like [`georeference_map_coordinates`], but every vertex is converted on its own
+/// ([`with_map_to_enu`]) instead of by one linear map at the anchor: for inputs that cover a
+/// district (CityJSON), where the linear map would be centimetres to metres off at the edges.
+/// The scene ends in the east-north-up frame of the anchor's place (anchor at the origin, no
+/// turn left to apply); each component keeps its vertices relative to its own corner, so f32
+/// positions stay exact to the micrometre. A mesh drawn by several components is copied per
+/// component (each copy bends where it stands).
+pub fn georeference_map_coordinates_per_vertex(
+    scene: &mut Scene,
+    crs: &str,
+    source: &str,
+) -> Result<(), CrsError> {
+    let (anchor, _) = choose_anchor(&scene.bounds());
+    let p = place_map_point(crs, anchor.x, anchor.y, anchor.z)?;
+    // Normals turn with the grid's convergence (the map is conformal: no shear to undo).
+    let turn = DMat3::from_cols(
+        p.grid_to_enu.x_axis.extend(0.0),
+        p.grid_to_enu.y_axis.extend(0.0),
+        DVec3::Z,
+    );
+    let mut uses = vec![0u32; scene.meshes.len()];
+    for c in &scene.components {
+        uses[c.mesh.index()] += 1;
+    }
+    let Scene {
+        components, meshes, ..
+    } = scene;
+    with_map_to_enu(crs, &p.place, |to_enu| -> Result<(), CrsError> {
+        for c in components.iter_mut() {
+            let mut mesh = std::sync::Arc::unwrap_or_clone(meshes.get(c.mesh));
+            mesh.local_bounds = None;
+            let corner = to_enu(c.world.transform_point3(DVec3::ZERO))?;
+            for prim in &mut mesh.primitives {
+                for v in &mut prim.positions {
+                    let map = c
+                        .world
+                        .transform_point3(DVec3::from_array(v.map(f64::from)));
+                    *v = (to_enu(map)? - corner).as_vec3().to_array();
+                }
+                let normal_turn = turn * c.normal_matrix();
+                for n in prim.normals.iter_mut().flatten() {
+                    let turned = normal_turn * DVec3::from_array(n.map(f64::from));
+                    *n = turned.normalize_or_zero().as_vec3().to_array();
+                }
+            }
+            if uses[c.mesh.index()] > 1 {
+                c.mesh = meshes.push(mesh);
+            } else {
+                meshes.set(c.mesh, mesh);
+            }
+            c.world = DMat4::from_translation(corner);
+        }
+        Ok(())
+    })??;
+    record_crs_use(scene, source, &p, anchor);
+    scene.georeference = Some(SourceGeoreference {
+        longitude_deg: p.place.longitude_deg,
+        latitude_deg: p.place.latitude_deg,
+        height_m: p.place.height_m,
+        true_north_deg: Some(0.0),
+        anchor: DVec3::ZERO,
+        map_linear: Some(DMat3::IDENTITY),
+    });
+    scene.finish();
     Ok(())
 }

@@ -33,6 +33,7 @@ mod mime;
 mod path;
 
 pub use handler::{Handler, Mount, Reply};
+pub use http::{read_request, HeadError, Request};
 
 use std::collections::HashMap;
 use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};

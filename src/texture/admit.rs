@@ -100,6 +100,37 @@ fn quoted(name: &Option<String>) -> String {
     name.as_ref().map_or(String::new(), |n| format!(" '{n}'"))
 }
 
+/// Which limit an image's header breaks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OverLimit {
+    /// Wider or taller than `max_side_px`.
+    Side,
+    /// Its decoded RGBA pixels would need more than `max_decoded_bytes`.
+    Budget { decoded_bytes: u64, max_bytes: u64 },
+}
+
+/// An image's size from its header alone (`Err`: the header does not read), and the limit it
+/// breaks, if any: what [`admit_images`] checks for each image, before anything is decoded.
+pub fn header_size(
+    bytes: &[u8],
+    limits: &ImageLimits,
+) -> Result<((u32, u32), Option<OverLimit>), codec::CodecError> {
+    let (width_px, height_px) = codec::dimensions(bytes)?;
+    let decoded_bytes = width_px as u64 * height_px as u64 * 4;
+    let over = if width_px.max(height_px) > limits.max_side_px {
+        Some(OverLimit::Side)
+    } else {
+        limits
+            .max_decoded_bytes
+            .filter(|&m| decoded_bytes > m)
+            .map(|max_bytes| OverLimit::Budget {
+                decoded_bytes,
+                max_bytes,
+            })
+    };
+    Ok(((width_px, height_px), over))
+}
+
 /// Checks every image a material uses against `limits`, from its header alone. Refuses the first
 /// image over a limit, with the input file it came from; drops (and returns) those whose header
 /// does not read. Whether the pixels decode is found by the one pass that decodes them all
@@ -111,7 +142,7 @@ pub fn admit_images(
     let mut unreadable = Vec::new();
     for id in bound_images(scene) {
         let image = &scene.images[id.index()];
-        let (width_px, height_px) = match codec::dimensions(&image.bytes) {
+        let ((width_px, height_px), over) = match header_size(&image.bytes, limits) {
             Ok(size) => size,
             Err(e) => {
                 unreadable.push((id, chain_text(&e)));
@@ -119,28 +150,28 @@ pub fn admit_images(
             }
         };
         let name = image.name.clone();
-        if width_px.max(height_px) > limits.max_side_px {
-            let refused = ImageRefused::TooLarge {
+        let refused = match over {
+            None => continue,
+            Some(OverLimit::Side) => ImageRefused::TooLarge {
                 image: id.0,
                 name,
                 width_px,
                 height_px,
                 max_px: limits.max_side_px,
-            };
-            return Err((source_file(scene, id), refused));
-        }
-        let decoded_bytes = width_px as u64 * height_px as u64 * 4;
-        if let Some(max_bytes) = limits.max_decoded_bytes.filter(|&m| decoded_bytes > m) {
-            let refused = ImageRefused::OverBudget {
+            },
+            Some(OverLimit::Budget {
+                decoded_bytes,
+                max_bytes,
+            }) => ImageRefused::OverBudget {
                 image: id.0,
                 name,
                 width_px,
                 height_px,
                 decoded_bytes,
                 max_bytes,
-            };
-            return Err((source_file(scene, id), refused));
-        }
+            },
+        };
+        return Err((source_file(scene, id), refused));
     }
     Ok(drop_images(scene, &unreadable))
 }

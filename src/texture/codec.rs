@@ -1,5 +1,6 @@
 //! Decoding and encoding of texture images with the `image` crate (paper III.E's output side):
-//! the formats glTF core allows, PNG (lossless) and JPEG (with a quality setting).
+//! the formats glTF core allows, PNG (lossless) and JPEG (with a quality setting), and KTX2
+//! through [`super::basisu`].
 //!
 //! WebP is decodable but not written: glTF core does not allow `image/webp` (it needs
 //! `EXT_texture_webp` with a fallback image), and the `image` crate's WebP encoder is lossless
@@ -27,6 +28,9 @@ pub enum TextureFormat {
     Png,
     /// JPEG for everything without transparency (images with alpha < 255 stay PNG).
     Jpeg,
+    /// KTX2 with Basis Universal for everything, level 0 included (glTF `KHR_texture_basisu`):
+    /// textures the GPU keeps compressed ([`super::basisu`]).
+    Ktx2,
 }
 
 /// Why an image could not be decoded or encoded.
@@ -42,6 +46,9 @@ pub enum CodecError {
     /// size).
     #[error("{0}")]
     Inconsistent(&'static str),
+    /// The Basis Universal encoder (KTX2) refused the image.
+    #[error("the Basis Universal encoder failed on a {width_px}x{height_px} image")]
+    Basisu { width_px: u32, height_px: u32 },
 }
 
 /// Default JPEG quality (libjpeg scale 1-100).
@@ -299,16 +306,20 @@ pub fn encode_rgba(
     source_mime: &str,
     jpeg_quality: u8,
 ) -> Result<(Vec<u8>, &'static str), CodecError> {
+    if rgba.len() != width as usize * height as usize * 4 {
+        return Err(CodecError::Inconsistent("pixel buffer size"));
+    }
+    if format == TextureFormat::Ktx2 {
+        let ktx2 = super::basisu::encode_ktx2(width, height, rgba, super::basisu::KTX2_CODEC)?;
+        return Ok((ktx2, "image/ktx2"));
+    }
     let opaque = rgba.chunks_exact(4).all(|p| p[3] == 255);
     let jpeg = opaque
         && match format {
             TextureFormat::Auto => source_mime == "image/jpeg",
-            TextureFormat::Png => false,
+            TextureFormat::Png | TextureFormat::Ktx2 => false,
             TextureFormat::Jpeg => true,
         };
-    if rgba.len() != width as usize * height as usize * 4 {
-        return Err(CodecError::Inconsistent("pixel buffer size"));
-    }
     let mut out = Vec::new();
     // Opaque images drop their alpha channel (a quarter fewer bytes to compress), in place: no
     // second copy of the level.

@@ -20,6 +20,7 @@
 
 pub mod admit;
 pub mod atlas;
+pub mod basisu;
 pub mod classify;
 pub mod codec;
 pub mod crop;
@@ -176,16 +177,30 @@ pub fn build_pyramid(
     let (w, h, color) = (rows.width(), rows.height(), rows.color());
     let mut pyramid = haar::RowPyramid::new(w, h);
     let mut rgba = vec![0u8; w as usize * 4];
+    // KTX2 re-encodes level 0 too (a tile cannot mix it with PNG/JPEG levels it does not
+    // require), so the rows are kept for it.
+    let ktx2 = format == TextureFormat::Ktx2;
+    let mut level0 = Vec::with_capacity(if ktx2 { w as usize * h as usize * 4 } else { 0 });
     while let Some(row) = rows.next_row()? {
         codec::row_to_rgba8(color, row, &mut rgba);
         pyramid.push_row(&rgba);
+        if ktx2 {
+            level0.extend_from_slice(&rgba);
+        }
     }
     drop(rows);
+    let (bytes, mime) = match ktx2 {
+        true => {
+            let (b, m) = codec::encode_rgba(w, h, level0, format, "", jpeg_quality)?;
+            (Arc::new(b), m.to_string())
+        }
+        false => (image.bytes.clone(), image.mime_type.clone()),
+    };
     let mut out = vec![EncodedLevel {
         width: w,
         height: h,
-        bytes: image.bytes.clone(),
-        mime: image.mime_type.clone(),
+        bytes,
+        mime,
     }];
     for (width, height, px) in pyramid.finish() {
         let (bytes, mime) =
@@ -412,7 +427,9 @@ impl<'a> TextureLevels<'a> {
     fn level_bytes(&self, id: ImageId, level: usize) -> (Arc<Vec<u8>>, String, usize) {
         let im = &self.scene.images[id.index()];
         let (bytes, mime, level) = match level {
-            0 => (im.bytes.clone(), im.mime_type.clone(), 0),
+            0 if self.opts.format != TextureFormat::Ktx2 => {
+                (im.bytes.clone(), im.mime_type.clone(), 0)
+            }
             l => match self.pyramid(id) {
                 Some(p) => {
                     // A finer level that encodes smaller is shipped instead (more detail for

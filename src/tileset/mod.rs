@@ -41,6 +41,53 @@ pub enum Refine {
 /// drawn once it spans about 16/4 = 4 pixels at CesiumJS's default maximumScreenSpaceError of 16.
 pub const TOP_ERROR_PER_DIAGONAL: f64 = 4.0;
 
+/// The last check before a tileset is written (README, "Safety"): every bounding box, transform
+/// and geometric error of `tileset` is a number (`serde_json` writes NaN and infinities as
+/// `null`) and plausible (`geodesy::plausible_m`). `Err`: where the first one that is not sits,
+/// and its value; a tileset that fails this must not be written.
+pub fn check_numbers(tileset: &Value) -> Result<(), String> {
+    let plausible = |what: &str, v: Option<&Value>, n: usize| -> Result<(), String> {
+        let numbers: Vec<Option<f64>> = match v {
+            Some(Value::Array(a)) if a.len() == n => a.iter().map(Value::as_f64).collect(),
+            Some(Value::Number(x)) if n == 1 => vec![x.as_f64()],
+            other => return Err(format!("{what} is {}", other.unwrap_or(&Value::Null))),
+        };
+        match numbers
+            .iter()
+            .find(|x| !x.is_some_and(crate::geodesy::plausible_m))
+        {
+            Some(x) => Err(format!(
+                "{what} holds {}",
+                x.map_or("null".into(), |x| format!("{x:e}"))
+            )),
+            None => Ok(()),
+        }
+    };
+    plausible(
+        "the tileset's geometricError",
+        tileset.get("geometricError"),
+        1,
+    )?;
+    let root = tileset.get("root").ok_or("the tileset has no root")?;
+    plausible("the root transform", root.get("transform"), 16)?;
+    let mut stack = vec![(root, "root".to_string())];
+    while let Some((tile, name)) = stack.pop() {
+        let volume = tile.pointer("/boundingVolume/box");
+        plausible(&format!("the bounding box of tile {name}"), volume, 12)?;
+        let error = tile.get("geometricError");
+        plausible(&format!("the geometricError of tile {name}"), error, 1)?;
+        for (k, c) in tile["children"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            stack.push((c, format!("{name}/{k}")));
+        }
+    }
+    Ok(())
+}
+
 /// Builds the tileset JSON. `records[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
 /// frame to ECEF; `extras` is stored under `asset.extras`.
 pub fn tileset_json(
@@ -92,4 +139,47 @@ pub fn tileset_json(
         "geometricError": top_error,
         "root": root,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// The last check before writing: boxes, transforms and errors must be plausible numbers;
+    /// `serde_json` writes NaN as null, which is refused too.
+    #[test]
+    fn check_numbers_refuses_what_no_viewer_can_use() {
+        let b = Aabb {
+            min: DVec3::new(-1.0, -2.0, 0.0),
+            max: DVec3::new(1.0, 2.0, 3.0),
+        };
+        let tileset = |b: &Aabb, child: &Aabb| {
+            json!({"geometricError": 10.0, "root": {
+                "transform": DMat4::IDENTITY.to_cols_array(),
+                "boundingVolume": {"box": box_volume(b)}, "geometricError": 1.0,
+                "children": [{"boundingVolume": {"box": box_volume(child)}, "geometricError": 0.0}],
+            }})
+        };
+        assert_eq!(check_numbers(&tileset(&b, &b)), Ok(()));
+        let far = Aabb {
+            min: b.min,
+            max: DVec3::new(1e30, 2.0, 3.0),
+        };
+        let err = check_numbers(&tileset(&b, &far)).unwrap_err();
+        assert!(err.contains("tile root/0") && err.contains("e29"), "{err}");
+        let nan = Aabb {
+            min: DVec3::NAN,
+            max: b.max,
+        };
+        let err = check_numbers(&tileset(&nan, &b)).unwrap_err();
+        assert!(err.contains("tile root") && err.contains("null"), "{err}");
+        let mut t = tileset(&b, &b);
+        t["root"]["transform"][12] = json!(1e300);
+        let err = check_numbers(&t).unwrap_err();
+        assert!(
+            err.contains("root transform") && err.contains("1e300"),
+            "{err}"
+        );
+    }
 }

@@ -786,3 +786,55 @@ pub fn expected_element_ids(doc: &gltf::Document) -> std::collections::HashMap<u
     }
     out
 }
+
+/// One textured primitive of a tile, read back.
+pub struct Textured {
+    pub image: Vec<u8>,
+    pub dims: (u32, u32),
+    pub positions: Vec<[f32; 3]>,
+    pub uvs: Vec<[f32; 2]>,
+    pub indices: Vec<u32>,
+}
+
+/// An image of a tile: embedded in the GLB (`blob`) or a shared file relative to it (`path`).
+pub fn image_bytes(path: &Path, blob: &[u8], image: &gltf::Image) -> Vec<u8> {
+    match image.source() {
+        gltf::image::Source::View { view, .. } => {
+            blob[view.offset()..view.offset() + view.length()].to_vec()
+        }
+        gltf::image::Source::Uri { uri, .. } => {
+            assert!(uri.starts_with("../textures/"), "{uri}");
+            std::fs::read(path.parent().unwrap().join(uri)).unwrap()
+        }
+    }
+}
+
+/// Textured primitives of a GLB written without Draco (`--compression none`).
+pub fn read_textured(path: &Path) -> Vec<Textured> {
+    let bytes = std::fs::read(path).unwrap();
+    let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
+    let blob = g.blob.as_deref().unwrap();
+    let mut out = Vec::new();
+    for mesh in g.document.meshes() {
+        for p in mesh.primitives() {
+            let Some(info) = p.material().pbr_metallic_roughness().base_color_texture() else {
+                continue;
+            };
+            let image = image_bytes(path, blob, &info.texture().source());
+            let dims = image::ImageReader::new(std::io::Cursor::new(&image))
+                .with_guessed_format()
+                .unwrap()
+                .into_dimensions()
+                .unwrap();
+            let r = p.reader(|_| Some(blob));
+            out.push(Textured {
+                image,
+                dims,
+                positions: r.read_positions().unwrap().collect(),
+                uvs: r.read_tex_coords(0).unwrap().into_f32().collect(),
+                indices: r.read_indices().unwrap().into_u32().collect(),
+            });
+        }
+    }
+    out
+}

@@ -7,7 +7,7 @@ expected counts, bounds and values is decodable by a third party, not only by us
 Two sources of streams:
 
 1. Fixtures (always run): the Rust test
-   ``encode::draco::tests::write_independent_check_fixtures`` writes ``*.drc`` files and
+   ``draco::tests::write_independent_check_fixtures`` writes ``*.drc`` files and
    ``manifest.json`` (expected counts, per-attribute min/max, source positions/indices,
    tolerance) into ``$BIMTILES_DRACO_FIXTURE_DIR``.  This file runs that test itself
    through cargo into a temporary folder, unless ``BIMTILES_DRACO_FIXTURE_DIR`` already
@@ -36,7 +36,7 @@ np = pytest.importorskip("numpy")
 DracoPy = pytest.importorskip("DracoPy")
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-FIXTURE_TEST = "encode::draco::tests::write_independent_check_fixtures"
+FIXTURE_TEST = "draco::fixtures::write_independent_check_fixtures"
 
 
 # --------------------------------------------------------------------------- helpers

@@ -148,11 +148,20 @@ def input_elements(path):
                 return extras[k]
         return n["name"] if GUID.match(n.get("name", "")) else None
 
+    def owner(i):
+        # An unnamed mesh node that only carries a dequantization transform (gltfpack) is its
+        # named parent's element (README, glTF input).
+        n, p = nodes[i], parent.get(i)
+        if (p is not None and "name" not in n and "extras" not in n and not n.get("children")
+                and "mesh" not in nodes[p] and len(nodes[p].get("children", [])) == 1):
+            return p
+        return i
+
     order, stack = [], list(reversed(roots))
     while stack:
         i = stack.pop()
         if "mesh" in nodes[i]:
-            order.append(i)
+            order.append(owner(i))
         stack.extend(reversed(nodes[i].get("children", [])))
     uses = {}
     for i in order:

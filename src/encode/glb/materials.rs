@@ -108,11 +108,27 @@ impl MaterialTable<'_> {
             root["materials"] = json!(self.materials);
         }
         if !self.images.is_empty() {
+            let is_ktx2 = |i: usize| self.images[i]["mimeType"] == "image/ktx2";
+            // KHR_texture_basisu: a KTX2 image is the extension's source, with no PNG/JPEG
+            // fallback, so the extension is required as well as used (its spec, "Using Without a
+            // Fallback").
+            if self.textures.iter().any(|&(source, _)| is_ktx2(source)) {
+                for key in ["extensionsUsed", "extensionsRequired"] {
+                    match root[key].as_array_mut() {
+                        Some(list) => list.push(json!("KHR_texture_basisu")),
+                        None => root[key] = json!(["KHR_texture_basisu"]),
+                    }
+                }
+            }
             root["images"] = json!(self.images);
             root["textures"] = json!(self
                 .textures
                 .iter()
-                .map(|&(source, sampler)| json!({"source": source, "sampler": sampler}))
+                .map(|&(source, sampler)| match is_ktx2(source) {
+                    true => json!({"extensions": {"KHR_texture_basisu": {"source": source}},
+                                   "sampler": sampler}),
+                    false => json!({"source": source, "sampler": sampler}),
+                })
                 .collect::<Vec<_>>());
             root["samplers"] = json!(self.samplers.iter().map(sampler_json).collect::<Vec<_>>());
         }

@@ -352,10 +352,16 @@ impl IfcEngine for IfcLite {
         };
         let mut site = None;
         let mut context = None;
+        let mut conversion = None;
         let mut scanner = core::EntityScanner::new(content);
         while let Some((id, t, _, _)) = scanner.next_entity() {
             if site.is_none() && t.eq_ignore_ascii_case("IFCSITE") {
                 site = Some(id);
+            } else if conversion.is_none()
+                && (t.eq_ignore_ascii_case("IFCMAPCONVERSION")
+                    || t.eq_ignore_ascii_case("IFCMAPCONVERSIONSCALED"))
+            {
+                conversion = Some(id);
             } else if context.is_none()
                 && t.eq_ignore_ascii_case("IFCGEOMETRICREPRESENTATIONCONTEXT")
             {
@@ -429,6 +435,16 @@ impl IfcEngine for IfcLite {
                 map_unit_m: g.map_unit_scale,
                 project_unit_m: scale,
             });
+        }
+        // ifc-lite reads a Scale or Factor of 0 (or not finite) as 1: the file's own values, so
+        // that an absurd one is refused (`georef::implausible_map_number`), not replaced.
+        let written = conversion.and_then(|c| dec.decode_by_id(c).ok());
+        if let (Some(m), Some(written)) = (out.map_conversion.as_mut(), written) {
+            // IfcMapConversion: Scale 7; IfcMapConversionScaled: FactorX/Y/Z 8..10.
+            m.scale = written.get_float(7).unwrap_or(m.scale);
+            for (k, f) in m.factors.iter_mut().enumerate() {
+                *f = written.get_float(8 + k).unwrap_or(*f);
+            }
         }
         Ok(out)
     }

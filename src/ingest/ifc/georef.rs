@@ -197,6 +197,38 @@ fn georef_from_map_conversion(
     Err(MapConversionProblem::Unplaceable { first_error })
 }
 
+/// What makes a map conversion unusable at all, whatever its CRS (README, "Safety"; an error, not
+/// a fallback): a Scale or FactorX/Y/Z that is zero, negative or not plausible
+/// (`geodesy::plausible_scale`), or Eastings/Northings/OrthogonalHeight that are not plausible
+/// metres. Absent values read as 1 (scales) and 0.
+pub(super) fn implausible_map_number(m: &IfcMapConversion) -> Option<String> {
+    use crate::geodesy::{plausible_m, plausible_scale, PLAUSIBLE_SCALE};
+    let scales = [
+        ("Scale", m.scale),
+        ("FactorX", m.factors[0]),
+        ("FactorY", m.factors[1]),
+        ("FactorZ", m.factors[2]),
+    ];
+    if let Some((name, v)) = scales.into_iter().find(|(_, v)| !plausible_scale(*v)) {
+        return Some(format!(
+            "IfcMapConversion {name} {v:e} is not a plausible scale (from {:e} to {PLAUSIBLE_SCALE:e})",
+            1.0 / PLAUSIBLE_SCALE
+        ));
+    }
+    // In the MapUnit (millimetres make a UTM northing 5e9); the CRS's own unit when none is given.
+    let unit_m = m.map_unit_m.filter(|u| plausible_scale(*u)).unwrap_or(1.0);
+    let place = [
+        ("Eastings", m.eastings),
+        ("Northings", m.northings),
+        ("OrthogonalHeight", m.orthogonal_height),
+    ];
+    let (name, v) = place.into_iter().find(|(_, v)| !plausible_m(v * unit_m))?;
+    Some(format!(
+        "IfcMapConversion {name} {v:e} is not a plausible coordinate (beyond ±{:e} m, the Earth's circumference)",
+        crate::geodesy::PLAUSIBLE_COORDINATE_M
+    ))
+}
+
 /// Why an IfcMapConversion cannot place the model (a warning: the model falls back).
 #[derive(Debug, thiserror::Error)]
 pub(super) enum MapConversionProblem {
@@ -232,6 +264,38 @@ mod tests {
             map_unit_m: None,
             project_unit_m: 1.0,
         }
+    }
+
+    /// Scales and factors of zero, below 1e-6 or above 1e6, and places beyond 4e7 m (in the map
+    /// unit), are refused by name; the usual ones (feet, millimetre map units) are not.
+    #[test]
+    fn implausible_map_numbers_are_named() {
+        assert_eq!(implausible_map_number(&conversion(None)), None);
+        let with = |edit: fn(&mut IfcMapConversion)| {
+            let mut m = conversion(None);
+            edit(&mut m);
+            implausible_map_number(&m)
+        };
+        assert_eq!(with(|m| m.factors = [0.3048; 3]), None);
+        let mm = with(|m| {
+            m.map_unit_m = Some(0.001);
+            m.northings = 5.4e9;
+        });
+        assert_eq!(mm, None);
+        let named = |edit: fn(&mut IfcMapConversion), what: &str| {
+            let problem = with(edit).unwrap_or_default();
+            assert!(problem.contains(what), "{problem} should name {what}");
+        };
+        named(|m| m.scale = 0.0, "Scale 0e0");
+        named(|m| m.scale = 1e300, "Scale 1e300");
+        named(|m| m.scale = -1.0, "Scale -1e0");
+        named(|m| m.factors[1] = 1e-9, "FactorY 1e-9");
+        named(|m| m.factors[2] = f64::NAN, "FactorZ NaN");
+        named(|m| m.eastings = 1e300, "Eastings 1e300");
+        named(
+            |m| m.orthogonal_height = f64::INFINITY,
+            "OrthogonalHeight inf",
+        );
     }
 
     /// IFC4X3 IfcMapConversionScaled: FactorX/Y/Z scale the project axes before the rotation; the

@@ -258,11 +258,16 @@ pub fn read_ifc_bytes_with_crs(
     let data_model_s = t2.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
-    let (georef, georef_warning) = guarded(IfcStage::Georef, || {
+    let raw_georef = guarded(IfcStage::Georef, || {
         engine::IfcEngine::georef(&engine, bytes)
     })
-    .ok()
-    .map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
+    .ok();
+    let conversion = raw_georef.as_ref().and_then(|r| r.map_conversion.as_ref());
+    if let Some(problem) = conversion.and_then(georef::implausible_map_number) {
+        return Err(Error::input(path, problem));
+    }
+    let (georef, georef_warning) =
+        raw_georef.map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
     let mut report = IfcReadReport {
         schema: header.schema.clone(),
         georef,

@@ -73,6 +73,8 @@ pub enum StepError {
     NoTrailer,
     #[error("the DATA section holds no entities")]
     NoEntities,
+    #[error("entity #{id} is defined twice (again at line {line}): entity ids must be unique")]
+    DuplicateId { id: u64, line: usize },
     /// The first reference to an undefined record, and how many more there are.
     #[error("broken reference: #{from} refers to #{to}, which is not defined{}", more_text(*more))]
     BrokenReference { from: u32, to: u32, more: usize },
@@ -195,16 +197,23 @@ struct DefinedIds {
     big: HashSet<u64>,
 }
 
+/// Ids below this go in the bitset: at most 16 MiB of it, whatever a file's first id claims
+/// (one `#2147483647=` record must not cost 256 MiB).
+const SMALL_ID_LIMIT: u64 = 1 << 27;
+
 impl DefinedIds {
-    fn insert(&mut self, id: u64) {
-        if id < (1 << 31) {
+    /// Adds `id`; false if it was defined already.
+    fn insert(&mut self, id: u64) -> bool {
+        if id < SMALL_ID_LIMIT {
             let w = (id / 64) as usize;
             if w >= self.small.len() {
                 self.small.resize(w + 1, 0);
             }
+            let was = self.small[w] & (1 << (id % 64)) != 0;
             self.small[w] |= 1 << (id % 64);
+            !was
         } else {
-            self.big.insert(id);
+            self.big.insert(id)
         }
     }
 
@@ -247,7 +256,13 @@ fn scan_data(bytes: &[u8], from: usize) -> StepResult<DataScan> {
         let rec_start = i;
         let (id, body_start) = record_head(bytes, rec_start)?;
         i = record_body(bytes, id, rec_start, body_start, &mut scan)?;
-        scan.defined.insert(id);
+        if !scan.defined.insert(id) {
+            // Which of the two a reference means is undefined (ISO 10303-21 7.3.4: ids are unique).
+            return Err(StepError::DuplicateId {
+                id,
+                line: line_of(bytes, rec_start),
+            });
+        }
         scan.entities += 1;
     }
     scan.end = i;

@@ -1,9 +1,9 @@
-//! Draco mesh compression for glTF tiles.
+//! Draco mesh compression, for glTF tiles and glTF input.
 //!
-//! Implements the encoder side of the glTF extension `KHR_draco_mesh_compression`
+//! Implements both sides of the glTF extension `KHR_draco_mesh_compression`
 //! (Khronos, ratified; Draco bitstream 2.2; spec copy in
-//! `shared/specs/gltf-ext/extensions/2.0/Khronos/KHR_draco_mesh_compression/`) and a decoder
-//! for checking our own output. The work is done by Google's Draco C++ library (Debian
+//! `shared/specs/gltf-ext/extensions/2.0/Khronos/KHR_draco_mesh_compression/`): the encoder
+//! writes tiles, the decoder reads compressed input (`ingest::gltf`) and checks our own output. The work is done by Google's Draco C++ library (Debian
 //! `libdraco-dev` 1.5.5) through our small C ABI shim `shim/draco_shim.cc`; this file is the
 //! only place with `unsafe` for it, and every pointer and length is checked here.
 //!

@@ -1,0 +1,171 @@
+//! CityJSON appearance textures (CityJSON 2.0 §8.2 "Texture Object", §8.3 geometry `texture`
+//! values): a document's `appearance.textures` become scene images (read once per image file,
+//! relative to the CityJSON file, never outside its folder), `vertices-texture` the UVs, and a
+//! ring's texture values `[texture, uv, uv…]` give each polygon corner its UV.
+
+use crate::scene::{Image, ImageId, Sampler, Scene, TextureRef};
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// glTF sampler wrap modes for CityJSON's `wrapMode`.
+const GL_REPEAT: u32 = 10497;
+const GL_MIRRORED_REPEAT: u32 = 33648;
+const GL_CLAMP_TO_EDGE: u32 = 33071;
+
+/// The textures and UVs of one document (a CityJSON file, or one CityJSONFeature with its own
+/// `appearance`).
+#[derive(Debug, Default)]
+pub struct DocumentTextures {
+    /// Per CityJSON texture index: its image and sampler, `None` when the image is missing.
+    pub textures: Vec<Option<TextureRef>>,
+    /// `vertices-texture`, in glTF's convention (v from the image's top).
+    pub uvs: Vec<[f32; 2]>,
+    /// The theme to draw (`default-theme-texture`, else each geometry's first).
+    pub default_theme: Option<String>,
+}
+
+/// Images read so far (by file), and those that could not be, for one warning.
+#[derive(Debug, Default)]
+pub struct ImageFiles {
+    loaded: HashMap<PathBuf, Option<ImageId>>,
+    /// Texture images not found or unreadable (the first few named in the warning).
+    pub missing: Vec<String>,
+}
+
+impl ImageFiles {
+    /// Reads the textures of a document's `appearance` (images relative to `base_dir`).
+    pub fn document_textures(
+        &mut self,
+        appearance: &Value,
+        base_dir: &Path,
+        scene: &mut Scene,
+    ) -> DocumentTextures {
+        let textures = appearance
+            .get("textures")
+            .and_then(Value::as_array)
+            .map(|list| {
+                list.iter()
+                    .map(|t| self.texture(t, base_dir, scene))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let uvs = appearance
+            .get("vertices-texture")
+            .and_then(Value::as_array)
+            .map(|list| {
+                list.iter()
+                    .map(|uv| {
+                        let c = |i: usize| uv.get(i).and_then(Value::as_f64).unwrap_or(0.0);
+                        // CityJSON's v runs up from the image's bottom, glTF's down from its top.
+                        [c(0) as f32, (1.0 - c(1)) as f32]
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        DocumentTextures {
+            textures,
+            uvs,
+            default_theme: appearance
+                .get("default-theme-texture")
+                .and_then(Value::as_str)
+                .map(str::to_string),
+        }
+    }
+
+    fn texture(
+        &mut self,
+        texture: &Value,
+        base_dir: &Path,
+        scene: &mut Scene,
+    ) -> Option<TextureRef> {
+        let name = texture.get("image").and_then(Value::as_str)?;
+        let image = self.image(name, base_dir, scene)?;
+        let wrap = match texture.get("wrapMode").and_then(Value::as_str) {
+            Some("mirror") => GL_MIRRORED_REPEAT,
+            Some("clamp" | "border") => GL_CLAMP_TO_EDGE,
+            _ => GL_REPEAT,
+        };
+        Some(TextureRef {
+            image,
+            sampler: Sampler {
+                wrap_s: wrap,
+                wrap_t: wrap,
+                ..Sampler::default()
+            },
+            tex_coord: 0,
+        })
+    }
+
+    fn image(&mut self, name: &str, base_dir: &Path, scene: &mut Scene) -> Option<ImageId> {
+        let read = || -> Option<(PathBuf, Vec<u8>, &'static str)> {
+            let path = super::super::gltf::resolve_relative_uri(base_dir, name).ok()?;
+            let bytes = super::super::read_regular(&path).ok()?;
+            let mime = super::super::gltf::sniff_image_mime(&bytes)?;
+            Some((path, bytes, mime))
+        };
+        let key = base_dir.join(name);
+        if let Some(&known) = self.loaded.get(&key) {
+            return known;
+        }
+        let id = match read() {
+            Some((_, bytes, mime)) => {
+                let id = ImageId(scene.images.len() as u32);
+                scene.images.push(Image {
+                    name: Some(name.to_string()),
+                    mime_type: mime.to_string(),
+                    bytes: Arc::new(bytes),
+                });
+                Some(id)
+            }
+            None => {
+                self.missing.push(name.to_string());
+                None
+            }
+        };
+        self.loaded.insert(key, id);
+        id
+    }
+}
+
+/// A ring's texture: its texture index and one UV index per vertex (`[t, uv0, uv1…]`), or
+/// `None` for an untextured ring (`[null]`) or values that do not fit the ring.
+pub fn ring_texture(values: Option<&Value>, ring_len: usize) -> Option<(usize, Vec<usize>)> {
+    let list = values?.as_array()?;
+    let texture = list.first()?.as_u64()? as usize;
+    let uvs: Option<Vec<usize>> = list[1..]
+        .iter()
+        .map(|i| i.as_u64().map(|i| i as usize))
+        .collect();
+    uvs.filter(|u| u.len() == ring_len).map(|u| (texture, u))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ring_values_fit_their_ring() {
+        let v = serde_json::json!([2, 10, 11, 12]);
+        assert_eq!(ring_texture(Some(&v), 3), Some((2, vec![10, 11, 12])));
+        assert_eq!(ring_texture(Some(&v), 4), None, "one UV per vertex");
+        assert_eq!(ring_texture(Some(&serde_json::json!([null])), 3), None);
+        assert_eq!(ring_texture(None, 3), None);
+    }
+
+    #[test]
+    fn a_missing_image_is_counted_once_and_uvs_are_flipped() {
+        let appearance = serde_json::json!({
+            "textures": [{"type": "PNG", "image": "nowhere/a.png"},
+                         {"type": "PNG", "image": "nowhere/a.png", "wrapMode": "clamp"}],
+            "vertices-texture": [[0.25, 0.0], [1.0, 0.75]]
+        });
+        let mut files = ImageFiles::default();
+        let mut scene = Scene::default();
+        let t = files.document_textures(&appearance, Path::new("/nonexistent"), &mut scene);
+        assert_eq!(t.textures, vec![None, None]);
+        assert_eq!(files.missing, vec!["nowhere/a.png".to_string()]);
+        assert_eq!(t.uvs, vec![[0.25, 1.0], [1.0, 0.25]]);
+    }
+}
