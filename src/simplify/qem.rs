@@ -2091,7 +2091,9 @@ mod tests {
         let mut hi = Vec::new();
         let mut seed = 12345u64;
         let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (seed >> 11) as f64 / (1u64 << 53) as f64
         };
         for _ in 0..400 {
@@ -2110,7 +2112,11 @@ mod tests {
                 .filter(|&j| j != i)
                 .map(|j| (lo[j] - hi[i]).max(lo[i] - hi[j]).max(DVec3::ZERO).length())
                 .fold(f64::INFINITY, f64::min);
-            assert!((gaps[i] - brute).abs() < 1e-9, "box {i}: {} vs {brute}", gaps[i]);
+            assert!(
+                (gaps[i] - brute).abs() < 1e-9,
+                "box {i}: {} vs {brute}",
+                gaps[i]
+            );
         }
         assert!(gaps[401] > 400.0);
         // One box alone: the diagonal of everything stands for the gap.
