@@ -131,6 +131,34 @@ impl HlodBuilder<'_> {
         })
     }
 
+    /// The Draco grid (metres per axis) of a simplified tile's content, which it may thin. The
+    /// coarse grid flattens some thin triangles, and a flat triangle draws nothing (LoD3_Railway at
+    /// 1,000 triangles a tile lost 51 of a tile's 253 triangles, 0.67 m from full detail where
+    /// 0.43 m was declared). The ones Draco's grid flattens are dropped and the rest measured
+    /// again, kept if that costs no more than the grid's share; otherwise the grid stays finer
+    /// than the thinnest triangle.
+    fn fit_grid(
+        &self,
+        reference: &ErrorReference,
+        content: &mut TileContent,
+        err: &mut TileError,
+    ) -> f64 {
+        let per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
+        if per_axis_m <= fine_grid_m(self.opts.compression) {
+            return per_axis_m;
+        }
+        let Some(kept) = without_flattened(content, per_axis_m) else {
+            return per_axis_m;
+        };
+        let kept_err = reference.measure(&kept, &self.opts.simplify);
+        if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
+            (*content, *err) = (kept, kept_err);
+            per_axis_m
+        } else {
+            with_quantization(self.opts.compression, err.error_m, content).0
+        }
+    }
+
     pub(crate) fn build(&self, i: usize) -> Result<BuiltSubtree> {
         let tile = &self.plan.tiles[i];
         let path = || format!("tiles/{}.glb", tile.path);
@@ -207,23 +235,7 @@ impl HlodBuilder<'_> {
                 tried = coarsen(&build_at, aim_m, tried)?;
             }
             let (mut r, mut err, _) = tried;
-            // The coarse grid flattens some thin triangles, and a flat triangle draws nothing
-            // (LoD3_Railway at 1,000 triangles a tile lost 51 of a tile's 253 triangles, 0.67 m
-            // from full detail where 0.43 m was declared). The ones Draco's grid flattens are
-            // dropped and the rest measured again, kept if that costs no more than the grid's
-            // share; otherwise the grid stays finer than the thinnest triangle.
-            let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
-            if per_axis_m > fine_grid_m(self.opts.compression) {
-                if let Some(kept) = without_flattened(&r.content, per_axis_m) {
-                    let kept_err = reference.measure(&kept, &self.opts.simplify);
-                    if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
-                        (r.content, err) = (kept, kept_err);
-                    } else {
-                        per_axis_m =
-                            with_quantization(self.opts.compression, err.error_m, &r.content).0;
-                    }
-                }
-            }
+            let per_axis_m = self.fit_grid(&reference, &mut r.content, &mut err);
             let (position_error, measured) = (per_axis_m, err.error_m + per_axis_m * 3f64.sqrt());
             // The measurement's reference (children's BVHs) and inputs are not needed to write.
             drop(reference);

@@ -1200,7 +1200,7 @@ fn box_gaps(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
         |(a, b), (l, h)| (a.min(*l), b.max(*h)),
     );
     let diag = (all_hi - all_lo).length();
-    if n < 2 || !(diag > 0.0) {
+    if n < 2 || diag.is_nan() || diag <= 0.0 {
         return vec![diag.max(0.0); n];
     }
     let box_dist = |i: usize, j: usize| -> f64 {
