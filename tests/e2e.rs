@@ -285,7 +285,22 @@ fn draco_tiles_stay_within_a_millimetre_of_the_uncompressed_ones() {
             None => 0.001,
         };
         let mut tile_worst = 0.0f64;
-        assert_eq!(x.triangles, y.triangles, "Draco keeps every triangle");
+        if allowed_m == 0.001 {
+            assert_eq!(
+                x.triangles, y.triangles,
+                "Draco keeps every full-detail triangle"
+            );
+        } else {
+            // A simplified tile drops the triangles its coarse grid would flatten (they draw
+            // nothing), a few at most.
+            assert!(
+                x.triangles <= y.triangles && x.triangles * 10 >= y.triangles * 9,
+                "{:?}: {} triangles with Draco, {} without",
+                x.uri,
+                x.triangles,
+                y.triangles
+            );
+        }
         // Every decoded vertex is near an original one (grid cells of at least 1 cm, larger than
         // the allowed distance, searched with their neighbours).
         let size = 0.01f64.max(2.0 * allowed_m);
