@@ -46,6 +46,9 @@ pub enum CodecError {
     /// size).
     #[error("{0}")]
     Inconsistent(&'static str),
+    /// The decoder panicked on this file (a bug in it, caught by [`guarded`]).
+    #[error("the image decoder failed on this file ({0})")]
+    DecoderPanicked(String),
     /// The Basis Universal encoder (KTX2) refused the image.
     #[error("the Basis Universal encoder failed on a {width_px}x{height_px} image")]
     Basisu { width_px: u32, height_px: u32 },
@@ -57,9 +60,26 @@ pub const DEFAULT_JPEG_QUALITY: u8 = 85;
 /// Decodes any supported image without the `image` crate's default 512 MiB allocation limit
 /// (a 16k x 16k RGBA texture is 1 GiB of pixels).
 pub fn decode(bytes: &[u8]) -> Result<DynamicImage, CodecError> {
-    let mut r = image::ImageReader::new(Cursor::new(bytes)).with_guessed_format()?;
-    r.no_limits();
-    Ok(r.decode()?)
+    guarded(|| {
+        let mut r = image::ImageReader::new(Cursor::new(bytes)).with_guessed_format()?;
+        r.no_limits();
+        Ok(r.decode()?)
+    })
+}
+
+/// Runs a decoder call, a panic inside it becoming [`CodecError::DecoderPanicked`]: the image
+/// crates are not panic-free on malformed files (png 0.18.1 slices past a palette whose tRNS
+/// chunk says more than it holds; found by the image fuzz target), and one bad texture is one
+/// warning, not the end of the run.
+fn guarded<T>(f: impl FnOnce() -> Result<T, CodecError>) -> Result<T, CodecError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|payload| {
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Err(CodecError::DecoderPanicked(message))
+    })
 }
 
 /// Decoded pixels of an image, read one row at a time, top to bottom, in the `image` crate's
@@ -90,7 +110,7 @@ impl<'a> Rows<'a> {
     /// Starts decoding `bytes` (any format [`decode`] reads).
     pub fn open(bytes: &'a [u8]) -> Result<Rows<'a>, CodecError> {
         if bytes.starts_with(PNG_SIGNATURE) {
-            if let Some(rows) = Self::open_png(bytes)? {
+            if let Some(rows) = guarded(|| Self::open_png(bytes))? {
                 return Ok(rows);
             }
         }
@@ -188,7 +208,7 @@ impl<'a> Rows<'a> {
                 Ok(Some(&img.as_bytes()[y * line..(y + 1) * line]))
             }
             RowSource::Png { reader, row } => {
-                let got = reader.read_row(row)?;
+                let got = guarded(|| Ok(reader.read_row(row)?))?;
                 if self.next == self.height {
                     // Past the last row the reader consumes the rest of the image data, as
                     // `next_frame` does (its errors are the image's).
@@ -291,9 +311,11 @@ fn one_row_image(color: ColorType, width: u32, row: &[u8]) -> DynamicImage {
 
 /// Width and height from the header only (no pixel decoding).
 pub fn dimensions(bytes: &[u8]) -> Result<(u32, u32), CodecError> {
-    Ok(image::ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()?
-        .into_dimensions()?)
+    guarded(|| {
+        Ok(image::ImageReader::new(Cursor::new(bytes))
+            .with_guessed_format()?
+            .into_dimensions()?)
+    })
 }
 
 /// Encodes 8-bit RGBA; returns the bytes and their MIME type. `source_mime` picks the family
@@ -553,6 +575,29 @@ pub(crate) mod tests {
             png_of(w, h, Rgb, Sixteen, &rgb16, None, Some(rgb16_key)),
         ));
         out
+    }
+
+    /// A palette PNG whose PLTE is not a multiple of 3 bytes made png 0.18.1 slice past it (found
+    /// by the image fuzz target): an error naming the decoder's failure, not a panic.
+    #[test]
+    fn a_decoder_panic_is_an_error() {
+        let bytes = std::fs::read(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("fuzz/corpus/image/crash-png-palette-trns.png"),
+        )
+        .unwrap();
+        let rows = Rows::open(&bytes).and_then(|mut rows| {
+            while rows.next_row()?.is_some() {}
+            Ok(())
+        });
+        assert!(
+            matches!(rows, Err(CodecError::DecoderPanicked(_))),
+            "{rows:?}"
+        );
+        assert!(
+            matches!(decode(&bytes), Err(CodecError::DecoderPanicked(_)))
+                || decode(&bytes).is_err()
+        );
     }
 
     #[test]
