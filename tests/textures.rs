@@ -204,33 +204,60 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
     (coarser, textured)
 }
 
-/// Every shared texture file is referenced, written once (distinct bytes), named by its bytes,
-/// and at least 1 KiB (smaller levels are embedded by default).
-fn check_shared_files(run: &Run) {
+/// Every shared texture file is referenced by two tiles or more (a file of one tile is moved into
+/// it), written once (distinct bytes), named by its bytes, and at least 1 KiB (smaller levels are
+/// embedded by default); returns how many files there are.
+fn check_shared_files(run: &Run) -> usize {
     let dir = run.dir.join("textures");
-    let mut referenced = std::collections::BTreeSet::new();
+    let mut users: BTreeMap<String, usize> = BTreeMap::new();
     for t in &run.tiles {
         let Some(uri) = &t.uri else { continue };
         let json = glb_json(&std::fs::read(run.dir.join(uri)).unwrap());
-        for im in json["images"].as_array().into_iter().flatten() {
-            if let Some(u) = im["uri"].as_str() {
-                referenced.insert(u.trim_start_matches("../textures/").to_string());
-            }
+        let mut names: Vec<String> = (json["images"].as_array().into_iter().flatten())
+            .filter_map(|im| {
+                Some(
+                    im["uri"]
+                        .as_str()?
+                        .trim_start_matches("../textures/")
+                        .into(),
+                )
+            })
+            .collect();
+        names.dedup();
+        for name in names {
+            *users.entry(name).or_default() += 1;
         }
     }
     let mut contents = std::collections::BTreeSet::new();
     let mut files = 0;
-    for e in std::fs::read_dir(&dir).unwrap() {
+    for e in std::fs::read_dir(&dir).into_iter().flatten() {
         let e = e.unwrap();
         let name = e.file_name().to_string_lossy().to_string();
         let bytes = std::fs::read(e.path()).unwrap();
-        assert!(referenced.contains(&name), "{name} is used by a tile");
+        let tiles = users.get(&name).copied().unwrap_or(0);
+        assert!(tiles >= 2, "{name} is used by {tiles} tiles, not shared");
         assert!(bytes.len() >= 1024, "{name}: {} B", bytes.len());
+        assert_eq!(
+            name,
+            bimtiles::texture::external::file_name(&bytes, mime_of(&name))
+        );
         assert!(contents.insert(bytes), "{name}: bytes written once");
         files += 1;
     }
-    assert_eq!(files, referenced.len(), "every referenced file exists");
+    assert_eq!(files, users.len(), "every referenced file exists");
     assert_eq!(run.report["textures"]["external_files"], files);
+    files
+}
+
+/// The MIME type a shared file's extension stands for.
+fn mime_of(name: &str) -> &'static str {
+    match name.rsplit('.').next() {
+        Some("png") => "image/png",
+        Some("jpg") => "image/jpeg",
+        Some("webp") => "image/webp",
+        Some("ktx2") => "image/ktx2",
+        _ => "application/octet-stream",
+    }
 }
 
 /// Image bytes of a GLB input, as a set.
