@@ -33,20 +33,6 @@ fn tile_images(dir: &Path) -> BTreeMap<String, Vec<Result<Vec<u8>, String>>> {
     out
 }
 
-/// The encoded images a GLB input embeds.
-fn input_images(model: &Path) -> BTreeSet<Vec<u8>> {
-    let g = gltf::Gltf::from_slice_without_validation(&std::fs::read(model).unwrap()).unwrap();
-    let blob = g.blob.as_deref().unwrap();
-    g.images()
-        .filter_map(|im| match im.source() {
-            gltf::image::Source::View { view, .. } => {
-                Some(blob[view.offset()..view.offset() + view.length()].to_vec())
-            }
-            _ => None,
-        })
-        .collect()
-}
-
 fn decodes(bytes: &[u8]) -> bool {
     image::load_from_memory(bytes).is_ok()
 }

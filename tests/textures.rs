@@ -9,7 +9,7 @@
 mod common;
 use common::*;
 use serde_json::Value;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// Level sizes: halving, rounded up, down to 1x1 (written again here, not taken from the crate).
@@ -103,7 +103,7 @@ fn run_atlas_off_on(model: &Path, name: &str, extra: &[&str]) -> (Run, Run) {
 }
 
 /// The checks of one model; returns (internal tiles with a coarser image, textured tiles).
-fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usize) {
+fn check_levels(run: &Run, input_images: &BTreeSet<Vec<u8>>) -> (usize, usize) {
     let tex = &run.report["textures"];
     // Level-0 sizes (after cropping) of every stored image, by pixel size; the report says which
     // images there are, the GLBs say which one a primitive uses (matched by the full-size bytes
@@ -152,7 +152,7 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
                 let cropped = tex["crop"]["cropped"].as_u64().unwrap() > 0;
                 if !cropped {
                     assert!(
-                        input_images.contains_key(&p.image),
+                        input_images.contains(&p.image),
                         "{uri}: leaf image bytes are the input's, untouched"
                     );
                 }
@@ -258,23 +258,6 @@ fn mime_of(name: &str) -> &'static str {
         Some("ktx2") => "image/ktx2",
         _ => "application/octet-stream",
     }
-}
-
-/// Image bytes of a GLB input, as a set.
-fn input_images(model: &Path) -> BTreeMap<Vec<u8>, ()> {
-    let bytes = std::fs::read(model).unwrap();
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
-    let blob = g.blob.as_deref().unwrap();
-    g.document
-        .images()
-        .filter_map(|i| match i.source() {
-            gltf::image::Source::View { view, .. } => Some((
-                blob[view.offset()..view.offset() + view.length()].to_vec(),
-                (),
-            )),
-            _ => None,
-        })
-        .collect()
 }
 
 fn check_model(model: &Path, name: &str, max_tris: &str) {
@@ -839,7 +822,7 @@ fn atlas_sharded_build_is_byte_identical() {
 /// Mean RGB (0-255) of each input image of a GLB, decoded with the `image` crate.
 fn input_image_means(model: &Path) -> Vec<[f64; 3]> {
     input_images(model)
-        .keys()
+        .iter()
         .map(|bytes| {
             let img = image::load_from_memory(bytes).unwrap().to_rgb8();
             let n = (img.width() * img.height()) as f64;

@@ -1,6 +1,7 @@
 //! Building the tiles of a plan: content gathered per tile, HLOD content simplified bottom-up
 //! ([`hlod`]) or discrete LOD chains ([`chains`]), each tile encoded and written as soon as it is
-//! made, then tileset.json and schema.json. One code path for `convert` (a single job over the
+//! made, then the texture files of one tile moved into it, schema.json (when the tiles share it)
+//! and tileset.json. One code path for `convert` (a single job over the
 //! whole tree) and for sharded builds (`crate::shard`: jobs build subtrees, `merge` the top).
 
 pub mod chains;
@@ -298,8 +299,9 @@ impl<'a> TileWriter<'a> {
         }
     }
 
-    /// Builds the tiles above the subtree `roots` from the jobs' outputs, then writes schema.json
-    /// and tileset.json; returns every tile's figures, in plan order.
+    /// Builds the tiles above the subtree `roots` from the jobs' outputs, moves each texture file
+    /// one tile alone uses into it, then writes schema.json (when the tiles share it) and
+    /// tileset.json; returns every tile's figures, in plan order.
     pub(crate) fn merge(
         &self,
         jobs: Vec<JobOutput>,

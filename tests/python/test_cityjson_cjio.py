@@ -68,19 +68,25 @@ def test_cityjson_elements_and_attributes_match_cjio():
             continue
         expected = cjio_objects(inputs[0], report["options"].get("cityjson_lod"))
         rows = {}
+        # Properties by id over every tile's schema (an inline schema holds only its tile's).
+        properties = {}
         for tile in report["tiles"]:
             if not tile["content"]:
                 continue
             doc, blob = read_glb(d / tile["content"])
             ext = doc["extensions"]["EXT_structural_metadata"]
-            schema = ext["schema"] if "schema" in ext else json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+            if "schema" in ext:
+                schema = ext["schema"]
+            else:
+                schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+            properties.update(schema["classes"]["element"]["properties"])
             for r in decode_table(doc, blob, schema):
                 rows.setdefault(r["id"], {}).update({k: v for k, v in r.items() if v is not None})
         assert set(rows) == set(expected), (
             f"{d}: {len(rows)} elements vs {len(expected)} CityObjects with geometry; "
             f"missing {sorted(set(expected) - set(rows))[:3]}, extra {sorted(set(rows) - set(expected))[:3]}"
         )
-        names = {p["name"]: pid for pid, p in schema["classes"]["element"]["properties"].items() if "name" in p}
+        names = {p["name"]: pid for pid, p in properties.items() if "name" in p}
         attributes_checked = 0
         for oid, (cotype, attributes) in expected.items():
             row = rows[oid]

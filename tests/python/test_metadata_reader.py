@@ -212,7 +212,10 @@ def test_metadata_names_every_input_element():
             ext = doc.get("extensions", {}).get("EXT_structural_metadata")
             assert ext, f"{tile['content']}: no EXT_structural_metadata"
             assert "EXT_structural_metadata" in doc["extensionsUsed"]
-            schema = ext["schema"] if "schema" in ext else json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+            if "schema" in ext:
+                schema = ext["schema"]
+            else:
+                schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
             assert schema["id"] == "bimtiles"
             rows = decode_table(doc, blob, schema)
             assert len(rows) == tile["features"]
