@@ -95,7 +95,12 @@ def test_cityjson_elements_and_attributes_match_cjio():
                 if value is None or isinstance(value, (dict, list)):
                     continue
                 pid = names.get(f"attributes.{key}") or names.get(key)
-                assert pid is not None, f"{d}: attribute {key} has no column"
+                if pid is None:
+                    # No tile stores a value of it (an empty string is no value), so no inline
+                    # schema names it.
+                    assert value == "", f"{d}: attribute {key} has no column"
+                    attributes_checked += 1
+                    continue
                 got = row.get(pid)
                 if isinstance(value, bool):
                     assert got in (value, float(value), str(value).lower()), f"{oid}.{key}: {got!r} != {value!r}"
