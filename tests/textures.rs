@@ -9,7 +9,7 @@
 mod common;
 use common::*;
 use serde_json::Value;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// Level sizes: halving, rounded up, down to 1x1 (written again here, not taken from the crate).
@@ -103,7 +103,7 @@ fn run_atlas_off_on(model: &Path, name: &str, extra: &[&str]) -> (Run, Run) {
 }
 
 /// The checks of one model; returns (internal tiles with a coarser image, textured tiles).
-fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usize) {
+fn check_levels(run: &Run, input_images: &BTreeSet<Vec<u8>>) -> (usize, usize) {
     let tex = &run.report["textures"];
     // Level-0 sizes (after cropping) of every stored image, by pixel size; the report says which
     // images there are, the GLBs say which one a primitive uses (matched by the full-size bytes
@@ -152,7 +152,7 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
                 let cropped = tex["crop"]["cropped"].as_u64().unwrap() > 0;
                 if !cropped {
                     assert!(
-                        input_images.contains_key(&p.image),
+                        input_images.contains(&p.image),
                         "{uri}: leaf image bytes are the input's, untouched"
                     );
                 }
@@ -204,50 +204,60 @@ fn check_levels(run: &Run, input_images: &BTreeMap<Vec<u8>, ()>) -> (usize, usiz
     (coarser, textured)
 }
 
-/// Every shared texture file is referenced, written once (distinct bytes), named by its bytes,
-/// and at least 1 KiB (smaller levels are embedded by default).
-fn check_shared_files(run: &Run) {
+/// Every shared texture file is referenced by two tiles or more (a file of one tile is moved into
+/// it), written once (distinct bytes), named by its bytes, and at least 1 KiB (smaller levels are
+/// embedded by default); returns how many files there are.
+fn check_shared_files(run: &Run) -> usize {
     let dir = run.dir.join("textures");
-    let mut referenced = std::collections::BTreeSet::new();
+    let mut users: BTreeMap<String, usize> = BTreeMap::new();
     for t in &run.tiles {
         let Some(uri) = &t.uri else { continue };
         let json = glb_json(&std::fs::read(run.dir.join(uri)).unwrap());
-        for im in json["images"].as_array().into_iter().flatten() {
-            if let Some(u) = im["uri"].as_str() {
-                referenced.insert(u.trim_start_matches("../textures/").to_string());
-            }
+        let mut names: Vec<String> = (json["images"].as_array().into_iter().flatten())
+            .filter_map(|im| {
+                Some(
+                    im["uri"]
+                        .as_str()?
+                        .trim_start_matches("../textures/")
+                        .into(),
+                )
+            })
+            .collect();
+        names.dedup();
+        for name in names {
+            *users.entry(name).or_default() += 1;
         }
     }
     let mut contents = std::collections::BTreeSet::new();
     let mut files = 0;
-    for e in std::fs::read_dir(&dir).unwrap() {
+    for e in std::fs::read_dir(&dir).into_iter().flatten() {
         let e = e.unwrap();
         let name = e.file_name().to_string_lossy().to_string();
         let bytes = std::fs::read(e.path()).unwrap();
-        assert!(referenced.contains(&name), "{name} is used by a tile");
+        let tiles = users.get(&name).copied().unwrap_or(0);
+        assert!(tiles >= 2, "{name} is used by {tiles} tiles, not shared");
         assert!(bytes.len() >= 1024, "{name}: {} B", bytes.len());
+        assert_eq!(
+            name,
+            bimtiles::texture::external::file_name(&bytes, mime_of(&name))
+        );
         assert!(contents.insert(bytes), "{name}: bytes written once");
         files += 1;
     }
-    assert_eq!(files, referenced.len(), "every referenced file exists");
+    assert_eq!(files, users.len(), "every referenced file exists");
     assert_eq!(run.report["textures"]["external_files"], files);
+    files
 }
 
-/// Image bytes of a GLB input, as a set.
-fn input_images(model: &Path) -> BTreeMap<Vec<u8>, ()> {
-    let bytes = std::fs::read(model).unwrap();
-    let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
-    let blob = g.blob.as_deref().unwrap();
-    g.document
-        .images()
-        .filter_map(|i| match i.source() {
-            gltf::image::Source::View { view, .. } => Some((
-                blob[view.offset()..view.offset() + view.length()].to_vec(),
-                (),
-            )),
-            _ => None,
-        })
-        .collect()
+/// The MIME type a shared file's extension stands for.
+fn mime_of(name: &str) -> &'static str {
+    match name.rsplit('.').next() {
+        Some("png") => "image/png",
+        Some("jpg") => "image/jpeg",
+        Some("webp") => "image/webp",
+        Some("ktx2") => "image/ktx2",
+        _ => "application/octet-stream",
+    }
 }
 
 fn check_model(model: &Path, name: &str, max_tris: &str) {
@@ -812,7 +822,7 @@ fn atlas_sharded_build_is_byte_identical() {
 /// Mean RGB (0-255) of each input image of a GLB, decoded with the `image` crate.
 fn input_image_means(model: &Path) -> Vec<[f64; 3]> {
     input_images(model)
-        .keys()
+        .iter()
         .map(|bytes| {
             let img = image::load_from_memory(bytes).unwrap().to_rgb8();
             let n = (img.width() * img.height()) as f64;

@@ -1,6 +1,7 @@
 //! Building the tiles of a plan: content gathered per tile, HLOD content simplified bottom-up
 //! ([`hlod`]) or discrete LOD chains ([`chains`]), each tile encoded and written as soon as it is
-//! made, then tileset.json and schema.json. One code path for `convert` (a single job over the
+//! made, then the texture files of one tile moved into it, schema.json (when the tiles share it)
+//! and tileset.json. One code path for `convert` (a single job over the
 //! whole tree) and for sharded builds (`crate::shard`: jobs build subtrees, `merge` the top).
 
 pub mod chains;
@@ -18,7 +19,8 @@ use crate::partition::content::{AppearanceClasses, TileContent};
 use crate::partition::{ContentItem, TilePlan};
 use crate::prepare::Prepared;
 use crate::scene::Scene;
-use crate::tileset::metadata::{MetadataSchema, TableScope};
+use crate::texture::single_use::embed_single_use_files;
+use crate::tileset::metadata::{MetadataSchema, SchemaPlacement, TableScope};
 use crate::tileset::{tileset_json, Refine};
 use chains::build_chains;
 use glam::DVec3;
@@ -59,6 +61,24 @@ pub(crate) fn gather(
     }
 }
 
+/// The metadata schema file, in the tileset's folder, and how a tile (in `tiles/`) reaches it.
+pub const SCHEMA_FILE: &str = "schema.json";
+const SCHEMA_URI: &str = "../schema.json";
+
+/// Tiles of the plan that may get content: those holding items without LOD; every tile with
+/// HLOD or chains (a parent holds its children's simplified content).
+fn content_tiles_at_most(prep: &Prepared, opts: &ConvertOptions) -> usize {
+    match opts.lod {
+        LodMode::None => prep
+            .plan
+            .tiles
+            .iter()
+            .filter(|t| !t.content.is_empty())
+            .count(),
+        LodMode::Hlod | LodMode::Ratios(_) => prep.plan.tiles.len(),
+    }
+}
+
 /// Encodes and writes the tiles of one build under `dir/tiles/` (each to a temporary name, then
 /// renamed, so a killed process leaves no tile under its final name half-written), and assembles
 /// the tileset from the tiles' figures. Used by `convert` (one job over the whole tree) and by the
@@ -73,6 +93,8 @@ pub(crate) struct TileWriter<'a> {
     /// Per plan tile, its level in a discrete LOD chain (`--lod-ratios`; empty otherwise).
     chain_level: &'a [Option<usize>],
     schema: MetadataSchema,
+    /// In every tile, or one file (`schema.json`) they share.
+    schema_placement: SchemaPlacement,
     encoding: TileEncoding,
     pb: indicatif::ProgressBar,
 }
@@ -97,6 +119,11 @@ impl<'a> TileWriter<'a> {
     ) -> Result<Self> {
         let (plan, appearance, chain_level) = (&prep.plan, &prep.appearance, &prep.chain_level);
         let tiles_dir = dir.join("tiles");
+        // The metadata schema, in every tile or once for the tileset (schema.json).
+        let schema = MetadataSchema::from_scene(scene);
+        let schema_bytes = serde_json::to_vec(&schema.to_json(None)).map_or(0, |v| v.len());
+        let schema_placement =
+            SchemaPlacement::choose(content_tiles_at_most(prep, opts), schema_bytes, SCHEMA_URI);
         std::fs::create_dir_all(&tiles_dir)
             .map_err(|e| Error::output_from(&tiles_dir, "cannot create the folder", e))?;
         Ok(TileWriter {
@@ -107,8 +134,8 @@ impl<'a> TileWriter<'a> {
             textures,
             appearance,
             chain_level,
-            // The metadata schema, once for the tileset (schema.json), referenced by every tile.
-            schema: MetadataSchema::from_scene(scene),
+            schema,
+            schema_placement,
             encoding: TileEncoding {
                 compression: opts.compression,
                 ..TileEncoding::default()
@@ -151,7 +178,7 @@ impl<'a> TileWriter<'a> {
         };
         let make_table = |features: &[crate::scene::ComponentId]| {
             self.schema
-                .property_table(scene, features, "../schema.json", scope)
+                .property_table(scene, features, &self.schema_placement, scope)
         };
         let coarse_encoding;
         // Simplified content: its own position grid, its normals from the faces as drawn.
@@ -273,8 +300,9 @@ impl<'a> TileWriter<'a> {
         }
     }
 
-    /// Builds the tiles above the subtree `roots` from the jobs' outputs, then writes schema.json
-    /// and tileset.json; returns every tile's figures, in plan order.
+    /// Builds the tiles above the subtree `roots` from the jobs' outputs, moves each texture file
+    /// one tile alone uses into it, then writes schema.json (when the tiles share it) and
+    /// tileset.json; returns every tile's figures, in plan order.
     pub(crate) fn merge(
         &self,
         jobs: Vec<JobOutput>,
@@ -306,9 +334,11 @@ impl<'a> TileWriter<'a> {
             record.lod_level = self.chain_level.get(records.len()).copied().flatten();
             records.push(record);
         }
-        let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
-            .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
-        write_renamed(&tmp.join("schema.json"), &schema_json)?;
+        if let SchemaPlacement::File(_) = self.schema_placement {
+            let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
+                .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
+            write_renamed(&tmp.join(SCHEMA_FILE), &schema_json)?;
+        }
         let extras = json!({"bimtiles": {
             "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
             "anchor_m": anchor.to_array(),
@@ -318,8 +348,19 @@ impl<'a> TileWriter<'a> {
             LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
             LodMode::None => Refine::Add,
         };
-        let mut ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
-        ts["schemaUri"] = json!("schema.json");
+        if !opts.texture.embed {
+            let uris: Vec<&str> = records.iter().filter_map(|r| r.uri.as_deref()).collect();
+            let moved = embed_single_use_files(tmp, &uris)?;
+            for r in &mut records {
+                if let Some(&bytes) = r.uri.as_ref().and_then(|u| moved.tile_bytes.get(u)) {
+                    r.content.bytes = bytes;
+                }
+            }
+        }
+        // No schema in tileset.json: no tileset, tile or group metadata uses one, and CesiumJS
+        // fetches a tileset's `schemaUri` before the tileset is ready, then drops it (the tiles
+        // fetch theirs again): a round trip before the first tile, for nothing.
+        let ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
         crate::tileset::check_numbers(&ts).map_err(|message| Error::Internal {
             path: (self.scene.sources.first()).map_or_else(Default::default, |s| s.path.clone()),
             message,

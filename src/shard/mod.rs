@@ -15,9 +15,10 @@
 //! and, for HLOD, what its subtree roots hand their parents. `merge` accepts a job only through
 //! that file, builds the top levels from the subtree roots exactly as `convert` does
 //! ([`crate::build::TileWriter`] is the one code path: `convert` is a single job over the whole
-//! tree, merged in memory), and writes schema.json, tileset.json and report.json.
+//! tree, merged in memory), moves the texture files of one tile into it, and writes schema.json
+//! (when the tiles share it), tileset.json and report.json.
 //!
-//! Identical to `convert`: every tile, tileset.json and schema.json. report.json differs in its
+//! Identical to `convert`: every tile, texture file, tileset.json and schema.json. report.json differs in its
 //! timings, peak memory, dedup seconds, and the texture tallies (`textures.written_*`,
 //! pyramid levels), which count what the merging process itself wrote.
 

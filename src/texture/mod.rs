@@ -14,7 +14,9 @@
 //! (JPEG and WebP, which have no row decoder, are decoded whole in their own colour type). Level
 //! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
 //! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
-//! by the tiles ([`external`]), or embedded in every tile GLB with `embed`. With `atlas`, a tile's
+//! by the tiles ([`external`]), or embedded in every tile GLB with `embed`; once every tile is
+//! written, a file that one tile alone references moves into that tile ([`single_use`]). With
+//! `atlas`, a tile's
 //! small non-repeating images are packed into one image when that saves requests and bytes
 //! ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
 
@@ -28,6 +30,7 @@ pub mod external;
 pub mod haar;
 pub mod identical;
 pub mod lod;
+pub mod single_use;
 
 pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
 

@@ -26,6 +26,35 @@ const ENUM_MIN_USES_PER_VALUE: usize = 4;
 /// `noData` of FLOAT64 properties: no real property value is this.
 pub const NO_NUMBER: f64 = f64::MIN;
 
+/// What a sequential request costs, in bytes that could be sent instead: one round trip on the
+/// link the browser benchmark throttles to (README, "First view"): 20 Mbit/s x 40 ms = 100 KB.
+/// The schema is such a request: CesiumJS reads a tile's `EXT_structural_metadata` schema before
+/// the tile can show, so `schemaUri` costs the first tile one more round trip after its GLB.
+pub const SEQUENTIAL_REQUEST_WORTH_BYTES: usize = 100_000;
+
+/// Where the tiles of a tileset find the metadata schema.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SchemaPlacement {
+    /// One file, at this URI relative to a tile, fetched once and shared by every tile.
+    File(String),
+    /// In each tile, only the properties and enums its property table uses.
+    Inline,
+}
+
+impl SchemaPlacement {
+    /// Inline when every tile repeating the schema (`schema_bytes`, an upper bound of each tile's
+    /// part of it) costs no more than the request the file would: always for a one-tile tileset
+    /// (the same bytes, one round trip fewer), else when `(tiles - 1) x schema_bytes` is at most
+    /// [`SEQUENTIAL_REQUEST_WORTH_BYTES`]. `content_tiles`: tiles that may have content, at most.
+    pub fn choose(content_tiles: usize, schema_bytes: usize, file_uri: &str) -> SchemaPlacement {
+        let repeated_bytes = content_tiles.saturating_sub(1).saturating_mul(schema_bytes);
+        match repeated_bytes <= SEQUENTIAL_REQUEST_WORTH_BYTES {
+            true => SchemaPlacement::Inline,
+            false => SchemaPlacement::File(file_uri.into()),
+        }
+    }
+}
+
 /// Where a property's values come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Column {
@@ -427,14 +456,15 @@ impl MetadataSchema {
     }
 
     /// The property table of one tile's features: only the properties some feature has a value
-    /// for; the schema is the tileset's, at `schema_uri` (relative to the tile). With
-    /// [`TableScope::Identity`] only what names an element (id, name unless the id ends with it,
-    /// class, storey, building, site, material, source, and the duplicates it stands for).
+    /// for; the schema as `placement` says (the tileset's file, or inline with just the
+    /// properties and enums of this table). With [`TableScope::Identity`] only what names an
+    /// element (id, name unless the id ends with it, class, storey, building, site, material,
+    /// source, and the duplicates it stands for).
     pub fn property_table(
         &self,
         scene: &Scene,
         features: &[ComponentId],
-        schema_uri: &str,
+        placement: &SchemaPlacement,
         scope: TableScope,
     ) -> PropertyTable {
         let elements: Vec<(&Component, ElementInfo)> = features
@@ -442,6 +472,7 @@ impl MetadataSchema {
             .map(|&c| (scene.component(c), scene.element(c)))
             .collect();
         let mut columns = Vec::new();
+        let mut present = Vec::new();
         for (p, def) in self.properties.iter().enumerate() {
             let identity = scope == TableScope::Identity;
             if identity && matches!(def.column, Column::Pset(_) | Column::Path) {
@@ -488,9 +519,13 @@ impl MetadataSchema {
                 },
             };
             columns.push((def.id.clone(), col));
+            present.push(p);
         }
         PropertyTable {
-            schema: SchemaRef::Uri(schema_uri.into()),
+            schema: match placement {
+                SchemaPlacement::File(uri) => SchemaRef::Uri(uri.to_string()),
+                SchemaPlacement::Inline => SchemaRef::Inline(self.to_json(Some(&present))),
+            },
             class: CLASS_ID.into(),
             count: features.len(),
             columns,
@@ -665,9 +700,19 @@ mod tests {
         );
         let ids = [ComponentId(0), ComponentId(1)];
         let names = |t: PropertyTable| t.columns.into_iter().map(|c| c.0).collect::<Vec<_>>();
-        let all = names(m.property_table(&s, &ids, "s.json", TableScope::All));
+        let all = names(m.property_table(
+            &s,
+            &ids,
+            &SchemaPlacement::File("s.json".into()),
+            TableScope::All,
+        ));
         assert!(all.contains(&"Qto_Width".to_string()) && all.contains(&"class".to_string()));
-        let identity = names(m.property_table(&s, &ids, "s.json", TableScope::Identity));
+        let identity = names(m.property_table(
+            &s,
+            &ids,
+            &SchemaPlacement::File("s.json".into()),
+            TableScope::Identity,
+        ));
         assert_eq!(identity, ["id", "name", "source", "class", "storey"]);
         let full = m.to_json(None);
         assert_eq!(full["id"], "bimtiles");
@@ -684,6 +729,38 @@ mod tests {
             2
         );
         assert_eq!(sub["enums"].as_object().unwrap().len(), 1);
+        // Inline: the table's own properties and the enums they use, nothing else.
+        let inline = m.property_table(&s, &ids, &SchemaPlacement::Inline, TableScope::Identity);
+        let SchemaRef::Inline(schema) = &inline.schema else {
+            panic!("not inline: {:?}", inline.schema);
+        };
+        let props = schema["classes"]["element"]["properties"]
+            .as_object()
+            .unwrap();
+        assert_eq!(props.keys().collect::<Vec<_>>().len(), inline.columns.len());
+        for (id, _) in &inline.columns {
+            assert_eq!(
+                props[id], full["classes"]["element"]["properties"][id],
+                "{id}"
+            );
+        }
+        assert!(schema["enums"]
+            .as_object()
+            .unwrap()
+            .contains_key("ifcClass"));
+    }
+
+    #[test]
+    fn the_schema_goes_inline_when_its_copies_cost_less_than_a_round_trip() {
+        let file = SchemaPlacement::File("../schema.json".into());
+        let choose = |tiles, bytes| SchemaPlacement::choose(tiles, bytes, "../schema.json");
+        // One tile: the same bytes either way, one request fewer inline.
+        assert_eq!(choose(1, 10_000_000), SchemaPlacement::Inline);
+        assert_eq!(choose(0, 10_000_000), SchemaPlacement::Inline);
+        let worth = SEQUENTIAL_REQUEST_WORTH_BYTES;
+        assert_eq!(choose(5, worth / 4), SchemaPlacement::Inline);
+        assert_eq!(choose(6, worth / 4), file);
+        assert_eq!(choose(usize::MAX, usize::MAX), file);
     }
 
     #[test]
@@ -778,7 +855,7 @@ mod tests {
         let m = MetadataSchema::from_scene(&s);
         let ids = [ComponentId(0), ComponentId(1)];
         let column = |scope, id: &str| {
-            m.property_table(&s, &ids, "s.json", scope)
+            m.property_table(&s, &ids, &SchemaPlacement::File("s.json".into()), scope)
                 .columns
                 .into_iter()
                 .find(|c| c.0 == id)

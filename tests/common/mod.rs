@@ -353,6 +353,21 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
     (ts, out)
 }
 
+/// The metadata schema the tile `tile_uri` (relative to the tileset folder `dir`) uses: inline in
+/// its `EXT_structural_metadata`, or the file its `schemaUri` names.
+pub fn tile_schema(dir: &Path, tile_uri: &str) -> Value {
+    let tile = dir.join(tile_uri);
+    let json = glb_json(&std::fs::read(&tile).unwrap());
+    let ext = &json["extensions"]["EXT_structural_metadata"];
+    match ext["schemaUri"].as_str() {
+        Some(uri) => {
+            let file = tile.parent().unwrap().join(uri);
+            serde_json::from_slice(&std::fs::read(&file).unwrap()).unwrap()
+        }
+        None => ext["schema"].clone(),
+    }
+}
+
 /// The JSON chunk of a GLB, as plain JSON (extensions included).
 pub fn glb_json(bytes: &[u8]) -> Value {
     glb_chunks(bytes).0
@@ -794,6 +809,20 @@ pub struct Textured {
     pub positions: Vec<[f32; 3]>,
     pub uvs: Vec<[f32; 2]>,
     pub indices: Vec<u32>,
+}
+
+/// The encoded images a GLB input embeds, as a set.
+pub fn input_images(model: &Path) -> std::collections::BTreeSet<Vec<u8>> {
+    let g = gltf::Gltf::from_slice_without_validation(&std::fs::read(model).unwrap()).unwrap();
+    let blob = g.blob.as_deref().unwrap();
+    g.images()
+        .filter_map(|im| match im.source() {
+            gltf::image::Source::View { view, .. } => {
+                Some(blob[view.offset()..view.offset() + view.length()].to_vec())
+            }
+            _ => None,
+        })
+        .collect()
 }
 
 /// An image of a tile: embedded in the GLB (`blob`) or a shared file relative to it (`path`).

@@ -1,7 +1,7 @@
 """Independent reader of the BIM metadata in bimtiles output (shares no code with the writer).
 
 For every tileset directory in BIMTILES_TILESET_DIRS whose report.json names glTF inputs, this
-decodes each tile's EXT_structural_metadata property table (schema from ``schemaUri``; STRING,
+decodes each tile's EXT_structural_metadata property table (schema inline or from ``schemaUri``; STRING,
 SCALAR FLOAT64 and ENUM columns as the extension defines them) and EXT_mesh_features feature IDs,
 then checks against the *input* file, read here from its JSON chunk:
 
@@ -212,7 +212,10 @@ def test_metadata_names_every_input_element():
             ext = doc.get("extensions", {}).get("EXT_structural_metadata")
             assert ext, f"{tile['content']}: no EXT_structural_metadata"
             assert "EXT_structural_metadata" in doc["extensionsUsed"]
-            schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+            if "schema" in ext:
+                schema = ext["schema"]
+            else:
+                schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
             assert schema["id"] == "bimtiles"
             rows = decode_table(doc, blob, schema)
             assert len(rows) == tile["features"]
