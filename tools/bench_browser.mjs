@@ -112,6 +112,9 @@ function rawTileset(ours, glbName) {
     // child tile transform in the tileset's z-up frame: (x, y, z)_gltf -> (x, -z, y).
     const t = [-anchor[0], anchor[2], -anchor[1]];
     root.content = undefined;
+    // An empty root with error 0 is never refined (its SSE is 0): the GLB below it would load
+    // only once the camera is inside its box.
+    root.geometricError = ours.geometricError;
     root.children = [
       {
         boundingVolume: ours.root.boundingVolume,
