@@ -20,6 +20,25 @@ pub const TARGETS: &[(&str, EntryPoint)] = &[
     ("http_head", http_head),
 ];
 
+/// A fuzz target's `init` where bimtiles catches some dependencies' panics on purpose and turns
+/// them into errors naming the file (ifc-lite in `ingest::ifc`, the image decoders in
+/// `texture::codec`): libfuzzer-sys's hook aborts on every panic, caught or not. This one lets a
+/// panic raised in a source path containing one of `caught` through (printed), and aborts on any
+/// other, as libfuzzer-sys does; one that escapes an entry point still aborts in libfuzzer-sys's
+/// `catch_unwind` around the target.
+pub fn abort_on_panics_outside(caught: &'static [&'static str]) {
+    std::panic::set_hook(Box::new(move |info| {
+        eprintln!("{info}");
+        let file = info.location().map(|l| l.file()).unwrap_or_default();
+        if !caught.iter().any(|c| file.contains(c)) {
+            std::process::abort();
+        }
+    }));
+}
+
+/// The image decoders `texture::codec` runs (crate source paths): their panics become errors.
+pub const IMAGE_DECODER_CRATES: &[&str] = &["/png-", "/image-", "/zune-", "/jpeg-decoder-"];
+
 /// A glTF or GLB file (`ingest::gltf`); relative URIs resolve in an empty folder.
 pub fn gltf(data: &[u8]) {
     let _ = crate::ingest::gltf::read_gltf_bytes(&scratch().join("model.glb"), data);

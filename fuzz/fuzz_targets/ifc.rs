@@ -1,17 +1,9 @@
 #![no_main]
-//! Fuzz target: `bimtiles::fuzzing::ifc` on arbitrary bytes.
+//! Fuzz target: `bimtiles::fuzzing::ifc` on arbitrary bytes. ifc-lite is not panic-free on
+//! malformed input, and bimtiles turns its panics into an error (`ingest::ifc`, `guarded`); any
+//! other panic is a defect.
 
 libfuzzer_sys::fuzz_target!(
-    init: {
-        // ifc-lite is not panic-free on malformed input, and bimtiles turns its panics into an
-        // error (`ingest::ifc`, `guarded`). Any other panic is a defect: abort, as libfuzzer-sys
-        // does for every panic.
-        std::panic::set_hook(Box::new(|info| {
-            if !info.location().is_some_and(|l| l.file().contains("ifc-lite")) {
-                eprintln!("{info}");
-                std::process::abort();
-            }
-        }));
-    },
+    init: bimtiles::fuzzing::abort_on_panics_outside(&["ifc-lite"]),
     |data: &[u8]| bimtiles::fuzzing::ifc(data)
 );
