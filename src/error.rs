@@ -162,3 +162,13 @@ mod tests {
         );
     }
 }
+
+/// The message a panic carried (a `&str` or `String` payload), for a caught panic turned into an
+/// error or the binary's one line.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}

@@ -73,12 +73,9 @@ pub fn decode(bytes: &[u8]) -> Result<DynamicImage, CodecError> {
 /// warning, not the end of the run.
 fn guarded<T>(f: impl FnOnce() -> Result<T, CodecError>) -> Result<T, CodecError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|payload| {
-        let message = payload
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| payload.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown panic".into());
-        Err(CodecError::DecoderPanicked(message))
+        Err(CodecError::DecoderPanicked(crate::error::panic_message(
+            payload.as_ref(),
+        )))
     })
 }
 

@@ -333,12 +333,10 @@ fn guarded<T>(
     f: impl FnOnce() -> std::result::Result<T, IfcError>,
 ) -> std::result::Result<T, IfcError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
-        let message = p
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| p.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown panic".into());
-        Err(IfcError::Crashed { stage, message })
+        Err(IfcError::Crashed {
+            stage,
+            message: crate::error::panic_message(p.as_ref()),
+        })
     })
 }
 
