@@ -139,6 +139,16 @@ pub fn chain_text(e: &(dyn std::error::Error + 'static)) -> String {
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// The message a panic carried (a `&str` or `String` payload), for a caught panic turned into an
+/// error or the binary's one line.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -161,14 +171,4 @@ mod tests {
             "out: output path exists and is not a folder"
         );
     }
-}
-
-/// The message a panic carried (a `&str` or `String` payload), for a caught panic turned into an
-/// error or the binary's one line.
-pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".into())
 }
