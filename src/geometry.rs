@@ -79,6 +79,19 @@ pub fn set_normals(faces: &[DVec3], indices: &[u32], normals: &mut [[f32; 3]]) {
     }
 }
 
+/// For unit tests: a deterministic uniform generator in [0, 1) (a 64-bit LCG's top 53 bits), so
+/// randomized tests give the same cases on every machine.
+#[cfg(test)]
+pub(crate) fn test_uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

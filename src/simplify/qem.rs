@@ -2089,13 +2089,7 @@ mod tests {
     fn box_gaps_match_all_pairs() {
         let mut lo = Vec::new();
         let mut hi = Vec::new();
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::geometry::test_uniform(12345);
         for _ in 0..400 {
             let c = DVec3::new(rnd() * 100.0, rnd() * 80.0, rnd() * 10.0);
             let h = DVec3::new(rnd(), rnd(), rnd()) * 0.8;

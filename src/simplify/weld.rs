@@ -376,13 +376,7 @@ mod tests {
     #[test]
     fn cells_find_every_point_within_tolerance() {
         let tol = 1e-3;
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::geometry::test_uniform(12345);
         let mut pos = Vec::new();
         let mut groups = Vec::new();
         for _ in 0..3000 {
