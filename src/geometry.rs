@@ -79,6 +79,107 @@ pub fn set_normals(faces: &[DVec3], indices: &[u32], normals: &mut [[f32; 3]]) {
     }
 }
 
+/// For each box, the distance to the nearest other box (0 when they touch or overlap), capped at
+/// the diagonal of all boxes. Boxes go into a uniform grid (about one box per cell); each box
+/// searches rings of cells outwards until a ring cannot hold a nearer box. Boxes spanning many
+/// cells (slabs, terrain) are kept aside and compared with every box.
+pub(crate) fn box_gaps(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
+    use rayon::prelude::*;
+    let n = lo.len();
+    let (all_lo, all_hi) = lo.iter().zip(hi).fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), (l, h)| (a.min(*l), b.max(*h)),
+    );
+    let diag = (all_hi - all_lo).length();
+    if n < 2 || diag.is_nan() || diag <= 0.0 {
+        return vec![diag.max(0.0); n];
+    }
+    let box_dist = |i: usize, j: usize| -> f64 {
+        let d = (lo[j] - hi[i]).max(lo[i] - hi[j]).max(DVec3::ZERO);
+        d.length()
+    };
+    const MAX_CELLS_PER_AXIS: f64 = 64.0;
+    const MAX_CELLS_PER_BOX: usize = 64;
+    let ext = (all_hi - all_lo).max(DVec3::splat(diag * 1e-9));
+    let cell = (ext.x * ext.y * ext.z / n as f64)
+        .cbrt()
+        .max(ext.max_element() / MAX_CELLS_PER_AXIS);
+    let dims = (ext / cell).ceil().as_uvec3().max(glam::UVec3::ONE);
+    let at = |p: DVec3| -> glam::IVec3 {
+        ((p - all_lo) / cell)
+            .floor()
+            .as_ivec3()
+            .clamp(glam::IVec3::ZERO, dims.as_ivec3() - 1)
+    };
+    let slot = |c: glam::IVec3| {
+        (c.x as usize * dims.y as usize + c.y as usize) * dims.z as usize + c.z as usize
+    };
+    let mut cells: Vec<Vec<u32>> = vec![Vec::new(); (dims.x * dims.y * dims.z) as usize];
+    let mut large: Vec<u32> = Vec::new();
+    for i in 0..n {
+        let (a, b) = (at(lo[i]), at(hi[i]));
+        let span = (b - a + 1).as_uvec3();
+        if (span.x * span.y * span.z) as usize > MAX_CELLS_PER_BOX {
+            large.push(i as u32);
+            continue;
+        }
+        for x in a.x..=b.x {
+            for y in a.y..=b.y {
+                for z in a.z..=b.z {
+                    cells[slot(glam::IVec3::new(x, y, z))].push(i as u32);
+                }
+            }
+        }
+    }
+    (0..n)
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let mut best = diag;
+            for &j in &large {
+                if j as usize != i {
+                    best = best.min(box_dist(i, j as usize));
+                }
+            }
+            let (a, b) = (at(lo[i]), at(hi[i]));
+            let top = dims.as_ivec3() - 1;
+            let mut ring = 0i32;
+            // A box in ring k is at least (k - 1) cells away from box i.
+            while (ring as f64 - 1.0) * cell < best {
+                let (ra, rb) = (a - ring, b + ring);
+                if ra.cmplt(glam::IVec3::ZERO).all() && rb.cmpgt(top).all() {
+                    break;
+                }
+                let mut visit = |x: i32, y: i32, z: i32| {
+                    for &j in &cells[slot(glam::IVec3::new(x, y, z))] {
+                        if j as usize != i {
+                            best = best.min(box_dist(i, j as usize));
+                        }
+                    }
+                };
+                // Only the ring's shell: its cells with a coordinate on the ring's faces.
+                for x in ra.x.max(0)..=rb.x.min(top.x) {
+                    for y in ra.y.max(0)..=rb.y.min(top.y) {
+                        if ring == 0 || x == ra.x || x == rb.x || y == ra.y || y == rb.y {
+                            for z in ra.z.max(0)..=rb.z.min(top.z) {
+                                visit(x, y, z);
+                            }
+                        } else {
+                            for z in [ra.z, rb.z] {
+                                if (0..=top.z).contains(&z) {
+                                    visit(x, y, z);
+                                }
+                            }
+                        }
+                    }
+                }
+                ring += 1;
+            }
+            best
+        })
+        .collect()
+}
+
 /// For unit tests: a deterministic uniform generator in [0, 1) (a 64-bit LCG's top 53 bits), so
 /// randomized tests give the same cases on every machine.
 #[cfg(test)]
@@ -109,5 +210,39 @@ mod tests {
             1.0, 0.0, 0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
         ]);
         assert!(instance_trs(&shear).is_none());
+    }
+
+    /// The grid search finds what comparing every pair finds, on scattered small boxes, a slab
+    /// spanning many cells and a box far from all others.
+    #[test]
+    fn box_gaps_match_all_pairs() {
+        let mut lo = Vec::new();
+        let mut hi = Vec::new();
+        let mut rnd = crate::geometry::test_uniform(12345);
+        for _ in 0..400 {
+            let c = DVec3::new(rnd() * 100.0, rnd() * 80.0, rnd() * 10.0);
+            let h = DVec3::new(rnd(), rnd(), rnd()) * 0.8;
+            lo.push(c - h);
+            hi.push(c + h);
+        }
+        lo.push(DVec3::new(0.0, 0.0, -1.0));
+        hi.push(DVec3::new(100.0, 80.0, -0.5));
+        lo.push(DVec3::new(400.0, 400.0, 0.0));
+        hi.push(DVec3::new(401.0, 401.0, 1.0));
+        let gaps = box_gaps(&lo, &hi);
+        for i in 0..lo.len() {
+            let brute = (0..lo.len())
+                .filter(|&j| j != i)
+                .map(|j| (lo[j] - hi[i]).max(lo[i] - hi[j]).max(DVec3::ZERO).length())
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                (gaps[i] - brute).abs() < 1e-9,
+                "box {i}: {} vs {brute}",
+                gaps[i]
+            );
+        }
+        assert!(gaps[401] > 400.0);
+        // One box alone: the diagonal of everything stands for the gap.
+        assert_eq!(box_gaps(&lo[..1], &hi[..1]), vec![(hi[0] - lo[0]).length()]);
     }
 }
