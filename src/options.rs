@@ -92,7 +92,7 @@ impl ConvertOptions {
 pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
     match compression {
         Compression::Draco => 1000,
-        Compression::None | Compression::Quantized => 100,
+        Compression::None | Compression::Quantized | Compression::Meshopt => 100,
     }
 }
 

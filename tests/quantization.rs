@@ -1,9 +1,11 @@
-//! `--compression quantized` (KHR_mesh_quantization, issue 7) against `--compression none` with
-//! the real binary: the same tiles, triangles and vertices; every decoded vertex (read with our
-//! test reader from the integer accessors, placed by the glTF node hierarchy and instance
-//! transforms, as a client does) within 1 mm per axis of the float one; the extension required;
-//! integer accessors where the frame and ranges allow; fewer geometry bytes; gltf-validator 0
-//! errors. Runs on the bundled sample and every model of ../shared/data when it exists.
+//! `--compression quantized` (KHR_mesh_quantization, issue 7) and `--compression meshopt` (the
+//! same attributes as EXT_meshopt_compression streams, issue 28) against `--compression none`
+//! with the real binary: the same tiles, triangles and vertices; every decoded vertex (read with
+//! our test reader from the integer accessors, placed by the glTF node hierarchy and instance
+//! transforms, as a client does; meshopt streams first decoded by meshoptimizer's reference
+//! JavaScript decoder) within 1 mm per axis of the float one; the extensions required; integer
+//! accessors where the frame and ranges allow; fewer bytes; gltf-validator 0 errors on the tiles
+//! and on their decoded data. Runs on the bundled sample and every model of ../shared/data.
 
 mod common;
 use common::*;
@@ -76,19 +78,68 @@ fn integer_attributes(dir: &Path, uri: &str) -> ([usize; 3], [usize; 3]) {
     (ints, all)
 }
 
-fn check_model(model: &Path) {
+/// Every tile with geometry requires EXT_meshopt_compression, and its fallback buffer has no data.
+fn assert_meshopt_required(dir: &Path) {
+    let ts: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
+    let mut stack = vec![&ts["root"]];
+    let mut uris = Vec::new();
+    while let Some(t) = stack.pop() {
+        uris.extend(t.pointer("/content/uri").and_then(Value::as_str));
+        stack.extend(t["children"].as_array().into_iter().flatten());
+    }
+    assert!(!uris.is_empty());
+    for uri in uris {
+        let json = glb_json(&std::fs::read(dir.join(uri)).unwrap());
+        if json["meshes"].as_array().is_none_or(|m| m.is_empty()) {
+            continue;
+        }
+        let required = json["extensionsRequired"].to_string();
+        assert!(
+            required.contains("EXT_meshopt_compression"),
+            "{uri}: {required}"
+        );
+        let fallback = &json["buffers"][1];
+        assert_eq!(
+            fallback["extensions"]["EXT_meshopt_compression"]["fallback"],
+            true
+        );
+        assert!(
+            fallback.get("uri").is_none(),
+            "{uri}: the fallback has no data"
+        );
+    }
+}
+
+/// `model` converted with `compression` ("quantized" or "meshopt") against `--compression none`.
+fn check_model(model: &Path, compression: &str) {
     let name = model.file_stem().unwrap().to_string_lossy().to_string();
-    let d = tmpdir(&format!("quant-{name}"));
-    let (plain, quant) = (d.join("none"), d.join("quantized"));
+    let d = tmpdir(&format!("{compression}-{name}"));
+    let (plain, quant) = (d.join("none"), d.join(compression));
     let rp = convert(model, &plain, &["--compression", "none"]);
-    let rq = convert(model, &quant, &["--compression", "quantized"]);
+    let rq = convert(model, &quant, &["--compression", compression]);
     assert_eq!(rp["output"]["tiles"], rq["output"]["tiles"]);
     assert!(
         rq["output"]["bytes"].as_u64() < rp["output"]["bytes"].as_u64(),
-        "{name}: quantized output is smaller"
+        "{name}: {compression} output is smaller"
     );
-    let (_, tp) = decode_tileset(&plain);
-    let (_, tq) = decode_tileset(&quant);
+    if compression == "meshopt" {
+        assert_meshopt_required(&quant);
+        gltf_validator(&quant);
+        let decoded = d.join("meshopt-decoded");
+        let Some(views) = decode_meshopt(&quant, &decoded) else {
+            return;
+        };
+        assert!(views > 0, "{name}: meshopt streams decoded");
+        return check_against_plain(&name, &plain, &decoded, &rp, &rq);
+    }
+    check_against_plain(&name, &plain, &quant, &rp, &rq)
+}
+
+/// The quantized tileset `quant` (plain GLBs) against the float one, `plain`.
+fn check_against_plain(name: &str, plain: &Path, quant: &Path, rp: &Value, rq: &Value) {
+    let (_, tp) = decode_tileset(plain);
+    let (_, tq) = decode_tileset(quant);
     let (mut worst, mut ints, mut all) = (0.0f64, [0; 3], [0; 3]);
     for (a, b) in tp.iter().zip(&tq) {
         assert_eq!(a.uri, b.uri);
@@ -96,7 +147,7 @@ fn check_model(model: &Path) {
         assert_eq!(a.positions.len(), b.positions.len());
         let Some(uri) = &b.uri else { continue };
         worst = worst.max(worst_axis_deviation(&a.positions, &b.positions));
-        let (i, n) = integer_attributes(&quant, uri);
+        let (i, n) = integer_attributes(quant, uri);
         for k in 0..3 {
             ints[k] += i[k];
             all[k] += n[k];
@@ -121,17 +172,29 @@ fn check_model(model: &Path) {
     );
     assert_eq!(ints[1], all[1], "{name}: every normal is an i8");
     assert!(ints[0] > 0, "{name}: some positions are i16");
-    gltf_validator(&quant);
+    gltf_validator(quant);
 }
 
 #[test]
 fn sample_quantized_tiles_stay_within_a_millimetre() {
-    check_model(&sample());
+    check_model(&sample(), "quantized");
 }
 
 #[test]
 fn shared_models_quantized_tiles_stay_within_a_millimetre() {
     for model in shared_models() {
-        check_model(&model);
+        check_model(&model, "quantized");
+    }
+}
+
+#[test]
+fn sample_meshopt_tiles_decode_within_a_millimetre() {
+    check_model(&sample(), "meshopt");
+}
+
+#[test]
+fn shared_models_meshopt_tiles_decode_within_a_millimetre() {
+    for model in shared_models() {
+        check_model(&model, "meshopt");
     }
 }

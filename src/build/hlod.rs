@@ -468,7 +468,9 @@ pub(crate) fn with_quantization(
 /// The finest grid of `c`: 1 mm per axis, none without compression.
 fn fine_grid_m(c: Compression) -> f64 {
     match c {
-        Compression::Draco | Compression::Quantized => DEFAULT_MAX_POSITION_ERROR_M,
+        Compression::Draco | Compression::Quantized | Compression::Meshopt => {
+            DEFAULT_MAX_POSITION_ERROR_M
+        }
         Compression::None => 0.0,
     }
 }

@@ -147,8 +147,9 @@ struct ConvertArgs {
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes, value_parser = parse_at_least_one)]
     max_tile_bytes: usize,
     /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
-    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs) or none
-    /// (32-bit floats).
+    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs), meshopt
+    /// (quantized, then EXT_meshopt_compression: decoded on the client's main thread, no worker
+    /// task per primitive) or none (32-bit floats).
     #[arg(long, value_enum, default_value = "draco")]
     compression: CompressionArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
@@ -287,6 +288,7 @@ enum TextureFormatArg {
 enum CompressionArg {
     Draco,
     Quantized,
+    Meshopt,
     None,
 }
 
@@ -584,6 +586,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         compression: match a.compression {
             CompressionArg::Draco => Compression::Draco,
             CompressionArg::Quantized => Compression::Quantized,
+            CompressionArg::Meshopt => Compression::Meshopt,
             CompressionArg::None => Compression::None,
         },
         lod: match (&a.lod_ratios, a.lod) {

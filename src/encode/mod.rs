@@ -1,9 +1,10 @@
-//! Encoders: tile content as glTF binary (GLB), geometry compressed with Draco.
+//! Encoders: tile content as glTF binary (GLB), geometry compressed with Draco or meshoptimizer.
 
 /// Draco lives below the readers (they decode compressed glTF with it); re-exported here, where
 /// tiles are encoded with it.
 pub use crate::draco;
 pub mod glb;
+pub mod meshopt;
 pub mod metadata;
 pub mod record;
 
@@ -15,6 +16,8 @@ pub use record::{ContentFigures, TileRecord};
 pub enum EncodeError {
     #[error("Draco compression")]
     Draco(#[from] draco::DracoError),
+    #[error("meshopt compression")]
+    Meshopt(#[from] meshopt::MeshoptEncodeError),
     /// The tile's image (texture level) could not be written.
     #[error("tile image")]
     Image(#[from] crate::texture::external::StoreError),

@@ -4,8 +4,8 @@
 
 pub mod cityjson;
 pub mod gltf;
-mod gltf_compressed;
-mod gltf_index;
+pub(crate) mod gltf_compressed;
+pub(crate) mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
 pub mod manifest;

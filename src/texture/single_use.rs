@@ -106,7 +106,11 @@ pub fn embed_images(
         im.remove("uri");
         im.insert("bufferView".into(), json!(view));
     }
-    gltf["buffers"] = json!([{"byteLength": bin.len()}]);
+    // Buffer 0 is the BIN chunk; others (an EXT_meshopt_compression fallback) stay as they are.
+    match gltf["buffers"].as_array_mut() {
+        Some(buffers) if !buffers.is_empty() => buffers[0] = json!({"byteLength": bin.len()}),
+        _ => gltf["buffers"] = json!([{"byteLength": bin.len()}]),
+    }
     let json = serde_json::to_vec(&gltf)?;
     Ok(glb_container(&json, &bin))
 }

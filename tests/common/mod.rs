@@ -220,6 +220,34 @@ pub fn gltf_validator(dir: &Path) -> Option<(u64, u64, u64)> {
     ))
 }
 
+/// The tileset folder `dir` with its `EXT_meshopt_compression` tiles decoded into plain GLBs by
+/// meshoptimizer's reference JavaScript decoder (tools/decode_meshopt.mjs), in `out`; the number
+/// of views decoded, or None when Node's packages are not installed (and tools are not required).
+pub fn decode_meshopt(dir: &Path, out: &Path) -> Option<u64> {
+    if !repo().join("tools/node_modules/meshoptimizer").is_dir() {
+        assert!(
+            !tools_required(),
+            "meshoptimizer (npm) is not installed (run `make test`)"
+        );
+        eprintln!("SKIPPED meshopt decoding: tools/node_modules missing (run `make test`)");
+        return None;
+    }
+    let _ = std::fs::remove_dir_all(out);
+    let o = Command::new("node")
+        .arg(repo().join("tools/decode_meshopt.mjs"))
+        .arg(dir)
+        .arg(out)
+        .output()
+        .expect("run node");
+    assert!(
+        o.status.success(),
+        "decode_meshopt: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["decodedViews"].as_u64()
+}
+
 struct SchemaFiles(PathBuf);
 
 impl jsonschema::Retrieve for SchemaFiles {

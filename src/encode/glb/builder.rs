@@ -1,5 +1,7 @@
 //! The glTF JSON and BIN chunk of one tile as they are built: buffer views (aligned) and
-//! accessors (float, normalized integer, index), with min/max where glTF requires them.
+//! accessors (float, normalized integer, index), with min/max where glTF requires them. With
+//! `EXT_meshopt_compression`, vertex attribute and index views hold meshopt streams in the BIN
+//! chunk and name a fallback buffer (no data) for their decoded bytes.
 
 use super::*;
 
@@ -12,13 +14,110 @@ pub(super) const UNSIGNED_SHORT: u32 = 5123;
 pub(super) const UNSIGNED_INT: u32 = 5125;
 
 /// Builds the glTF JSON and BIN chunk.
+#[derive(Default)]
 pub(super) struct GltfBuilder {
     pub(super) bin: Vec<u8>,
     pub(super) buffer_views: Vec<Value>,
     pub(super) accessors: Vec<Value>,
+    /// Vertex attributes and indices as `EXT_meshopt_compression` streams.
+    pub(super) meshopt: bool,
+    /// Length of the fallback buffer (buffer 1) the compressed views decode into.
+    pub(super) fallback_bytes: usize,
 }
 
 impl GltfBuilder {
+    /// A vertex attribute view of `bytes`, `stride` bytes per vertex (`declared_stride`: the
+    /// parent view's byteStride, when it has one); with meshopt, an `ATTRIBUTES` stream.
+    fn vertex_view(
+        &mut self,
+        bytes: &[u8],
+        stride: usize,
+        declared_stride: Option<usize>,
+    ) -> Result<usize, EncodeError> {
+        let view = if self.meshopt {
+            let encoded = crate::encode::meshopt::encode_attributes(bytes, stride)?;
+            self.meshopt_view(
+                &encoded,
+                bytes.len(),
+                stride,
+                "ATTRIBUTES",
+                None,
+                ARRAY_BUFFER,
+            )
+        } else {
+            self.view(bytes, Some(ARRAY_BUFFER))
+        };
+        if let Some(s) = declared_stride {
+            self.buffer_views[view]["byteStride"] = json!(s);
+        }
+        Ok(view)
+    }
+
+    /// A view of `encoded` (a meshopt stream of `mode`) in the BIN chunk, decoding to
+    /// `decoded_len` bytes of `stride` each in the fallback buffer.
+    fn meshopt_view(
+        &mut self,
+        encoded: &[u8],
+        decoded_len: usize,
+        stride: usize,
+        mode: &str,
+        filter: Option<&str>,
+        target: u32,
+    ) -> usize {
+        while self.bin.len() % 4 != 0 {
+            self.bin.push(0);
+        }
+        let fallback_offset = self.fallback_bytes.next_multiple_of(4);
+        self.fallback_bytes = fallback_offset + decoded_len;
+        self.buffer_views.push(json!({
+            "buffer": 1, "byteOffset": fallback_offset, "byteLength": decoded_len, "target": target,
+            "extensions": {"EXT_meshopt_compression": {
+                "buffer": 0, "byteOffset": self.bin.len(), "byteLength": encoded.len(),
+                "byteStride": stride, "count": decoded_len / stride, "mode": mode,
+            }},
+        }));
+        if let Some(f) = filter {
+            self.buffer_views.last_mut().expect("pushed")["extensions"]
+                ["EXT_meshopt_compression"]["filter"] = json!(f);
+        }
+        self.bin.extend_from_slice(encoded);
+        self.buffer_views.len() - 1
+    }
+
+    /// A float VEC3 position accessor stored through meshopt's `EXPONENTIAL` filter: `words`
+    /// the filter's input, `decoded` what it decodes to (its min/max are the accessor's).
+    pub(super) fn exp_position_accessor(
+        &mut self,
+        words: &[[u32; 3]],
+        decoded: &[[f32; 3]],
+    ) -> Result<usize, EncodeError> {
+        let bytes: Vec<u8> = words
+            .iter()
+            .flatten()
+            .flat_map(|w| w.to_le_bytes())
+            .collect();
+        let encoded = crate::encode::meshopt::encode_attributes(&bytes, 12)?;
+        let view = self.meshopt_view(
+            &encoded,
+            bytes.len(),
+            12,
+            "ATTRIBUTES",
+            Some("EXPONENTIAL"),
+            ARRAY_BUFFER,
+        );
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for v in decoded {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        self.accessors
+            .push(json!({"bufferView": view, "componentType": FLOAT,
+            "count": decoded.len(), "type": "VEC3", "min": lo, "max": hi}));
+        Ok(self.accessors.len() - 1)
+    }
+
     pub(super) fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
         self.view_aligned(bytes, target, 4)
     }
@@ -47,7 +146,7 @@ impl GltfBuilder {
         &mut self,
         data: &[[f32; N]],
         with_min_max: bool,
-    ) -> usize {
+    ) -> Result<usize, EncodeError> {
         self.float_accessor_in(data, with_min_max, Some(ARRAY_BUFFER))
     }
 
@@ -58,14 +157,17 @@ impl GltfBuilder {
         data: &[[f32; N]],
         with_min_max: bool,
         target: Option<u32>,
-    ) -> usize {
+    ) -> Result<usize, EncodeError> {
         let mut bytes = Vec::with_capacity(data.len() * N * 4);
         for v in data {
             for x in v {
                 bytes.write_f32::<LE>(*x).expect("vec write");
             }
         }
-        let view = self.view(&bytes, target);
+        let view = match target {
+            Some(ARRAY_BUFFER) => self.vertex_view(&bytes, N * 4, None)?,
+            _ => self.view(&bytes, target),
+        };
         let ty = match N {
             1 => "SCALAR",
             2 => "VEC2",
@@ -87,7 +189,7 @@ impl GltfBuilder {
             a["max"] = json!(hi.iter().map(|&x| x as f64).collect::<Vec<_>>());
         }
         self.accessors.push(a);
-        self.accessors.len() - 1
+        Ok(self.accessors.len() - 1)
     }
 
     /// A normalized integer vertex attribute: `N` components of `size` bytes each (1 or 2),
@@ -98,7 +200,7 @@ impl GltfBuilder {
         data: &[[i32; N]],
         component_type: u32,
         with_min_max: bool,
-    ) -> usize {
+    ) -> Result<usize, EncodeError> {
         let size = if component_type == BYTE { 1 } else { 2 };
         let stride = (N * size).div_ceil(4) * 4;
         let mut bytes = Vec::with_capacity(data.len() * stride);
@@ -111,10 +213,7 @@ impl GltfBuilder {
             }
             bytes.resize(bytes.len() + stride - N * size, 0);
         }
-        let view = self.view(&bytes, Some(ARRAY_BUFFER));
-        if stride != N * size {
-            self.buffer_views[view]["byteStride"] = json!(stride);
-        }
+        let view = self.vertex_view(&bytes, stride, (stride != N * size).then_some(stride))?;
         let ty = ["SCALAR", "VEC2", "VEC3", "VEC4"][N - 1];
         let mut a = json!({"bufferView": view, "componentType": component_type,
             "normalized": true, "count": data.len(), "type": ty});
@@ -129,10 +228,14 @@ impl GltfBuilder {
             a["max"] = json!(hi);
         }
         self.accessors.push(a);
-        self.accessors.len() - 1
+        Ok(self.accessors.len() - 1)
     }
 
-    pub(super) fn index_accessor(&mut self, indices: &[u32], vertex_count: usize) -> usize {
+    pub(super) fn index_accessor(
+        &mut self,
+        indices: &[u32],
+        vertex_count: usize,
+    ) -> Result<usize, EncodeError> {
         let (bytes, ct) = if vertex_count <= u16::MAX as usize {
             let mut b = Vec::with_capacity(indices.len() * 2);
             for &i in indices {
@@ -146,8 +249,21 @@ impl GltfBuilder {
             }
             (b, UNSIGNED_INT)
         };
-        let view = self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER));
+        let view = if self.meshopt {
+            let encoded = crate::encode::meshopt::encode_triangles(indices, vertex_count)?;
+            let stride = if ct == UNSIGNED_SHORT { 2 } else { 4 };
+            self.meshopt_view(
+                &encoded,
+                bytes.len(),
+                stride,
+                "TRIANGLES",
+                None,
+                ELEMENT_ARRAY_BUFFER,
+            )
+        } else {
+            self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER))
+        };
         self.accessors.push(json!({"bufferView": view, "componentType": ct, "count": indices.len(), "type": "SCALAR"}));
-        self.accessors.len() - 1
+        Ok(self.accessors.len() - 1)
     }
 }

@@ -52,6 +52,10 @@ pub enum Compression {
     /// `KHR_draco_mesh_compression` on every primitive (every attribute inside Draco).
     #[default]
     Draco,
+    /// `Quantized`'s attributes as `EXT_meshopt_compression` streams, vertices reordered for
+    /// its codecs: decoded on the client's main thread, without Draco's worker task per
+    /// primitive.
+    Meshopt,
 }
 
 /// How a tile is written.
@@ -244,9 +248,8 @@ fn write_glb(
         scene,
         enc,
         b: GltfBuilder {
-            bin: Vec::new(),
-            buffer_views: Vec::new(),
-            accessors: Vec::new(),
+            meshopt: enc.compression == Compression::Meshopt,
+            ..GltfBuilder::default()
         },
         mats,
         meshes: Vec::new(),
@@ -309,7 +312,9 @@ impl GlbWriter<'_> {
     /// With quantization, a frame per mesh (None: the mesh keeps float positions).
     fn frame_of(&self, prims: &[ContentPrimitive]) -> Option<QuantFrame> {
         match self.enc.compression {
-            Compression::Quantized => QuantFrame::of(prims, self.enc.max_position_error_m),
+            Compression::Quantized | Compression::Meshopt => {
+                QuantFrame::of(prims, self.enc.max_position_error_m)
+            }
             _ => None,
         }
     }
@@ -414,11 +419,11 @@ impl GlbWriter<'_> {
         let mut attributes = Map::new();
         attributes.insert(
             "TRANSLATION".into(),
-            json!(b.float_accessor_in(&translations, false, None)),
+            json!(b.float_accessor_in(&translations, false, None)?),
         );
         attributes.insert(
             "ROTATION".into(),
-            json!(b.float_accessor_in(&rotations, false, None)),
+            json!(b.float_accessor_in(&rotations, false, None)?),
         );
         // Rigid copies (the usual case) need no SCALE.
         if scales
@@ -427,12 +432,12 @@ impl GlbWriter<'_> {
         {
             attributes.insert(
                 "SCALE".into(),
-                json!(b.float_accessor_in(&scales, false, None)),
+                json!(b.float_accessor_in(&scales, false, None)?),
             );
         }
         attributes.insert(
             "_FEATURE_ID_0".into(),
-            json!(b.float_accessor_in(&fids, false, None)),
+            json!(b.float_accessor_in(&fids, false, None)?),
         );
         Ok(attributes)
     }
@@ -460,13 +465,22 @@ impl GlbWriter<'_> {
                 used.push("KHR_draco_mesh_compression");
                 required.push("KHR_draco_mesh_compression");
             }
-            Compression::Quantized if !self.meshes.is_empty() => {
+            Compression::Quantized | Compression::Meshopt if !self.meshes.is_empty() => {
                 used.push("KHR_mesh_quantization");
                 required.push("KHR_mesh_quantization");
             }
             _ => {}
         }
         let b = self.b;
+        let mut buffers = vec![json!({"byteLength": b.bin.len()})];
+        if b.fallback_bytes > 0 {
+            // The decoded views' buffer: no data, so the extension is required (its README,
+            // "Fallback buffers").
+            buffers.push(json!({"byteLength": b.fallback_bytes,
+                "extensions": {"EXT_meshopt_compression": {"fallback": true}}}));
+            used.push("EXT_meshopt_compression");
+            required.push("EXT_meshopt_compression");
+        }
         let mut root = json!({
             "asset": {"version": "2.0", "generator": self.enc.generator},
             "scene": 0,
@@ -475,7 +489,7 @@ impl GlbWriter<'_> {
             "meshes": self.meshes,
             "accessors": b.accessors,
             "bufferViews": b.buffer_views,
-            "buffers": [{"byteLength": b.bin.len()}],
+            "buffers": buffers,
             "extensionsUsed": used,
         });
         if !required.is_empty() {

@@ -1,5 +1,6 @@
-//! One tile primitive written plain (floats or `KHR_mesh_quantization`) or as a Draco stream
-//! (`KHR_draco_mesh_compression`), with its feature IDs (`EXT_mesh_features`).
+//! One tile primitive written plain (floats or `KHR_mesh_quantization`, optionally as
+//! `EXT_meshopt_compression` streams) or as a Draco stream (`KHR_draco_mesh_compression`), with
+//! its feature IDs (`EXT_mesh_features`).
 
 use super::*;
 
@@ -24,10 +25,38 @@ pub(super) fn write_primitive(
     frame: Option<&QuantFrame>,
 ) -> std::result::Result<(Value, Option<Vec<DVec3>>), EncodeError> {
     let (mut prim, decoded) = match enc.compression {
-        Compression::None => (plain_primitive(b, m, feature_count.is_some(), None), None),
+        Compression::None => (plain_primitive(b, m, feature_count.is_some(), None)?, None),
         Compression::Quantized => {
-            let p = plain_primitive(b, m, feature_count.is_some(), Some(frame));
+            let p = plain_primitive(b, m, feature_count.is_some(), Some(frame))?;
             (p, frame.map(|f| f.decoded_positions(&m.positions)))
+        }
+        Compression::Meshopt => {
+            let ordered = crate::encode::meshopt::optimize_order(m);
+            // Too wide for 16-bit positions: floats through the EXPONENTIAL filter.
+            let exp = frame.is_none().then(|| {
+                crate::encode::meshopt::exp_filtered_positions(
+                    &y_up(&ordered.positions),
+                    enc.max_position_error_m,
+                )
+            });
+            match exp.flatten() {
+                Some(exp) => {
+                    let position = b.exp_position_accessor(&exp.words, &exp.drawn)?;
+                    let p = plain_primitive_at(
+                        b,
+                        &ordered,
+                        feature_count.is_some(),
+                        Some(None),
+                        Some(position),
+                    )?;
+                    let drawn = exp.drawn.iter().map(|v| DVec3::from(v.map(f64::from)));
+                    (p, Some(drawn.collect()))
+                }
+                None => {
+                    let p = plain_primitive(b, &ordered, feature_count.is_some(), Some(frame))?;
+                    (p, frame.map(|f| f.decoded_positions(&ordered.positions)))
+                }
+            }
         }
         Compression::Draco => {
             let texels = texture_texels(scene, m.material, &mats.sampled_px);
@@ -56,17 +85,29 @@ pub(super) fn plain_primitive(
     m: &ContentPrimitive,
     with_features: bool,
     quantized: Option<Option<&QuantFrame>>,
-) -> Value {
+) -> std::result::Result<Value, EncodeError> {
+    plain_primitive_at(b, m, with_features, quantized, None)
+}
+
+/// [`plain_primitive`], with the POSITION accessor already written when `position` is given.
+fn plain_primitive_at(
+    b: &mut GltfBuilder,
+    m: &ContentPrimitive,
+    with_features: bool,
+    quantized: Option<Option<&QuantFrame>>,
+    position: Option<usize>,
+) -> std::result::Result<Value, EncodeError> {
     let mut attributes = Map::new();
-    let positions = match quantized.flatten() {
-        Some(f) => {
+    let positions = match (position, quantized.flatten()) {
+        (Some(accessor), _) => accessor,
+        (None, Some(f)) => {
             let q: Vec<[i32; 3]> = y_up(&m.positions)
                 .into_iter()
                 .map(|p| f.quantize(p))
                 .collect();
-            b.normalized_accessor(&q, SHORT, true)
+            b.normalized_accessor(&q, SHORT, true)?
         }
-        None => b.float_accessor(&y_up(&m.positions), true),
+        (None, None) => b.float_accessor(&y_up(&m.positions), true)?,
     };
     attributes.insert("POSITION".into(), json!(positions));
     if !m.normals.is_empty() {
@@ -74,31 +115,31 @@ pub(super) fn plain_primitive(
         let normals = match quantized {
             Some(_) => {
                 let q: Vec<[i32; 3]> = n.into_iter().map(normal_i8).collect();
-                b.normalized_accessor(&q, BYTE, false)
+                b.normalized_accessor(&q, BYTE, false)?
             }
-            None => b.float_accessor(&n, false),
+            None => b.float_accessor(&n, false)?,
         };
         attributes.insert("NORMAL".into(), json!(normals));
     }
     if !m.uvs.is_empty() {
         let uvs = match quantized.and_then(|_| uvs_u16(&m.uvs)) {
-            Some(q) => b.normalized_accessor(&q, UNSIGNED_SHORT, false),
-            None => b.float_accessor(&m.uvs, false),
+            Some(q) => b.normalized_accessor(&q, UNSIGNED_SHORT, false)?,
+            None => b.float_accessor(&m.uvs, false)?,
         };
         attributes.insert("TEXCOORD_0".into(), json!(uvs));
     }
     if !m.colors.is_empty() {
-        attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)));
+        attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)?));
     }
     if with_features {
         let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
         attributes.insert(
             "_FEATURE_ID_0".into(),
-            json!(b.float_accessor(&fids, false)),
+            json!(b.float_accessor(&fids, false)?),
         );
     }
-    let indices = b.index_accessor(&m.indices, m.positions.len());
-    json!({"attributes": attributes, "indices": indices})
+    let indices = b.index_accessor(&m.indices, m.positions.len())?;
+    Ok(json!({"attributes": attributes, "indices": indices}))
 }
 
 /// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
