@@ -98,10 +98,11 @@ pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize 
 
 /// Default of [`ConvertOptions::merge_plain_materials`], by measurement (README): with Draco,
 /// merging cuts primitives 2.6–5x and bytes 7–12% on the shared BIM models (one Draco stream per
-/// class instead of per material, 8-bit colours); plain float `COLOR_0` costs 16 bytes a vertex,
-/// +20–26% bytes, so without compression materials stay apart.
+/// class instead of per material, 8-bit colours); meshopt stores 8-bit colours too, which its
+/// codec shrinks to almost nothing along a run of one colour; plain float `COLOR_0` costs 16
+/// bytes a vertex, +20–26% bytes, so without compression materials stay apart.
 pub fn default_merge_plain_materials(compression: Compression) -> bool {
-    compression == Compression::Draco
+    matches!(compression, Compression::Draco | Compression::Meshopt)
 }
 
 /// Which properties the tables of simplified tiles carry.

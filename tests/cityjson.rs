@@ -415,7 +415,7 @@ fn cityjson_textures_reach_the_tiles_with_their_images_and_uvs() {
         let mut textured_tiles = 0;
         for uri in tiles.iter().filter_map(|t| t.uri.as_ref()) {
             let glb_path = full.join(uri);
-            let bytes = std::fs::read(&glb_path).unwrap();
+            let bytes = read_tile(&glb_path);
             let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
             let blob = g.blob.as_deref().unwrap_or(&[]);
             let textured = g

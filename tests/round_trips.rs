@@ -15,7 +15,7 @@ fn tile_images(dir: &Path) -> BTreeMap<String, Vec<Result<Vec<u8>, String>>> {
     let (_, tiles) = decode_tileset(dir);
     let mut out = BTreeMap::new();
     for uri in tiles.iter().filter_map(|t| t.uri.clone()) {
-        let bytes = std::fs::read(dir.join(&uri)).unwrap();
+        let bytes = read_tile(&dir.join(&uri));
         let g = gltf::Gltf::from_slice_without_validation(&bytes)
             .expect("the gltf crate reads the tile");
         let blob = g.blob.as_deref().unwrap_or(&[]);

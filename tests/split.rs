@@ -17,7 +17,7 @@ struct TexturedVertex {
 }
 
 fn textured_vertices(glb_path: &Path, offset: DVec3) -> (Vec<TexturedVertex>, usize, f64) {
-    let g = gltf::Gltf::from_slice_without_validation(&std::fs::read(glb_path).unwrap()).unwrap();
+    let g = gltf::Gltf::from_slice_without_validation(&read_tile(glb_path)).unwrap();
     let blob = g.blob.as_deref().unwrap();
     let images: Vec<image::RgbaImage> = g
         .document

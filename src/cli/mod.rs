@@ -146,11 +146,12 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes, value_parser = parse_at_least_one)]
     max_tile_bytes: usize,
-    /// Geometry compression of the tiles: draco (KHR_draco_mesh_compression), quantized
-    /// (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit normals, 16-bit UVs), meshopt
-    /// (quantized, then EXT_meshopt_compression: decoded on the client's main thread, no worker
-    /// task per primitive) or none (32-bit floats).
-    #[arg(long, value_enum, default_value = "draco")]
+    /// Geometry compression of the tiles: meshopt (KHR_mesh_quantization attributes as
+    /// EXT_meshopt_compression streams: decoded on the client's main thread, the fastest first
+    /// view), draco (KHR_draco_mesh_compression: the smallest files, decoded in a worker one
+    /// primitive at a time), quantized (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit
+    /// normals, 16-bit UVs) or none (32-bit floats).
+    #[arg(long, value_enum, default_value = "meshopt")]
     compression: CompressionArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
     /// refine REPLACE) or none (internal tiles hold only what is too big for their children,

@@ -63,36 +63,33 @@ pub fn encode_triangles(
         .map_err(MeshoptEncodeError::Encode)
 }
 
-/// Positions through the `EXPONENTIAL` filter.
-pub struct ExpPositions {
+/// Float vectors through the `EXPONENTIAL` filter.
+pub struct ExpFiltered<const N: usize> {
     /// The filter's words (the stream's elements before the attribute codec).
-    pub words: Vec<[u32; 3]>,
-    /// What they decode to: where clients draw the vertices.
-    pub drawn: Vec<[f32; 3]>,
+    pub words: Vec<[u32; N]>,
+    /// What they decode to: what clients draw.
+    pub drawn: Vec<[f32; N]>,
 }
 
 /// Mantissa bits the `EXPONENTIAL` filter may use (its README: 1 to 24).
 const EXP_BITS: std::ops::RangeInclusive<i32> = 1..=24;
 
-/// Float positions (a tile too wide for 16-bit positions within the error bound) through the
-/// `EXPONENTIAL` filter: each coordinate a mantissa over one exponent per axis, the fewest
-/// mantissa bits that keep every decoded coordinate within `max_error_m` of its value; `None`
-/// when even 24 bits miss the bound.
-pub fn exp_filtered_positions(positions: &[[f32; 3]], max_error_m: f64) -> Option<ExpPositions> {
+/// Float vectors (positions of a tile too wide for 16-bit positions within the error bound,
+/// UVs that tile beyond [0, 1]) through the `EXPONENTIAL` filter: each component a mantissa over
+/// one exponent per component, the fewest mantissa bits that keep every decoded component within
+/// `max_error` of its value; `None` when even 24 bits miss the bound.
+pub fn exp_filtered<const N: usize>(values: &[[f32; N]], max_error: f64) -> Option<ExpFiltered<N>> {
     use meshopt::encoding::{decode_filter_exp, encode_filter_exp, EncodeExpMode};
     let try_bits = |bits: i32| {
-        let words = encode_filter_exp(positions, bits, EncodeExpMode::SharedComponent);
+        let words = encode_filter_exp(values, bits, EncodeExpMode::SharedComponent);
         let mut decoded = words.clone();
         decode_filter_exp(&mut decoded);
-        let decoded: Vec<[f32; 3]> = decoded.iter().map(|w| w.map(f32::from_bits)).collect();
-        let within = positions
+        let drawn: Vec<[f32; N]> = decoded.iter().map(|w| w.map(f32::from_bits)).collect();
+        let within = values
             .iter()
-            .zip(&decoded)
-            .all(|(p, d)| (0..3).all(|k| ((p[k] as f64) - (d[k] as f64)).abs() <= max_error_m));
-        within.then_some(ExpPositions {
-            words,
-            drawn: decoded,
-        })
+            .zip(&drawn)
+            .all(|(v, d)| (0..N).all(|k| ((v[k] as f64) - (d[k] as f64)).abs() <= max_error));
+        within.then_some(ExpFiltered { words, drawn })
     };
     // The error falls as bits grow: the fewest that meet the bound, by bisection.
     let (mut lo, mut hi) = (*EXP_BITS.start(), *EXP_BITS.end());
@@ -110,13 +107,32 @@ pub fn exp_filtered_positions(positions: &[[f32; 3]], max_error_m: f64) -> Optio
     Some(best)
 }
 
+/// Bits per component of octahedral normals: 8, the i8 normals' precision (about a degree).
+const NORMAL_OCT_BITS: i32 = 8;
+
+/// Unit normals through the `OCTAHEDRAL` filter: four i8 per normal (the stream's elements;
+/// clients decode them to a normalized i8 vector and a fourth byte they ignore). Two meaningful
+/// components instead of three compress better than i8 x, y, z.
+pub fn octahedral_normals(normals: &[[f32; 3]]) -> Vec<[i8; 4]> {
+    let padded: Vec<[f32; 4]> = normals.iter().map(|n| [n[0], n[1], n[2], 0.0]).collect();
+    meshopt::encoding::encode_filter_oct::<i8>(&padded, NORMAL_OCT_BITS)
+}
+
 /// `p` with its triangles in vertex-cache order and its vertices in first-use order (vertices
 /// no triangle uses are dropped): what the codecs compress best. The same triangles and vertices.
 pub fn optimize_order(p: &ContentPrimitive) -> ContentPrimitive {
     let n = p.positions.len();
     let cache_ordered = meshopt::optimize::optimize_vertex_cache(&p.indices, n);
-    let remap = meshopt::optimize::optimize_vertex_fetch_remap(&cache_ordered, n);
-    let kept = remap.iter().filter(|&&r| r != u32::MAX).count();
+    // First-use order (meshoptimizer's vertex fetch remap; the crate's wrapper truncates its
+    // table when some vertex is unused, so it is written out here): u32::MAX for unused ones.
+    let mut remap = vec![u32::MAX; n];
+    let mut kept = 0;
+    for &i in &cache_ordered {
+        if remap[i as usize] == u32::MAX {
+            remap[i as usize] = kept as u32;
+            kept += 1;
+        }
+    }
     fn permute<T: Copy>(values: &[T], remap: &[u32], kept: usize) -> Vec<T> {
         if values.is_empty() {
             return Vec::new();
@@ -145,8 +161,7 @@ pub fn optimize_order(p: &ContentPrimitive) -> ContentPrimitive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ingest::gltf_compressed::decode_meshopt_view;
-    use crate::ingest::gltf_index::MeshoptView;
+    use crate::ingest::{decode_meshopt_view, MeshoptView};
 
     fn view(mode: &str, stride: usize, count: usize, len: usize) -> MeshoptView {
         MeshoptView {
@@ -178,8 +193,11 @@ mod tests {
                 p.feature_ids.push(x / 4);
             }
         }
-        // Triangles in a scattered order, and one vertex nobody uses.
-        let at = |x: u32, y: u32| y * (side + 1) + x;
+        // Triangles in a scattered order, and two vertices nobody uses: the first and the last.
+        p.positions.insert(0, [-99.0; 3]);
+        p.uvs.insert(0, [1.0; 2]);
+        p.feature_ids.insert(0, 7);
+        let at = |x: u32, y: u32| 1 + y * (side + 1) + x;
         for k in 0..side * side {
             let c = (k * 7919) % (side * side);
             let (x, y) = (c % side, c / side);
@@ -223,7 +241,7 @@ mod tests {
         let p = grid(12);
         let q = optimize_order(&p);
         assert_eq!(triangles(&p), triangles(&q));
-        assert_eq!(q.positions.len(), p.positions.len() - 1);
+        assert_eq!(q.positions.len(), p.positions.len() - 2);
         assert_eq!(q.uvs.len(), q.positions.len());
         assert_eq!(q.feature_ids.len(), q.positions.len());
         // First-use order: vertex k first appears after vertices 0..k.
@@ -275,6 +293,24 @@ mod tests {
     }
 
     #[test]
+    fn octahedral_normals_decode_within_a_degree() {
+        let normals: Vec<[f32; 3]> = (0..200)
+            .map(|i| {
+                let (a, b) = (i as f32 * 0.37, i as f32 * 0.11);
+                [a.cos() * b.sin(), a.sin() * b.sin(), b.cos()]
+            })
+            .collect();
+        let mut words = octahedral_normals(&normals);
+        meshopt::encoding::decode_filter_oct(&mut words);
+        for (n, w) in normals.iter().zip(&words) {
+            let d = [w[0], w[1], w[2]].map(|x| x as f32 / 127.0);
+            let len = d.iter().map(|x| x * x).sum::<f32>().sqrt();
+            let cos = (0..3).map(|k| n[k] * d[k]).sum::<f32>() / len;
+            assert!(cos > 1.0f32.to_radians().cos(), "{n:?} -> {d:?}");
+        }
+    }
+
+    #[test]
     fn exponential_positions_stay_within_the_bound_with_few_bits() {
         // A 400 m wide tile: too wide for 16-bit positions within 1 mm.
         let positions: Vec<[f32; 3]> = (0..500)
@@ -283,10 +319,10 @@ mod tests {
                 [200.0 * t.sin(), 12.5 * t.cos(), -180.0 + 0.73 * i as f32]
             })
             .collect();
-        let ExpPositions {
+        let ExpFiltered {
             words,
             drawn: decoded,
-        } = exp_filtered_positions(&positions, 0.001).unwrap();
+        } = exp_filtered(&positions, 0.001).unwrap();
         let worst = positions
             .iter()
             .zip(&decoded)

@@ -4,11 +4,16 @@
 
 pub mod cityjson;
 pub mod gltf;
-pub(crate) mod gltf_compressed;
-pub(crate) mod gltf_index;
+mod gltf_compressed;
+mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
 pub mod manifest;
+
+/// `EXT_meshopt_compression` views, decoded as the glTF reader does (the tests' tile reader uses
+/// them too).
+pub use gltf_compressed::{decode_meshopt_view, MeshoptError};
+pub use gltf_index::MeshoptView;
 
 use crate::error::{Error, Result};
 use crate::scene::Scene;

@@ -15,7 +15,7 @@
 #![allow(dead_code, unused_imports)]
 
 use glam::{DMat4, DVec3};
-use serde_json::Value;
+use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -339,7 +339,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
         let (mut positions, mut indices, mut triangles, mut area) =
             (Vec::new(), Vec::new(), 0, 0.0);
         if let Some(u) = &uri {
-            let bytes = std::fs::read(dir.join(u)).unwrap();
+            let bytes = read_tile(&dir.join(u));
             let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
             let blob = g.blob.as_deref().unwrap();
             for (mesh, placement) in drawn_meshes(&g, &glb_json(&bytes), blob) {
@@ -518,6 +518,45 @@ pub fn read_accessor(doc: &Value, blob: &[u8], index: usize) -> Vec<Vec<f64>> {
                 .collect()
         })
         .collect()
+}
+
+/// A tile's GLB as plain glTF: with `EXT_meshopt_compression`, every compressed view decoded (by
+/// the crate's reader) into the BIN chunk and the extension and its fallback buffer gone, so the
+/// readers here see the data a client draws. Other GLBs are returned as they are.
+pub fn plain_glb(bytes: Vec<u8>) -> Vec<u8> {
+    let (mut json, mut bin) = glb_chunks(&bytes);
+    let used = json["extensionsUsed"].to_string();
+    if !used.contains("EXT_meshopt_compression") {
+        return bytes;
+    }
+    let source = bin.clone();
+    for v in json["bufferViews"].as_array_mut().unwrap() {
+        let Some(ext) = v.pointer("/extensions/EXT_meshopt_compression") else {
+            continue;
+        };
+        let view: bimtiles::ingest::MeshoptView = serde_json::from_value(ext.clone()).unwrap();
+        assert_eq!(view.buffer, 0, "meshopt streams are in the BIN chunk");
+        let decoded =
+            bimtiles::ingest::decode_meshopt_view(&view, &source).expect("meshopt view decodes");
+        assert_eq!(decoded.len() as u64, v["byteLength"].as_u64().unwrap());
+        bin.resize(bin.len().next_multiple_of(4), 0);
+        v["buffer"] = json!(0);
+        v["byteOffset"] = json!(bin.len());
+        v.as_object_mut().unwrap().remove("extensions");
+        bin.extend_from_slice(&decoded);
+    }
+    json["buffers"] = json!([{"byteLength": bin.len()}]);
+    for key in ["extensionsUsed", "extensionsRequired"] {
+        if let Some(list) = json[key].as_array_mut() {
+            list.retain(|e| e != "EXT_meshopt_compression");
+        }
+    }
+    bimtiles::glb_container::glb_container(&serde_json::to_vec(&json).unwrap(), &bin)
+}
+
+/// The GLB at `path`, as [`plain_glb`] makes it.
+pub fn read_tile(path: &Path) -> Vec<u8> {
+    plain_glb(std::fs::read(path).unwrap())
 }
 
 /// Positions and triangle indices of a primitive, decoding Draco when it is compressed.
@@ -868,7 +907,7 @@ pub fn image_bytes(path: &Path, blob: &[u8], image: &gltf::Image) -> Vec<u8> {
 
 /// Textured primitives of a GLB written without Draco (`--compression none`).
 pub fn read_textured(path: &Path) -> Vec<Textured> {
-    let bytes = std::fs::read(path).unwrap();
+    let bytes = read_tile(path);
     let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
     let blob = g.blob.as_deref().unwrap();
     let mut out = Vec::new();

@@ -9,6 +9,7 @@ pub(super) const ARRAY_BUFFER: u32 = 34962;
 pub(super) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 pub(super) const FLOAT: u32 = 5126;
 pub(super) const BYTE: u32 = 5120;
+pub(super) const UNSIGNED_BYTE: u32 = 5121;
 pub(super) const SHORT: u32 = 5122;
 pub(super) const UNSIGNED_SHORT: u32 = 5123;
 pub(super) const UNSIGNED_INT: u32 = 5125;
@@ -84,37 +85,65 @@ impl GltfBuilder {
         self.buffer_views.len() - 1
     }
 
-    /// A float VEC3 position accessor stored through meshopt's `EXPONENTIAL` filter: `words`
-    /// the filter's input, `decoded` what it decodes to (its min/max are the accessor's).
-    pub(super) fn exp_position_accessor(
+    /// A float accessor stored through meshopt's `EXPONENTIAL` filter (its words in the stream,
+    /// its decoded values in the accessor's min/max when `with_min_max`).
+    pub(super) fn exp_accessor<const N: usize>(
         &mut self,
-        words: &[[u32; 3]],
-        decoded: &[[f32; 3]],
+        exp: &crate::encode::meshopt::ExpFiltered<N>,
+        with_min_max: bool,
     ) -> Result<usize, EncodeError> {
-        let bytes: Vec<u8> = words
+        let bytes: Vec<u8> = exp
+            .words
             .iter()
             .flatten()
             .flat_map(|w| w.to_le_bytes())
             .collect();
-        let encoded = crate::encode::meshopt::encode_attributes(&bytes, 12)?;
+        let encoded = crate::encode::meshopt::encode_attributes(&bytes, N * 4)?;
         let view = self.meshopt_view(
             &encoded,
             bytes.len(),
-            12,
+            N * 4,
             "ATTRIBUTES",
             Some("EXPONENTIAL"),
             ARRAY_BUFFER,
         );
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for v in decoded {
-            for k in 0..3 {
-                lo[k] = lo[k].min(v[k]);
-                hi[k] = hi[k].max(v[k]);
+        let ty = ["SCALAR", "VEC2", "VEC3", "VEC4"][N - 1];
+        let mut a = json!({"bufferView": view, "componentType": FLOAT,
+            "count": exp.drawn.len(), "type": ty});
+        if with_min_max {
+            let (mut lo, mut hi) = ([f32::INFINITY; N], [f32::NEG_INFINITY; N]);
+            for v in &exp.drawn {
+                for k in 0..N {
+                    lo[k] = lo[k].min(v[k]);
+                    hi[k] = hi[k].max(v[k]);
+                }
             }
+            a["min"] = json!(lo.iter().map(|&x| x as f64).collect::<Vec<_>>());
+            a["max"] = json!(hi.iter().map(|&x| x as f64).collect::<Vec<_>>());
         }
+        self.accessors.push(a);
+        Ok(self.accessors.len() - 1)
+    }
+
+    /// A NORMAL accessor (normalized i8, stride 4) stored through meshopt's `OCTAHEDRAL` filter.
+    pub(super) fn octahedral_normal_accessor(
+        &mut self,
+        words: &[[i8; 4]],
+    ) -> Result<usize, EncodeError> {
+        let bytes: Vec<u8> = words.iter().flatten().map(|&x| x as u8).collect();
+        let encoded = crate::encode::meshopt::encode_attributes(&bytes, 4)?;
+        let view = self.meshopt_view(
+            &encoded,
+            bytes.len(),
+            4,
+            "ATTRIBUTES",
+            Some("OCTAHEDRAL"),
+            ARRAY_BUFFER,
+        );
+        self.buffer_views[view]["byteStride"] = json!(4);
         self.accessors
-            .push(json!({"bufferView": view, "componentType": FLOAT,
-            "count": decoded.len(), "type": "VEC3", "min": lo, "max": hi}));
+            .push(json!({"bufferView": view, "componentType": BYTE,
+            "normalized": true, "count": words.len(), "type": "VEC3"}));
         Ok(self.accessors.len() - 1)
     }
 
@@ -201,7 +230,11 @@ impl GltfBuilder {
         component_type: u32,
         with_min_max: bool,
     ) -> Result<usize, EncodeError> {
-        let size = if component_type == BYTE { 1 } else { 2 };
+        let size = if matches!(component_type, BYTE | UNSIGNED_BYTE) {
+            1
+        } else {
+            2
+        };
         let stride = (N * size).div_ceil(4) * 4;
         let mut bytes = Vec::with_capacity(data.len() * stride);
         for v in data {

@@ -31,32 +31,8 @@ pub(super) fn write_primitive(
             (p, frame.map(|f| f.decoded_positions(&m.positions)))
         }
         Compression::Meshopt => {
-            let ordered = crate::encode::meshopt::optimize_order(m);
-            // Too wide for 16-bit positions: floats through the EXPONENTIAL filter.
-            let exp = frame.is_none().then(|| {
-                crate::encode::meshopt::exp_filtered_positions(
-                    &y_up(&ordered.positions),
-                    enc.max_position_error_m,
-                )
-            });
-            match exp.flatten() {
-                Some(exp) => {
-                    let position = b.exp_position_accessor(&exp.words, &exp.drawn)?;
-                    let p = plain_primitive_at(
-                        b,
-                        &ordered,
-                        feature_count.is_some(),
-                        Some(None),
-                        Some(position),
-                    )?;
-                    let drawn = exp.drawn.iter().map(|v| DVec3::from(v.map(f64::from)));
-                    (p, Some(drawn.collect()))
-                }
-                None => {
-                    let p = plain_primitive(b, &ordered, feature_count.is_some(), Some(frame))?;
-                    (p, frame.map(|f| f.decoded_positions(&ordered.positions)))
-                }
-            }
+            let texels = texture_texels(scene, m.material, &mats.sampled_px);
+            meshopt_primitive(b, m, feature_count.is_some(), enc, frame, texels)?
         }
         Compression::Draco => {
             let texels = texture_texels(scene, m.material, &mats.sampled_px);
@@ -86,19 +62,80 @@ pub(super) fn plain_primitive(
     with_features: bool,
     quantized: Option<Option<&QuantFrame>>,
 ) -> std::result::Result<Value, EncodeError> {
-    plain_primitive_at(b, m, with_features, quantized, None)
+    plain_primitive_at(b, m, with_features, quantized, WrittenAttributes::default())
 }
 
-/// [`plain_primitive`], with the POSITION accessor already written when `position` is given.
+/// `m` as `EXT_meshopt_compression` streams: quantized as [`plain_primitive`] writes it, its
+/// vertices reordered for the codecs, normals through the `OCTAHEDRAL` filter, and what 16 bits
+/// cannot hold within the bounds through the `EXPONENTIAL` filter: positions of a mesh without a
+/// frame (within `enc.max_position_error_m`), UVs that tile beyond [0, 1] (within a quarter texel
+/// of the `uv_texels` image, as Draco's UV bits); colours as 8-bit. Also returns the decoded
+/// positions.
+fn meshopt_primitive(
+    b: &mut GltfBuilder,
+    m: &ContentPrimitive,
+    with_features: bool,
+    enc: &TileEncoding,
+    frame: Option<&QuantFrame>,
+    uv_texels: u32,
+) -> std::result::Result<(Value, Option<Vec<DVec3>>), EncodeError> {
+    use crate::encode::meshopt::{exp_filtered, octahedral_normals, optimize_order};
+    let m = optimize_order(m);
+    let mut written = WrittenAttributes::default();
+    let mut decoded = frame.map(|f| f.decoded_positions(&m.positions));
+    if frame.is_none() {
+        if let Some(exp) = exp_filtered(&y_up(&m.positions), enc.max_position_error_m) {
+            written.position = Some(b.exp_accessor(&exp, true)?);
+            decoded = Some(
+                exp.drawn
+                    .iter()
+                    .map(|v| DVec3::from(v.map(f64::from)))
+                    .collect(),
+            );
+        }
+    }
+    if !m.normals.is_empty() {
+        written.normal =
+            Some(b.octahedral_normal_accessor(&octahedral_normals(&y_up(&m.normals)))?);
+    }
+    if !m.uvs.is_empty() && uvs_u16(&m.uvs).is_none() {
+        let quarter_texel = 0.25 / uv_texels.max(1) as f64;
+        if let Some(exp) = exp_filtered(&m.uvs, quarter_texel) {
+            written.uv = Some(b.exp_accessor(&exp, false)?);
+        }
+    }
+    if !m.colors.is_empty() {
+        // 8 bits per channel, as Draco's colours (COLOR_BITS) and images have.
+        let q: Vec<[i32; 4]> = m
+            .colors
+            .iter()
+            .map(|c| c.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as i32))
+            .collect();
+        written.color = Some(b.normalized_accessor(&q, UNSIGNED_BYTE, false)?);
+    }
+    let p = plain_primitive_at(b, &m, with_features, Some(frame), written)?;
+    Ok((p, decoded))
+}
+
+/// Accessors a primitive's writer made itself (meshopt filters), used instead of the plain ones.
+#[derive(Default)]
+struct WrittenAttributes {
+    position: Option<usize>,
+    normal: Option<usize>,
+    uv: Option<usize>,
+    color: Option<usize>,
+}
+
+/// [`plain_primitive`], with the accessors in `written` used as they are.
 fn plain_primitive_at(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
     with_features: bool,
     quantized: Option<Option<&QuantFrame>>,
-    position: Option<usize>,
+    written: WrittenAttributes,
 ) -> std::result::Result<Value, EncodeError> {
     let mut attributes = Map::new();
-    let positions = match (position, quantized.flatten()) {
+    let positions = match (written.position, quantized.flatten()) {
         (Some(accessor), _) => accessor,
         (None, Some(f)) => {
             let q: Vec<[i32; 3]> = y_up(&m.positions)
@@ -111,25 +148,30 @@ fn plain_primitive_at(
     };
     attributes.insert("POSITION".into(), json!(positions));
     if !m.normals.is_empty() {
-        let n = y_up(&m.normals);
-        let normals = match quantized {
-            Some(_) => {
-                let q: Vec<[i32; 3]> = n.into_iter().map(normal_i8).collect();
+        let normals = match (written.normal, quantized) {
+            (Some(accessor), _) => accessor,
+            (None, Some(_)) => {
+                let q: Vec<[i32; 3]> = y_up(&m.normals).into_iter().map(normal_i8).collect();
                 b.normalized_accessor(&q, BYTE, false)?
             }
-            None => b.float_accessor(&n, false)?,
+            (None, None) => b.float_accessor(&y_up(&m.normals), false)?,
         };
         attributes.insert("NORMAL".into(), json!(normals));
     }
     if !m.uvs.is_empty() {
-        let uvs = match quantized.and_then(|_| uvs_u16(&m.uvs)) {
-            Some(q) => b.normalized_accessor(&q, UNSIGNED_SHORT, false)?,
-            None => b.float_accessor(&m.uvs, false)?,
+        let uvs = match (written.uv, quantized.and_then(|_| uvs_u16(&m.uvs))) {
+            (Some(accessor), _) => accessor,
+            (None, Some(q)) => b.normalized_accessor(&q, UNSIGNED_SHORT, false)?,
+            (None, None) => b.float_accessor(&m.uvs, false)?,
         };
         attributes.insert("TEXCOORD_0".into(), json!(uvs));
     }
     if !m.colors.is_empty() {
-        attributes.insert("COLOR_0".into(), json!(b.float_accessor(&m.colors, false)?));
+        let colors = match written.color {
+            Some(accessor) => accessor,
+            None => b.float_accessor(&m.colors, false)?,
+        };
+        attributes.insert("COLOR_0".into(), json!(colors));
     }
     if with_features {
         let fids: Vec<[f32; 1]> = m.feature_ids.iter().map(|&f| [f as f32]).collect();
