@@ -164,15 +164,7 @@ mod tests {
     use crate::ingest::{decode_meshopt_view, MeshoptView};
 
     fn view(mode: &str, stride: usize, count: usize, len: usize) -> MeshoptView {
-        MeshoptView {
-            buffer: 0,
-            byte_offset: 0,
-            byte_length: len,
-            byte_stride: stride,
-            count,
-            mode: mode.into(),
-            filter: None,
-        }
+        MeshoptView::at_start(mode, stride, count, len)
     }
 
     fn grid(side: u32) -> ContentPrimitive {

@@ -237,13 +237,8 @@ mod tests {
         filter: Option<&str>,
     ) -> MeshoptView {
         MeshoptView {
-            buffer: 0,
-            byte_offset: 0,
-            byte_length: len,
-            byte_stride: stride,
-            count,
-            mode: mode.into(),
             filter: filter.map(str::to_string),
+            ..MeshoptView::at_start(mode, stride, count, len)
         }
     }
 

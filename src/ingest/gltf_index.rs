@@ -159,6 +159,22 @@ pub struct MeshoptView {
     pub filter: Option<String>,
 }
 
+#[cfg(test)]
+impl MeshoptView {
+    /// A stream of `mode` at the start of buffer 0 (the codec tests' views).
+    pub(crate) fn at_start(mode: &str, stride: usize, count: usize, byte_length: usize) -> Self {
+        MeshoptView {
+            buffer: 0,
+            byte_offset: 0,
+            byte_length,
+            byte_stride: stride,
+            count,
+            mode: mode.into(),
+            filter: None,
+        }
+    }
+}
+
 /// A primitive's `KHR_draco_mesh_compression` object: the bufferView of the Draco stream and the
 /// Draco unique id of each attribute we read.
 #[derive(Default)]

@@ -107,22 +107,7 @@ impl GltfBuilder {
             Some("EXPONENTIAL"),
             ARRAY_BUFFER,
         );
-        let ty = ["SCALAR", "VEC2", "VEC3", "VEC4"][N - 1];
-        let mut a = json!({"bufferView": view, "componentType": FLOAT,
-            "count": exp.drawn.len(), "type": ty});
-        if with_min_max {
-            let (mut lo, mut hi) = ([f32::INFINITY; N], [f32::NEG_INFINITY; N]);
-            for v in &exp.drawn {
-                for k in 0..N {
-                    lo[k] = lo[k].min(v[k]);
-                    hi[k] = hi[k].max(v[k]);
-                }
-            }
-            a["min"] = json!(lo.iter().map(|&x| x as f64).collect::<Vec<_>>());
-            a["max"] = json!(hi.iter().map(|&x| x as f64).collect::<Vec<_>>());
-        }
-        self.accessors.push(a);
-        Ok(self.accessors.len() - 1)
+        Ok(self.float_accessor_of(view, &exp.drawn, with_min_max))
     }
 
     /// A NORMAL accessor (normalized i8, stride 4) stored through meshopt's `OCTAHEDRAL` filter.
@@ -197,18 +182,24 @@ impl GltfBuilder {
             Some(ARRAY_BUFFER) => self.vertex_view(&bytes, N * 4, None)?,
             _ => self.view(&bytes, target),
         };
-        let ty = match N {
-            1 => "SCALAR",
-            2 => "VEC2",
-            3 => "VEC3",
-            _ => "VEC4",
-        };
+        Ok(self.float_accessor_of(view, data, with_min_max))
+    }
+
+    /// A float accessor of `values` (as clients read them) in `view`, with their bounds when
+    /// `with_min_max`.
+    fn float_accessor_of<const N: usize>(
+        &mut self,
+        view: usize,
+        values: &[[f32; N]],
+        with_min_max: bool,
+    ) -> usize {
+        let ty = ["SCALAR", "VEC2", "VEC3", "VEC4"][N - 1];
         let mut a =
-            json!({"bufferView": view, "componentType": FLOAT, "count": data.len(), "type": ty});
+            json!({"bufferView": view, "componentType": FLOAT, "count": values.len(), "type": ty});
         if with_min_max {
             let mut lo = [f32::INFINITY; N];
             let mut hi = [f32::NEG_INFINITY; N];
-            for v in data {
+            for v in values {
                 for k in 0..N {
                     lo[k] = lo[k].min(v[k]);
                     hi[k] = hi[k].max(v[k]);
@@ -218,7 +209,7 @@ impl GltfBuilder {
             a["max"] = json!(hi.iter().map(|&x| x as f64).collect::<Vec<_>>());
         }
         self.accessors.push(a);
-        Ok(self.accessors.len() - 1)
+        self.accessors.len() - 1
     }
 
     /// A normalized integer vertex attribute: `N` components of `size` bytes each (1 or 2),
