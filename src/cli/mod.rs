@@ -192,7 +192,7 @@ struct ConvertArgs {
     no_instancing: bool,
     /// Instance a shape in a tile only when that stores at least this many fewer triangles
     /// (smaller savings do not pay for the shape's own node, accessors and draw call).
-    /// Default: 1000 with Draco, 100 without.
+    /// Default: 1000 with Draco and meshopt, 100 otherwise.
     #[arg(long)]
     min_instanced_triangles_saved: Option<usize>,
     /// One primitive per material in every tile. Default with Draco: plain-coloured materials
