@@ -1,9 +1,9 @@
 //! `EXT_meshopt_compression` streams for tile geometry (the extension's README, "Compression
 //! modes"): vertex attributes in `ATTRIBUTES` mode (bitstream version 0, the one the extension
 //! defines) and triangle lists in `TRIANGLES` mode, encoded with meshoptimizer (the `meshopt`
-//! crate). Unlike Draco, clients decode these on the main thread in microseconds per thousand
-//! vertices (CesiumJS: `GltfBufferViewLoader`), with no worker task per primitive, and the
-//! streams are laid out for the server's gzip to shrink further.
+//! crate). Unlike Draco, clients decode these on the main thread as the data arrives (CesiumJS:
+//! `GltfBufferViewLoader`), with no worker task per primitive, and the streams are laid out for
+//! the server's gzip to shrink further.
 //!
 //! The codecs work best on vertices in the order the triangles first use them, triangles in
 //! vertex-cache order: [`optimize_order`] reorders a primitive so.
@@ -30,7 +30,7 @@ pub fn encode_attributes(bytes: &[u8], stride: usize) -> Result<Vec<u8>, Meshopt
     if stride == 0 || stride % 4 != 0 || stride > 256 || bytes.len() % stride != 0 {
         return Err(MeshoptEncodeError::Stride(stride));
     }
-    /// One element of `N` 32-bit words: the crate takes the stride from the element type.
+    /// One element of `N` bytes: the crate takes the stride from the element type.
     #[derive(Clone, Copy)]
     #[repr(C)]
     struct Element<const N: usize>([u8; N]);
@@ -41,8 +41,8 @@ pub fn encode_attributes(bytes: &[u8], stride: usize) -> Result<Vec<u8>, Meshopt
             .collect();
         meshopt::encoding::encode_vertex_buffer_level(&elements, 2, Some(VERTEX_CODEC_VERSION))
     }
-    // Tile attributes are 4 (i8 normals, u16 UVs, f32 feature IDs), 8 (i16 positions padded,
-    // f32 UVs), 12 (f32 positions and normals) or 16 bytes (f32 colours).
+    // Tile attributes are 4 (octahedral normals, u16 UVs, u8 colours, f32 feature IDs), 8 (i16
+    // positions padded, f32 UVs), 12 (f32 positions) or 16 bytes (f32 colours) per vertex.
     match stride {
         4 => encode::<4>(bytes),
         8 => encode::<8>(bytes),
