@@ -54,6 +54,7 @@ import { loadavg, tmpdir } from "node:os";
 import { basename, dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
 import { collect, launch, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
+import { readGlb, writeGlb } from "./glb.mjs";
 
 const REPO = resolve(dirname(fileURLToPath(import.meta.url)), "..");
 
@@ -139,25 +140,14 @@ function singleTileGlb(bimtiles, ifc, outDir) {
   if (!ts.root.content || (ts.root.children && ts.root.children.length))
     throw new Error(`${ifc}: the single-tile conversion has more than one tile`);
   const glbPath = join(outDir, ts.root.content.uri);
-  const glb = readFileSync(glbPath);
-  const jsonLength = glb.readUInt32LE(12);
-  const gltf = JSON.parse(glb.subarray(20, 20 + jsonLength).toString("utf8"));
+  const { json: gltf, bin } = readGlb(readFileSync(glbPath));
   const metadata = gltf.extensions && gltf.extensions.EXT_structural_metadata;
   if (metadata && metadata.schemaUri) {
     metadata.schema = JSON.parse(readFileSync(join(dirname(glbPath), metadata.schemaUri)));
     delete metadata.schemaUri;
   }
-  let json = Buffer.from(JSON.stringify(gltf), "utf8");
-  json = Buffer.concat([json, Buffer.alloc((4 - (json.length % 4)) % 4, 0x20)]);
-  const rest = glb.subarray(20 + jsonLength);
-  const header = Buffer.alloc(20);
-  header.writeUInt32LE(0x46546c67, 0);
-  header.writeUInt32LE(2, 4);
-  header.writeUInt32LE(20 + json.length + rest.length, 8);
-  header.writeUInt32LE(json.length, 12);
-  header.writeUInt32LE(0x4e4f534a, 16);
   const standalone = join(outDir, "standalone.glb");
-  writeFileSync(standalone, Buffer.concat([header, json, rest]));
+  writeFileSync(standalone, writeGlb(gltf, bin));
   return standalone;
 }
 

@@ -13,6 +13,7 @@
 import { createRequire } from "node:module";
 import { readFileSync, readdirSync, statSync } from "node:fs";
 import path from "node:path";
+import { readGlb } from "./glb.mjs";
 import { fileURLToPath } from "node:url";
 import { read as readKtx2, KHR_DF_MODEL_ETC1S, KHR_DF_MODEL_UASTC, KHR_DF_TRANSFER_SRGB } from "ktx-parse";
 
@@ -33,16 +34,7 @@ function walk(dir, out = []) {
 
 /** The KTX2 images embedded in a GLB: [{name, bytes}]. */
 function embedded(file) {
-  const buf = readFileSync(file);
-  let json = null;
-  let bin = null;
-  for (let off = 12; off + 8 <= buf.length; ) {
-    const len = buf.readUInt32LE(off);
-    const type = buf.readUInt32LE(off + 4);
-    if (type === 0x4e4f534a) json = JSON.parse(buf.subarray(off + 8, off + 8 + len).toString("utf8"));
-    else if (type === 0x004e4942) bin = buf.subarray(off + 8, off + 8 + len);
-    off += 8 + len;
-  }
+  const { json, bin } = readGlb(readFileSync(file));
   const out = [];
   (json && json.images ? json.images : []).forEach((im, i) => {
     if (im.mimeType !== "image/ktx2" || im.bufferView === undefined) return;

@@ -11,6 +11,7 @@
 
 import { promises as fs } from 'node:fs';
 import path from 'node:path';
+import { readGlb, writeGlb } from './glb.mjs';
 
 // The package does not export the reference decoder: loaded by its path (tools/package.json pins
 // meshoptimizer).
@@ -20,39 +21,6 @@ const { MeshoptDecoder } = await import(
 
 const EXT = 'EXT_meshopt_compression';
 const pad4 = (n) => (n + 3) & ~3;
-
-function readGlb(bytes) {
-  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
-  if (dv.getUint32(0, true) !== 0x46546c67) throw new Error('not a GLB');
-  const jsonLen = dv.getUint32(12, true);
-  const json = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLen)));
-  let bin = new Uint8Array(0);
-  const binAt = 20 + jsonLen;
-  if (binAt + 8 <= bytes.length) {
-    const binLen = dv.getUint32(binAt, true);
-    bin = bytes.subarray(binAt + 8, binAt + 8 + binLen);
-  }
-  return { json, bin };
-}
-
-function writeGlb(json, bin) {
-  const jsonBytes = new TextEncoder().encode(JSON.stringify(json));
-  const jl = pad4(jsonBytes.length);
-  const bl = pad4(bin.length);
-  const out = new Uint8Array(12 + 8 + jl + 8 + bl);
-  const dv = new DataView(out.buffer);
-  dv.setUint32(0, 0x46546c67, true);
-  dv.setUint32(4, 2, true);
-  dv.setUint32(8, out.length, true);
-  dv.setUint32(12, jl, true);
-  dv.setUint32(16, 0x4e4f534a, true);
-  out.set(jsonBytes, 20);
-  out.fill(0x20, 20 + jsonBytes.length, 20 + jl);
-  dv.setUint32(20 + jl, bl, true);
-  dv.setUint32(24 + jl, 0x004e4942, true);
-  out.set(bin, 28 + jl);
-  return out;
-}
 
 /** The GLB with every meshopt view decoded; returns [bytes, decoded view count]. */
 function decodeGlb(bytes) {
