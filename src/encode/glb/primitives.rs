@@ -98,7 +98,7 @@ fn meshopt_primitive(
         written.normal =
             Some(b.octahedral_normal_accessor(&octahedral_normals(&y_up(&m.normals)))?);
     }
-    if !m.uvs.is_empty() && uvs_u16(&m.uvs).is_none() {
+    if !m.uvs.is_empty() && !uvs_in_unit_square(&m.uvs) {
         let quarter_texel = 0.25 / uv_texels.max(1) as f64;
         if let Some(exp) = exp_filtered(&m.uvs, quarter_texel) {
             written.uv = Some(b.exp_accessor(&exp, false)?);

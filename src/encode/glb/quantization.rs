@@ -112,13 +112,17 @@ pub(super) fn normal_i8(n: [f32; 3]) -> [i32; 3] {
     n.map(|x| (x.clamp(-1.0, 1.0) * 127.0).round() as i32)
 }
 
-/// UVs inside [0, 1] as normalized u16, or `None` when they tile beyond it.
-pub(super) fn uvs_u16(uvs: &[[f32; 2]]) -> Option<Vec<[i32; 2]>> {
+/// Whether every UV lies inside [0, 1] (16-bit normalized UVs hold them).
+pub(super) fn uvs_in_unit_square(uvs: &[[f32; 2]]) -> bool {
     uvs.iter()
         .all(|t| t.iter().all(|x| (0.0..=1.0).contains(x)))
-        .then(|| {
-            uvs.iter()
-                .map(|t| t.map(|x| (x as f64 * 65535.0).round() as i32))
-                .collect()
-        })
+}
+
+/// UVs inside [0, 1] as normalized u16, or `None` when they tile beyond it.
+pub(super) fn uvs_u16(uvs: &[[f32; 2]]) -> Option<Vec<[i32; 2]>> {
+    uvs_in_unit_square(uvs).then(|| {
+        uvs.iter()
+            .map(|t| t.map(|x| (x as f64 * 65535.0).round() as i32))
+            .collect()
+    })
 }
