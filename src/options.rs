@@ -40,6 +40,9 @@ pub struct ConvertOptions {
     pub hlod_error_fraction: f64,
     /// Which properties simplified (HLOD, LOD chain) tiles carry; full-detail tiles carry all.
     pub coarse_tile_properties: CoarseTileProperties,
+    /// A model the budgets keep to one heavy tile gets a coarse HLOD root above it when that
+    /// saves its first view a request's worth of bytes (`build::coarse_root`).
+    pub coarse_root: bool,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
     pub dedup: Option<DedupOptions>,
     /// Write a shape drawn several times in a tile once, placed per instance
@@ -74,6 +77,7 @@ impl ConvertOptions {
             simplify: crate::simplify::SimplifyOptions::default(),
             hlod_error_fraction: DEFAULT_HLOD_ERROR_FRACTION,
             coarse_tile_properties: CoarseTileProperties::default(),
+            coarse_root: true,
             dedup: Some(DedupOptions::default()),
             instancing: true,
             min_instanced_triangles_saved: None,

@@ -170,7 +170,6 @@ pub(crate) fn make_report(
     timings: Timings,
     texture_levels: crate::texture::TextureLevels,
 ) -> Report {
-    let plan = &prep.plan;
     let mut levels: Vec<LevelReport> = Vec::new();
     let (mut out_tris, mut out_verts, mut out_stored, mut out_shapes, mut out_instances) =
         (0, 0, 0, 0, 0);
@@ -211,9 +210,9 @@ pub(crate) fn make_report(
         input: prep.input,
         output: OutputReport {
             bytes: out_bytes + tileset_bytes,
-            tiles: plan.tiles.len(),
+            tiles: tiles.len(),
             tiles_with_content: tiles.iter().filter(|t| t.uri.is_some()).count(),
-            max_depth: plan.max_depth(),
+            max_depth: tiles.iter().map(|t| t.depth).max().unwrap_or(0),
             triangles: out_tris,
             vertices: out_verts,
             stored_triangles: out_stored,
@@ -252,6 +251,7 @@ pub(crate) fn make_report(
             "lod": opts.lod.name(),
             "lod_ratios": match &opts.lod { LodMode::Ratios(r) => json!(r), _ => json!(null) },
             "error_metric": opts.error_metric.name(),
+            "coarse_root": opts.coarse_root,
             "dedup": opts.dedup.is_some(),
             "dedup_tolerance_m": opts.dedup.as_ref().map(|d| d.tolerance_m),
             "instancing": opts.instancing,

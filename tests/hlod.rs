@@ -850,3 +850,79 @@ fn railway_and_mini_keep_a_ladder_of_honest_levels() {
         check_honest_and_tight("ISSUE_021_Mini_Project", &out, DRACO_LEAF_GRID_M);
     }
 }
+
+/// What a client fetches for a tile (its GLB and the texture files it references), and the texels
+/// of its images.
+fn fetched_and_texels(dir: &std::path::Path, uri: &str) -> (u64, u64) {
+    let path = dir.join(uri);
+    let glb = read_tile(&path);
+    let g = gltf::Gltf::from_slice_without_validation(&glb).unwrap();
+    let blob = g.blob.as_deref().unwrap_or_default();
+    let mut fetched = std::fs::metadata(&path).unwrap().len();
+    let mut texels = 0;
+    for image in g.images() {
+        let bytes = image_bytes(&path, blob, &image);
+        if let gltf::image::Source::Uri { .. } = image.source() {
+            fetched += bytes.len() as u64;
+        }
+        let im = image::load_from_memory(&bytes).expect("the image decodes");
+        texels += im.width() as u64 * im.height() as u64;
+    }
+    (fetched, texels)
+}
+
+#[test]
+fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
+    // LoD3_Railway is one tile by the budgets: its first view was every texel at full detail.
+    let Some(model) = shared_file("LoD3_Railway.glb") else {
+        return;
+    };
+    let out = tmpdir("coarse-root-railway").join("tiles");
+    let report = convert(&model, &out, &[]);
+    check_tileset(
+        &out,
+        report["input"]["triangles"].as_u64().unwrap() as usize,
+    );
+    let tiles = report["tiles"].as_array().unwrap();
+    let paths: Vec<&str> = tiles.iter().map(|t| t["path"].as_str().unwrap()).collect();
+    assert_eq!(paths, ["r-lod1", "r"]);
+    assert_eq!(report["output"]["tiles"], 2);
+    assert_eq!(report["output"]["max_depth"], 1);
+    // A rung below the framed error, over full detail.
+    check_ladder("LoD3_Railway", &out, true);
+    // Honest: the full detail lies within the root's error. (Not tight: the root declares the
+    // error its texture levels are chosen for, above its geometry's.)
+    for (i, measured, declared, ..) in measure_hlod(&out) {
+        assert!(
+            measured <= declared * 1.0001 + 2e-5 + DRACO_LEAF_GRID_M,
+            "tile {i}: {measured} m > declared {declared} m"
+        );
+    }
+    let (root_fetched, root_texels) = fetched_and_texels(&out, "tiles/r-lod1.glb");
+    let (leaf_fetched, leaf_texels) = fetched_and_texels(&out, "tiles/r.glb");
+    eprintln!(
+        "LoD3_Railway: first view {root_fetched} B, {root_texels} texels; full detail {leaf_fetched} B, {leaf_texels} texels"
+    );
+    assert!(
+        leaf_fetched >= root_fetched + 100_000,
+        "{root_fetched} vs {leaf_fetched}"
+    );
+    assert!(
+        16 * root_texels <= leaf_texels,
+        "{root_texels} vs {leaf_texels}"
+    );
+    gltf_validator(&out);
+    if let Some(views) = decode_meshopt(&out, &tmpdir("coarse-root-railway-decoded")) {
+        assert!(views > 0);
+    }
+
+    // Asked not to, or too light to pay for the request: one tile as before.
+    let one = convert(
+        &model,
+        &tmpdir("coarse-root-railway-off").join("tiles"),
+        &["--no-coarse-root"],
+    );
+    assert_eq!(one["output"]["tiles"], 1);
+    let sample_out = tmpdir("coarse-root-sample").join("tiles");
+    assert_eq!(convert(&sample(), &sample_out, &[])["output"]["tiles"], 1);
+}

@@ -43,7 +43,8 @@ fn metadata_of(dir: &Path, tile_uri: &str) -> Value {
     json["extensions"]["EXT_structural_metadata"].clone()
 }
 
-/// The one tile of a one-tile conversion of LoD3_Railway carries all its textures (the input's
+/// The one tile of a one-tile conversion of LoD3_Railway (without the coarse root above it)
+/// carries all its textures (the input's
 /// own bytes, without cropping) and its schema: the client asks for tileset.json and the GLB.
 #[test]
 fn one_tile_carries_its_textures_and_schema() {
@@ -57,7 +58,7 @@ fn one_tile_carries_its_textures_and_schema() {
         ("ktx2", &["--texture-format", "ktx2"][..]),
     ] {
         let dir = tmpdir(&format!("trips-one-tile-{name}")).join("tiles");
-        let report = convert(&model, &dir, extra);
+        let report = convert(&model, &dir, &[extra, &["--no-coarse-root"]].concat());
         assert_eq!(report["output"]["tiles_with_content"], 1, "{name}");
         assert!(!dir.join("textures").exists(), "{name}: no texture file");
         assert!(!dir.join("schema.json").exists(), "{name}: no schema file");

@@ -5,6 +5,7 @@
 //! whole tree) and for sharded builds (`crate::shard`: jobs build subtrees, `merge` the top).
 
 pub mod chains;
+mod coarse_root;
 pub mod hlod;
 
 use crate::encode::glb::encode_content_with_images;
@@ -16,7 +17,7 @@ use crate::options::{
 };
 use crate::output_dir::write_renamed;
 use crate::partition::content::{AppearanceClasses, TileContent};
-use crate::partition::{ContentItem, TilePlan};
+use crate::partition::{ContentItem, PlannedTile, TilePlan};
 use crate::prepare::Prepared;
 use crate::scene::Scene;
 use crate::texture::single_use::embed_single_use_files;
@@ -148,9 +149,18 @@ impl<'a> TileWriter<'a> {
         self.pb.finish_and_clear();
     }
 
-    fn write(&self, i: usize, content: &TileContent, mut record: TileRecord) -> Result<TileRecord> {
+    fn write(&self, i: usize, content: &TileContent, record: TileRecord) -> Result<TileRecord> {
+        self.write_tile(&self.plan.tiles[i], content, record)
+    }
+
+    /// Encodes `content` as the GLB of `tile` and writes it (`tiles/<path>.glb`).
+    fn write_tile(
+        &self,
+        tile: &PlannedTile,
+        content: &TileContent,
+        mut record: TileRecord,
+    ) -> Result<TileRecord> {
         let (scene, opts, textures) = (self.scene, self.opts, self.textures);
-        let tile = &self.plan.tiles[i];
         let uri = format!("tiles/{}.glb", tile.path);
         let path = self.dir.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
@@ -334,6 +344,14 @@ impl<'a> TileWriter<'a> {
             record.lod_level = self.chain_level.get(records.len()).copied().flatten();
             records.push(record);
         }
+        // A compact model's one heavy tile gets a coarse root above it.
+        let mut plan = std::borrow::Cow::Borrowed(plan);
+        let whole_model = top.roots.into_iter().find(|(i, _)| *i == 0);
+        if let Some((_, full)) = whole_model {
+            if let Some((with_root, with_root_records)) = self.coarse_root(&records, full)? {
+                (plan, records) = (std::borrow::Cow::Owned(with_root), with_root_records);
+            }
+        }
         if let SchemaPlacement::File(_) = self.schema_placement {
             let schema_json = serde_json::to_vec_pretty(&self.schema.to_json(None))
                 .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
@@ -360,7 +378,7 @@ impl<'a> TileWriter<'a> {
         // No schema in tileset.json: no tileset, tile or group metadata uses one, and CesiumJS
         // fetches a tileset's `schemaUri` before the tileset is ready, then drops it (the tiles
         // fetch theirs again): a round trip before the first tile, for nothing.
-        let ts = tileset_json(plan, &records, refine, &origin.enu_to_ecef(), extras);
+        let ts = tileset_json(&plan, &records, refine, &origin.enu_to_ecef(), extras);
         crate::tileset::check_numbers(&ts).map_err(|message| Error::Internal {
             path: (self.scene.sources.first()).map_or_else(Default::default, |s| s.path.clone()),
             message,

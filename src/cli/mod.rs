@@ -174,6 +174,12 @@ struct ConvertArgs {
     /// full-detail tiles, so a first view stays small) or all.
     #[arg(long, value_enum, default_value = "identity")]
     coarse_properties: CoarsePropertiesArg,
+    /// Keep a model that the tile budgets leave as one tile as that one tile. By default, when
+    /// that tile is heavy (textures, geometry), a coarse root simplified to what a viewer framing
+    /// the model needs, with texture levels to match, goes above it when it saves the first view
+    /// at least 100 KB.
+    #[arg(long)]
+    no_coarse_root: bool,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
     /// default) or paper-sse (the paper's screen-space error of the longest collapsed edge,
     /// formulas (1) and (2): not a distance bound). The report shows both per level.
@@ -607,6 +613,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             CoarsePropertiesArg::Identity => CoarseTileProperties::Identity,
             CoarsePropertiesArg::All => CoarseTileProperties::All,
         },
+        coarse_root: !a.no_coarse_root,
         dedup: (!a.no_dedup).then(|| DedupOptions {
             tolerance_m: a.dedup_tolerance_m,
             ..DedupOptions::default()

@@ -149,6 +149,32 @@ impl TilePlan {
         }
         TilePlan { tiles: out }
     }
+
+    /// A one-tile plan with a coarse root above its tile: the new root (named `<path>-lod1`, as
+    /// the first coarser level of a discrete LOD chain) has no content items of its own and the
+    /// old tile, one level down and named as before, as its only child. `None` unless the plan
+    /// is one tile.
+    pub fn under_coarse_root(&self) -> Option<TilePlan> {
+        let [leaf] = &self.tiles[..] else {
+            return None;
+        };
+        let root = PlannedTile {
+            path: format!("{}-lod1", leaf.path),
+            depth: 0,
+            content: Vec::new(),
+            children: vec![1],
+            content_bounds: Aabb::EMPTY,
+            content_triangles: 0,
+            ..leaf.clone()
+        };
+        let leaf = PlannedTile {
+            depth: 1,
+            ..leaf.clone()
+        };
+        Some(TilePlan {
+            tiles: vec![root, leaf],
+        })
+    }
 }
 
 struct Item {
@@ -751,5 +777,31 @@ mod tests {
             );
         }
         check_invariants(&s, &plan, &opts);
+    }
+
+    #[test]
+    fn a_coarse_root_goes_above_a_one_tile_plan_only() {
+        let s = boxes(&[(DVec3::ZERO, 1.0), (DVec3::new(3.0, 0.0, 0.0), 1.0)]);
+        let plan = plan_octree(&s, &OctreeOptions::default());
+        assert_eq!(plan.tiles.len(), 1);
+        let two = plan.under_coarse_root().expect("one tile");
+        let [root, leaf] = &two.tiles[..] else {
+            panic!("two tiles")
+        };
+        assert_eq!((root.path.as_str(), root.depth), ("r-lod1", 0));
+        assert_eq!((leaf.path.as_str(), leaf.depth), ("r", 1));
+        assert_eq!(root.children, [1]);
+        assert!(root.content.is_empty() && leaf.children.is_empty());
+        assert_eq!(leaf.content.len(), plan.tiles[0].content.len());
+        assert_eq!(root.bounds, leaf.bounds);
+        assert!(two.under_coarse_root().is_none());
+        let split = plan_octree(
+            &s,
+            &OctreeOptions {
+                max_tile_triangles: 12,
+                ..Default::default()
+            },
+        );
+        assert!(split.tiles.len() > 1 && split.under_coarse_root().is_none());
     }
 }

@@ -386,6 +386,11 @@ impl<'a> TextureLevels<'a> {
         (bytes, mime)
     }
 
+    /// The bytes a tile fetches for `id` at `level` (what [`Self::fetch`] gives; nothing counted).
+    pub fn shipped_bytes(&self, id: ImageId, level: usize) -> usize {
+        self.level_bytes(id, level).0.len()
+    }
+
     /// How one tile carries `id` at `level` (as [`Self::fetch`]): a shared file written on first
     /// use, or embedded bytes.
     pub fn tile_image(&self, id: ImageId, level: usize) -> Result<TileImage, external::StoreError> {

@@ -115,6 +115,22 @@ pub fn embed_images(
     Ok(glb_container(&json, &bin))
 }
 
+/// What a client fetches for the tile `uri` (a GLB relative to `dir`): its bytes and those of the
+/// shared texture files it references.
+pub fn fetched_bytes(dir: &Path, uri: &str) -> Result<u64> {
+    let path = dir.join(uri);
+    let size = |p: &Path| {
+        std::fs::metadata(p)
+            .map(|m| m.len())
+            .map_err(|e| Error::output_from(p, "cannot read the written file", e))
+    };
+    let mut bytes = size(&path)?;
+    for (_, name) in shared_files(&read_json_chunk(&path)?) {
+        bytes += size(&dir.join(TEXTURE_DIR).join(name))?;
+    }
+    Ok(bytes)
+}
+
 /// Moves every file of `<dir>/textures/` that exactly one of `tiles` (GLB URIs relative to
 /// `dir`) references into that tile, then removes the file.
 pub fn embed_single_use_files(dir: &Path, tiles: &[&str]) -> Result<SingleUseEmbedded> {
@@ -241,6 +257,11 @@ mod tests {
         assert_eq!(done.tile_bytes["tiles/r.glb"], r.len() as u64);
         let files = shared_files(&crate::glb_container::json_chunk(&r).unwrap());
         assert_eq!(files, vec![(0, "a.png".to_string())]);
+        assert_eq!(
+            fetched_bytes(&dir, "tiles/r.glb").unwrap(),
+            r.len() as u64 + 5,
+            "the GLB and the file it still references"
+        );
         assert_eq!(std::fs::read(dir.join("tiles/r0.glb")).unwrap(), only_a);
         std::fs::remove_dir_all(&dir).unwrap();
     }
