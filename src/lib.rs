@@ -32,6 +32,7 @@ pub mod shard;
 pub mod simplify;
 pub mod texture;
 pub mod tileset;
+pub mod transfer;
 
 pub use error::{Error, Result};
 
@@ -47,6 +48,7 @@ pub const LAYERS: &[&[&str]] = &[
         "glb_container",
         "output_dir",
         "draco",
+        "transfer",
     ],
     &["scene"],
     &["ingest"],

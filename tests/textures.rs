@@ -204,9 +204,10 @@ fn check_levels(run: &Run, input_images: &BTreeSet<Vec<u8>>) -> (usize, usize) {
     (coarser, textured)
 }
 
-/// Every shared texture file is referenced by two tiles or more (a file of one tile is moved into
-/// it), written once (distinct bytes), named by its bytes, and at least 1 KiB (smaller levels are
-/// embedded by default); returns how many files there are.
+/// Every shared texture file is referenced by tiles whose copies of it would cost more than a
+/// request (100 KB; cheaper files are moved into their tiles), written once (distinct bytes),
+/// named by its bytes, and at least 1 KiB (smaller levels are embedded by default); returns how
+/// many files there are.
 fn check_shared_files(run: &Run) -> usize {
     let dir = run.dir.join("textures");
     let mut users: BTreeMap<String, usize> = BTreeMap::new();
@@ -235,7 +236,11 @@ fn check_shared_files(run: &Run) -> usize {
         let name = e.file_name().to_string_lossy().to_string();
         let bytes = std::fs::read(e.path()).unwrap();
         let tiles = users.get(&name).copied().unwrap_or(0);
-        assert!(tiles >= 2, "{name} is used by {tiles} tiles, not shared");
+        assert!(
+            tiles >= 2 && (tiles as u64 - 1) * bytes.len() as u64 > 100_000,
+            "{name} ({} B) is used by {tiles} tiles: cheaper copied than shared",
+            bytes.len()
+        );
         assert!(bytes.len() >= 1024, "{name}: {} B", bytes.len());
         assert_eq!(
             name,
@@ -325,12 +330,15 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
         100.0 * v_on.texture_bytes as f64 / original as f64
     );
     // Measured, not asserted against the <10 % target: whole-model views of these small models
-    // reach leaves, which carry full resolution. Shared files count once, so a view never loads
-    // more than the stored textures plus the small levels embedded below 1 KiB.
+    // reach leaves, which carry full resolution. Shared files count once, and a file is copied
+    // into its tiles only while the copies add at most 100 KB (a request's worth), so a view
+    // never loads more than the stored textures, those copies, and the small levels embedded
+    // below 1 KiB.
     assert!(v_on.texture_bytes <= v_off.texture_bytes);
     let stored = tex["stored_bytes"].as_u64().unwrap();
+    let images = tex["images_bound"].as_u64().unwrap();
     assert!(
-        v_off.texture_bytes <= stored + 1024 * v_off.images as u64,
+        v_off.texture_bytes <= stored + 100_000 * images + 1024 * v_off.images as u64,
         "{name}: LOD off loads {} B, stored {stored} B",
         v_off.texture_bytes
     );

@@ -23,7 +23,7 @@ use crate::partition::content::TileContent;
 use crate::partition::TilePlan;
 use crate::texture::single_use::fetched_bytes;
 use crate::texture::TileTextures;
-use crate::tileset::metadata::SEQUENTIAL_REQUEST_WORTH_BYTES;
+use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Mutex;
 

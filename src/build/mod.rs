@@ -20,7 +20,7 @@ use crate::partition::content::{AppearanceClasses, TileContent};
 use crate::partition::{ContentItem, PlannedTile, TilePlan};
 use crate::prepare::Prepared;
 use crate::scene::Scene;
-use crate::texture::single_use::embed_single_use_files;
+use crate::texture::single_use::embed_files_cheaper_than_a_request;
 use crate::tileset::metadata::{MetadataSchema, SchemaPlacement, TableScope};
 use crate::tileset::{tileset_json, Refine};
 use chains::build_chains;
@@ -311,8 +311,8 @@ impl<'a> TileWriter<'a> {
     }
 
     /// Builds the tiles above the subtree `roots` from the jobs' outputs, moves each texture file
-    /// one tile alone uses into it, then writes schema.json (when the tiles share it) and
-    /// tileset.json; returns every tile's figures, in plan order.
+    /// whose copies cost less than a request into the tiles using it, then writes schema.json
+    /// (when the tiles share it) and tileset.json; returns every tile's figures, in plan order.
     pub(crate) fn merge(
         &self,
         jobs: Vec<JobOutput>,
@@ -368,7 +368,7 @@ impl<'a> TileWriter<'a> {
         };
         if !opts.texture.embed {
             let uris: Vec<&str> = records.iter().filter_map(|r| r.uri.as_deref()).collect();
-            let moved = embed_single_use_files(tmp, &uris)?;
+            let moved = embed_files_cheaper_than_a_request(tmp, &uris)?;
             for r in &mut records {
                 if let Some(&bytes) = r.uri.as_ref().and_then(|u| moved.tile_bytes.get(u)) {
                     r.content.bytes = bytes;

@@ -15,10 +15,9 @@
 //! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
 //! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`; once every tile is
-//! written, a file that one tile alone references moves into that tile ([`single_use`]). With
-//! `atlas`, a tile's
-//! small non-repeating images are packed into one image when that saves requests and bytes
-//! ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
+//! written, a file whose copies cost less than a request moves into the tiles that reference it
+//! ([`single_use`]). With `atlas`, a tile's small non-repeating images are packed into one image
+//! when that saves requests and bytes ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
 
 pub mod admit;
 pub mod atlas;

@@ -1,30 +1,33 @@
-//! Shared texture files that one tile alone references, moved into that tile (issue 28): once
-//! every tile is written, each file under `textures/` ([`super::external`]) that a single tile
-//! references becomes a `bufferView` image of that tile's GLB (glTF 2.0 §3.6.1.1, "images" with
-//! `bufferView` and `mimeType`) and the file is removed. A separate file pays off only when
-//! several tiles share it (downloaded and cached once); a file of one tile costs the client a
-//! request (CesiumJS fetches a tile's images only after its GLB, so one round trip more before
-//! the tile shows) for no bytes saved. Run over the written tiles, not while they are written,
-//! because which tiles use a pyramid level is known only at the end (HLOD content, atlases,
-//! sharded jobs): the result depends only on the tiles' bytes, so every build of the same
-//! tileset (threads, memory budgets, shards) gives the same bytes.
+//! Shared texture files whose copies cost less than a request, moved into the tiles that
+//! reference them (issue 28): once every tile is written, each file under `textures/`
+//! ([`super::external`]) that `n` tiles reference, where `(n - 1) x its bytes` is at most
+//! [`SEQUENTIAL_REQUEST_WORTH_BYTES`], becomes a `bufferView` image of each of those tiles' GLBs
+//! (glTF 2.0 §3.6.1.1, "images" with `bufferView` and `mimeType`) and the file is removed. A
+//! separate file is downloaded and cached once, but costs every tile that uses it a request
+//! (CesiumJS fetches a tile's images only after its GLB, so one round trip more before the tile
+//! shows): it pays off only when its copies would cost more than that, the rule the schema's
+//! placement follows. A file of one tile always moves. Run over the written tiles, not while
+//! they are written, because which tiles use a pyramid level is known only at the end (HLOD
+//! content, atlases, sharded jobs): the result depends only on the tiles' bytes, so every build
+//! of the same tileset (threads, memory budgets, shards) gives the same bytes.
 
 use super::external::TEXTURE_DIR;
 use crate::error::{Error, Result};
 use crate::glb_container::glb_container;
 use crate::output_dir::write_renamed;
+use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
 use rayon::prelude::*;
 use serde_json::{json, Value};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 /// How a tile in `tiles/` refers to a shared file.
 const FROM_TILES: &str = "../textures/";
 
-/// What moving single-use files into their tiles did.
+/// What moving texture files into the tiles that use them did.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct SingleUseEmbedded {
-    /// Files moved into a tile (and removed from `textures/`).
+pub struct FilesEmbedded {
+    /// Files moved into the tiles that use them (and removed from `textures/`).
     pub files: usize,
     /// New size of each rewritten tile, by its URI relative to the tileset.
     pub tile_bytes: BTreeMap<String, u64>,
@@ -92,14 +95,23 @@ pub fn embed_images(
             .ok_or(EmbedError::Short)?
             .to_vec(),
     };
+    // Images with the same bytes (one file referenced twice) share one view.
+    let mut view_of: BTreeMap<&[u8], usize> = BTreeMap::new();
     for (image, bytes) in files {
-        bin.resize(bin.len().next_multiple_of(4), 0);
-        let views = gltf["bufferViews"]
-            .as_array_mut()
-            .ok_or(EmbedError::NoBufferViews)?;
-        views.push(json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()}));
-        let view = views.len() - 1;
-        bin.extend_from_slice(bytes);
+        let view = match view_of.get(&bytes[..]) {
+            Some(&view) => view,
+            None => {
+                bin.resize(bin.len().next_multiple_of(4), 0);
+                let views = gltf["bufferViews"]
+                    .as_array_mut()
+                    .ok_or(EmbedError::NoBufferViews)?;
+                views
+                    .push(json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()}));
+                bin.extend_from_slice(bytes);
+                view_of.insert(bytes, views.len() - 1);
+                views.len() - 1
+            }
+        };
         let im = gltf["images"][*image]
             .as_object_mut()
             .ok_or(EmbedError::NoImage(*image))?;
@@ -131,12 +143,12 @@ pub fn fetched_bytes(dir: &Path, uri: &str) -> Result<u64> {
     Ok(bytes)
 }
 
-/// Moves every file of `<dir>/textures/` that exactly one of `tiles` (GLB URIs relative to
-/// `dir`) references into that tile, then removes the file.
-pub fn embed_single_use_files(dir: &Path, tiles: &[&str]) -> Result<SingleUseEmbedded> {
+/// Moves every file of `<dir>/textures/` whose copies cost less than a request (module docs)
+/// into each of `tiles` (GLB URIs relative to `dir`) that references it, then removes the file.
+pub fn embed_files_cheaper_than_a_request(dir: &Path, tiles: &[&str]) -> Result<FilesEmbedded> {
     let texture_dir = dir.join(TEXTURE_DIR);
     if !texture_dir.is_dir() {
-        return Ok(SingleUseEmbedded::default());
+        return Ok(FilesEmbedded::default());
     }
     let listed = tiles
         .par_iter()
@@ -148,11 +160,25 @@ pub fn embed_single_use_files(dir: &Path, tiles: &[&str]) -> Result<SingleUseEmb
             users.entry(name).or_default().push(t);
         }
     }
-    // Per tile, the images whose file it alone uses.
+    let file_bytes = |name: &str| {
+        let p = texture_dir.join(name);
+        std::fs::metadata(&p)
+            .map(|m| m.len())
+            .map_err(|e| Error::output_from(&p, "cannot read the written texture", e))
+    };
+    let mut cheap = BTreeSet::new();
+    for (&name, users) in &users {
+        // A tile may reference one file from several images: its copies are per tile.
+        let tiles = users.iter().collect::<BTreeSet<_>>().len() as u64;
+        if (tiles - 1) * file_bytes(name)? <= SEQUENTIAL_REQUEST_WORTH_BYTES as u64 {
+            cheap.insert(name);
+        }
+    }
+    // Per tile, the images whose file moves into it.
     let mut moves: BTreeMap<usize, Vec<(usize, &str)>> = BTreeMap::new();
     for (t, files) in listed.iter().enumerate() {
         for (image, name) in files {
-            if users[name.as_str()].len() == 1 {
+            if cheap.contains(name.as_str()) {
                 moves.entry(t).or_default().push((*image, name));
             }
         }
@@ -179,8 +205,7 @@ pub fn embed_single_use_files(dir: &Path, tiles: &[&str]) -> Result<SingleUseEmb
             Ok((tiles[t].to_string(), glb.len() as u64))
         })
         .collect::<Result<BTreeMap<_, _>>>()?;
-    let single: Vec<&str> = moves.values().flatten().map(|&(_, n)| n).collect();
-    for name in &single {
+    for name in &cheap {
         let p = texture_dir.join(name);
         std::fs::remove_file(&p)
             .map_err(|e| Error::output_from(&p, "cannot remove the embedded texture", e))?;
@@ -188,8 +213,8 @@ pub fn embed_single_use_files(dir: &Path, tiles: &[&str]) -> Result<SingleUseEmb
     if std::fs::read_dir(&texture_dir).is_ok_and(|mut d| d.next().is_none()) {
         let _ = std::fs::remove_dir(&texture_dir);
     }
-    Ok(SingleUseEmbedded {
-        files: single.len(),
+    Ok(FilesEmbedded {
+        files: cheap.len(),
         tile_bytes: rewritten,
     })
 }
@@ -234,32 +259,47 @@ mod tests {
         }
         assert_eq!(&bin[..6], &[1, 2, 3, 4, 5, 6], "the old buffer is kept");
         assert_eq!(g.buffers().next().unwrap().length(), 11);
+        let twice = embed_images(&glb_of_two_files(), &[(0, vec![5]), (1, vec![5])]).unwrap();
+        let g = gltf::Gltf::from_slice(&twice).unwrap();
+        let views: Vec<usize> = (g.images())
+            .map(|im| match im.source() {
+                gltf::image::Source::View { view, .. } => view.index(),
+                _ => panic!("embedded"),
+            })
+            .collect();
+        assert_eq!(views[0], views[1], "the same bytes are stored once");
     }
 
     #[test]
-    fn only_files_of_one_tile_move_and_are_removed() {
+    fn files_cheaper_than_a_request_move_and_are_removed() {
         let dir = std::env::temp_dir().join(format!("bimtiles-single-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("tiles")).unwrap();
         std::fs::create_dir_all(dir.join(TEXTURE_DIR)).unwrap();
-        std::fs::write(dir.join("textures/a.png"), [1u8; 5]).unwrap();
+        let big = SEQUENTIAL_REQUEST_WORTH_BYTES / 2 + 1;
+        std::fs::write(dir.join("textures/a.png"), vec![1u8; big]).unwrap();
         std::fs::write(dir.join("textures/b.jpg"), [2u8; 7]).unwrap();
-        // Tile r uses a and b, tile r0 uses a only: b moves into r, a stays a file.
+        // Tiles r and r1 use a and b, tile r0 uses a only: two copies of b cost less than a
+        // request, so b moves into r and r1; two more copies of a would cost more: a stays.
         std::fs::write(dir.join("tiles/r.glb"), glb_of_two_files()).unwrap();
+        std::fs::write(dir.join("tiles/r1.glb"), glb_of_two_files()).unwrap();
         let only_a = embed_images(&glb_of_two_files(), &[(1, vec![0])]).unwrap();
         std::fs::write(dir.join("tiles/r0.glb"), &only_a).unwrap();
-        let done = embed_single_use_files(&dir, &["tiles/r.glb", "tiles/r0.glb"]).unwrap();
+        let tiles = ["tiles/r.glb", "tiles/r0.glb", "tiles/r1.glb"];
+        let done = embed_files_cheaper_than_a_request(&dir, &tiles).unwrap();
         assert_eq!(done.files, 1);
-        assert_eq!(done.tile_bytes.keys().collect::<Vec<_>>(), ["tiles/r.glb"]);
+        let rewritten: Vec<&String> = done.tile_bytes.keys().collect();
+        assert_eq!(rewritten, ["tiles/r.glb", "tiles/r1.glb"]);
         assert!(dir.join("textures/a.png").exists());
         assert!(!dir.join("textures/b.jpg").exists());
         let r = std::fs::read(dir.join("tiles/r.glb")).unwrap();
         assert_eq!(done.tile_bytes["tiles/r.glb"], r.len() as u64);
+        assert_eq!(std::fs::read(dir.join("tiles/r1.glb")).unwrap(), r);
         let files = shared_files(&crate::glb_container::json_chunk(&r).unwrap());
         assert_eq!(files, vec![(0, "a.png".to_string())]);
         assert_eq!(
             fetched_bytes(&dir, "tiles/r.glb").unwrap(),
-            r.len() as u64 + 5,
+            (r.len() + big) as u64,
             "the GLB and the file it still references"
         );
         assert_eq!(std::fs::read(dir.join("tiles/r0.glb")).unwrap(), only_a);

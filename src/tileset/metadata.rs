@@ -9,6 +9,7 @@
 
 use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
 use crate::scene::{Component, ComponentId, ElementInfo, PropertyValue, Scene, SharedText};
+use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
 use serde_json::{json, Map, Value};
 use std::collections::{BTreeMap, HashMap};
 
@@ -26,12 +27,6 @@ const ENUM_MIN_USES_PER_VALUE: usize = 4;
 /// `noData` of FLOAT64 properties: no real property value is this.
 pub const NO_NUMBER: f64 = f64::MIN;
 
-/// What a sequential request costs, in bytes that could be sent instead: one round trip on the
-/// link the browser benchmark throttles to (README, "First view"): 20 Mbit/s x 40 ms = 100 KB.
-/// The schema is such a request: CesiumJS reads a tile's `EXT_structural_metadata` schema before
-/// the tile can show, so `schemaUri` costs the first tile one more round trip after its GLB.
-pub const SEQUENTIAL_REQUEST_WORTH_BYTES: usize = 100_000;
-
 /// Where the tiles of a tileset find the metadata schema.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum SchemaPlacement {
@@ -46,6 +41,9 @@ impl SchemaPlacement {
     /// part of it) costs no more than the request the file would: always for a one-tile tileset
     /// (the same bytes, one round trip fewer), else when `(tiles - 1) x schema_bytes` is at most
     /// [`SEQUENTIAL_REQUEST_WORTH_BYTES`]. `content_tiles`: tiles that may have content, at most.
+    /// (The file is a sequential request: CesiumJS reads a tile's `EXT_structural_metadata`
+    /// schema before the tile can show, so `schemaUri` costs the first tile one more round trip
+    /// after its GLB.)
     pub fn choose(content_tiles: usize, schema_bytes: usize, file_uri: &str) -> SchemaPlacement {
         let repeated_bytes = content_tiles.saturating_sub(1).saturating_mul(schema_bytes);
         match repeated_bytes <= SEQUENTIAL_REQUEST_WORTH_BYTES {
