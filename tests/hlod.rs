@@ -904,7 +904,7 @@ fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
         "LoD3_Railway: first view {root_fetched} B, {root_texels} texels; full detail {leaf_fetched} B, {leaf_texels} texels"
     );
     assert!(
-        leaf_fetched >= root_fetched + 100_000,
+        leaf_fetched >= root_fetched + bimtiles::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES as u64,
         "{root_fetched} vs {leaf_fetched}"
     );
     assert!(

@@ -116,9 +116,9 @@ fn check_model(model: &Path, compression: &str) {
     let name = model.file_stem().unwrap().to_string_lossy().to_string();
     let d = tmpdir(&format!("{compression}-{name}"));
     let (plain, quant) = (d.join("none"), d.join(compression));
-    // A coarse root above a one-tile model depends on the tile's bytes, so on the compression:
-    // none, and the tiles of `none` (materials apart, repeated shapes instanced from 100 saved
-    // triangles), so vertices compare one to one.
+    // The same tiles on both sides, so vertices compare one to one: no coarse root (whether a
+    // one-tile model gets one depends on its bytes, so on the compression), and with meshopt the
+    // tiles of `none` (materials apart, repeated shapes instanced from 100 saved triangles).
     let rp = convert(
         model,
         &plain,

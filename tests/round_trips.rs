@@ -132,7 +132,7 @@ fn shared_textures_stay_files_in_a_multi_tile_tileset() {
             .unwrap()
             .len();
         assert!(
-            (*n as u64 - 1) * bytes > 100_000,
+            (*n as u64 - 1) * bytes > bimtiles::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES as u64,
             "{uri}: {n} copies of {bytes} B cost less than a request"
         );
     }

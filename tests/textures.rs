@@ -237,7 +237,9 @@ fn check_shared_files(run: &Run) -> usize {
         let bytes = std::fs::read(e.path()).unwrap();
         let tiles = users.get(&name).copied().unwrap_or(0);
         assert!(
-            tiles >= 2 && (tiles as u64 - 1) * bytes.len() as u64 > 100_000,
+            tiles >= 2
+                && (tiles as u64 - 1) * bytes.len() as u64
+                    > bimtiles::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES as u64,
             "{name} ({} B) is used by {tiles} tiles: cheaper copied than shared",
             bytes.len()
         );
@@ -338,7 +340,10 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
     let stored = tex["stored_bytes"].as_u64().unwrap();
     let images = tex["images_bound"].as_u64().unwrap();
     assert!(
-        v_off.texture_bytes <= stored + 100_000 * images + 1024 * v_off.images as u64,
+        v_off.texture_bytes
+            <= stored
+                + bimtiles::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES as u64 * images
+                + 1024 * v_off.images as u64,
         "{name}: LOD off loads {} B, stored {stored} B",
         v_off.texture_bytes
     );

@@ -17,7 +17,8 @@
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`; once every tile is
 //! written, a file whose copies cost less than a request moves into the tiles that reference it
 //! ([`single_use`]). With `atlas`, a tile's small non-repeating images are packed into one image
-//! when that saves requests and bytes ([`atlas`]). `tileset::view` measures what a client loads for a first whole-model view.
+//! when that saves requests and bytes ([`atlas`]). `tileset::view` measures what a client loads
+//! for a first whole-model view.
 
 pub mod admit;
 pub mod atlas;

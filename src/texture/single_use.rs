@@ -154,10 +154,11 @@ pub fn embed_files_cheaper_than_a_request(dir: &Path, tiles: &[&str]) -> Result<
         .par_iter()
         .map(|&uri| Ok(shared_files(&read_json_chunk(&dir.join(uri))?)))
         .collect::<Result<Vec<_>>>()?;
-    let mut users: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
+    // The tiles referencing each file (a tile may do so from several images).
+    let mut users: BTreeMap<&str, BTreeSet<usize>> = BTreeMap::new();
     for (t, files) in listed.iter().enumerate() {
         for (_, name) in files {
-            users.entry(name).or_default().push(t);
+            users.entry(name).or_default().insert(t);
         }
     }
     let file_bytes = |name: &str| {
@@ -167,10 +168,9 @@ pub fn embed_files_cheaper_than_a_request(dir: &Path, tiles: &[&str]) -> Result<
             .map_err(|e| Error::output_from(&p, "cannot read the written texture", e))
     };
     let mut cheap = BTreeSet::new();
-    for (&name, users) in &users {
-        // A tile may reference one file from several images: its copies are per tile.
-        let tiles = users.iter().collect::<BTreeSet<_>>().len() as u64;
-        if (tiles - 1) * file_bytes(name)? <= SEQUENTIAL_REQUEST_WORTH_BYTES as u64 {
+    for (&name, tiles) in &users {
+        let copies = tiles.len() as u64 - 1;
+        if copies * file_bytes(name)? <= SEQUENTIAL_REQUEST_WORTH_BYTES as u64 {
             cheap.insert(name);
         }
     }
