@@ -263,17 +263,7 @@ fn draco_tiles_stay_within_a_millimetre_of_the_uncompressed_ones() {
     let (_, ta) = decode_tileset(&a);
     let (_, tb) = decode_tileset(&b);
     // Full detail: 1 mm per axis. Simplified tiles may use a coarser grid, reported per tile.
-    let grid_m: std::collections::HashMap<String, f64> = ra["tiles"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|t| {
-            Some((
-                t["content"].as_str()?.to_string(),
-                t["max_position_error_m"].as_f64()?,
-            ))
-        })
-        .collect();
+    let grid_m = position_grids_m(&ra);
     let (mut worst, mut n, mut coarse) = (0.0f64, 0usize, 0usize);
     for (x, y) in ta.iter().zip(&tb) {
         assert_eq!(x.uri, y.uri);

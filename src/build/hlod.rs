@@ -12,7 +12,7 @@
 //! is bounded too.
 
 use super::gather;
-use crate::encode::glb::{draco_flattens, DEFAULT_MAX_POSITION_ERROR_M};
+use crate::encode::glb::{grid_flattens, DEFAULT_MAX_POSITION_ERROR_M};
 use crate::encode::Compression;
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
@@ -131,32 +131,36 @@ impl HlodBuilder<'_> {
         })
     }
 
-    /// The Draco grid (metres per axis) of a simplified tile's content, which it may thin. The
+    /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
     /// coarse grid flattens some thin triangles, and a flat triangle draws nothing (LoD3_Railway at
     /// 1,000 triangles a tile lost 51 of a tile's 253 triangles, 0.67 m from full detail where
-    /// 0.43 m was declared). The ones Draco's grid flattens are dropped and the rest measured
-    /// again, kept if that costs no more than the grid's share; otherwise the grid stays finer
-    /// than the thinnest triangle.
+    /// 0.43 m was declared). The ones the compression's grid flattens are dropped and the rest
+    /// measured again, kept if that costs no more than the grid's share; otherwise a grid
+    /// [`GRID_FALLBACK_STEP`] times finer is tried, a few times, before the grid stays finer than
+    /// the thinnest triangle.
     fn fit_grid(
         &self,
         reference: &ErrorReference,
         content: &mut TileContent,
         err: &mut TileError,
     ) -> f64 {
-        let per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
-        if per_axis_m <= fine_grid_m(self.opts.compression) {
-            return per_axis_m;
+        let fine_m = fine_grid_m(self.opts.compression);
+        let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
+        for _ in 0..GRID_TRIES {
+            if per_axis_m <= fine_m {
+                return fine_m;
+            }
+            let Some(kept) = without_flattened(self.opts.compression, content, per_axis_m) else {
+                return per_axis_m;
+            };
+            let kept_err = reference.measure(&kept, &self.opts.simplify);
+            if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
+                (*content, *err) = (kept, kept_err);
+                return per_axis_m;
+            }
+            per_axis_m /= GRID_FALLBACK_STEP;
         }
-        let Some(kept) = without_flattened(content, per_axis_m) else {
-            return per_axis_m;
-        };
-        let kept_err = reference.measure(&kept, &self.opts.simplify);
-        if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
-            (*content, *err) = (kept, kept_err);
-            per_axis_m
-        } else {
-            with_quantization(self.opts.compression, err.error_m, content).0
-        }
+        with_quantization(self.opts.compression, err.error_m, content).0
     }
 
     pub(crate) fn build(&self, i: usize) -> Result<BuiltSubtree> {
@@ -440,11 +444,18 @@ pub const HLOD_MIN_TRIANGLES: usize = 500;
 /// without).
 pub const HLOD_COARSEN_TRIES: usize = 2;
 
-/// Share of a simplified tile's measured error that Draco's position quantization may add on top
-/// of it: a tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices
-/// then cost fewer bits (Mini_Project's root, 37 m across: 15 -> 11 bits per coordinate); the
-/// declared error includes the quantization, so it stays honest and grows by at most this share.
+/// Share of a simplified tile's measured error that position quantization may add on top of it:
+/// a tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices then
+/// cost fewer bits (Mini_Project's root, 37 m across: Draco's 15 -> 11 bits per coordinate, fewer
+/// distinct values for meshopt's codec); the declared error includes the quantization, so it
+/// stays honest and grows by at most this share.
 pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
+
+/// Grids a simplified tile tries, each [`GRID_FALLBACK_STEP`] times finer than the last, before
+/// its grid is kept finer than its thinnest triangle: the airport's root flattens triangles that
+/// matter on the grid of its error's share, not on one 16 times finer.
+const GRID_TRIES: usize = 3;
+const GRID_FALLBACK_STEP: f64 = 4.0;
 
 /// Quantization of a simplified tile whose content lies within `measured_m` of full detail:
 /// `(per_axis_m, error_m)`, the largest per-axis position error it may add and the tile's error
@@ -476,25 +487,22 @@ fn fine_grid_m(c: Compression) -> f64 {
 }
 
 /// The per-axis position error a simplified tile measured within `measured_m` of full detail
-/// may add: 1 mm, or with Draco a share of the measured error when that is more
-/// (KHR_mesh_quantization keeps 16 bits whatever the grid, so gains nothing from a coarser one).
+/// may add: a share of the measured error, at least 1 mm; none without compression.
 pub(crate) fn coarse_grid_m(c: Compression, measured_m: f64) -> f64 {
     match c {
-        Compression::Draco => {
-            DEFAULT_MAX_POSITION_ERROR_M.max(COARSE_QUANTIZATION_SHARE * measured_m / 3f64.sqrt())
-        }
-        _ => fine_grid_m(c),
+        Compression::None => fine_grid_m(c),
+        _ => DEFAULT_MAX_POSITION_ERROR_M.max(COARSE_QUANTIZATION_SHARE * measured_m / 3f64.sqrt()),
     }
 }
 
-/// `content` without the triangles Draco's grid for `per_axis_m` flattens
-/// ([`draco_flattens`]), or `None` when it flattens none.
-fn without_flattened(content: &TileContent, per_axis_m: f64) -> Option<TileContent> {
-    let flat: Vec<Vec<bool>> = content
-        .primitives
-        .iter()
-        .map(|p| draco_flattens(&p.positions, &p.indices, per_axis_m))
-        .collect();
+/// `content` without the triangles the grid of `c` for `per_axis_m` flattens
+/// ([`grid_flattens`]), or `None` when it flattens none.
+fn without_flattened(
+    c: Compression,
+    content: &TileContent,
+    per_axis_m: f64,
+) -> Option<TileContent> {
+    let flat = grid_flattens(c, &content.primitives, per_axis_m);
     if !flat.iter().flatten().any(|&f| f) {
         return None;
     }

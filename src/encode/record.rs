@@ -62,7 +62,7 @@ pub struct TileRecord {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub paper_error_m: Option<f64>,
     /// Simplified tiles: the largest per-axis position error quantization may add (metres; full
-    /// detail has 1 mm with `draco` and `quantized`). `None`: the encoding's default.
+    /// detail has 1 mm with every compression but `none`). `None`: the encoding's default.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_position_error_m: Option<f64>,
     /// Discrete chains (`--lod-ratios`): the tile's LOD (0 = full detail).

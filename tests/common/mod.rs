@@ -175,6 +175,23 @@ pub fn convert(input: &Path, out: &Path, extra: &[&str]) -> Value {
     serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
 }
 
+/// The position grid (metres per axis) of each simplified tile's content, by URI, from a
+/// conversion's report: simplified tiles may quantize on a share of their error, coarser than
+/// full detail's 1 mm.
+pub fn position_grids_m(report: &Value) -> std::collections::HashMap<String, f64> {
+    report["tiles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|t| {
+            Some((
+                t["content"].as_str()?.to_string(),
+                t["max_position_error_m"].as_f64()?,
+            ))
+        })
+        .collect()
+}
+
 /// Runs the Khronos glTF validator (npm) over a folder; returns (files, errors, warnings), or None
 /// when Node or the package is not installed (and tools are not required). Tiles may reach shared
 /// files anywhere in their tileset (`../textures/`): the tileset folder (`dir`, or its parent for

@@ -203,24 +203,72 @@ fn draco_box(positions: &[[f32; 3]]) -> ([f32; 3], f64) {
     (lo, extent)
 }
 
-/// Per triangle of a primitive (scene frame, as content holds it), whether Draco's grid for
-/// `max_position_error_m` ([`draco_grid_positions`]) flattens it: drawn with no area, it shows
-/// nothing of what it stood for.
-pub fn draco_flattens(
-    positions_z_up: &[[f32; 3]],
-    indices: &[u32],
+/// Per triangle of each of `prims` (one mesh, scene frame as content holds it), whether the grid
+/// that `compression` writes positions on within `max_position_error_m` flattens it: drawn with
+/// no area, it shows nothing of what it stood for. Draco quantizes each primitive in its own box
+/// ([`draco_grid_positions`]); quantized and meshopt tiles put the whole mesh on one frame
+/// ([`QuantFrame`], judged on its integers, so exactly), or meshopt's exponent filter when the
+/// mesh is too wide for the frame.
+pub fn grid_flattens(
+    compression: Compression,
+    prims: &[ContentPrimitive],
     max_position_error_m: f64,
-) -> Vec<bool> {
-    let drawn = draco_grid_positions(&y_up(positions_z_up), max_position_error_m);
-    let at = |i: u32| {
-        let v = drawn[i as usize];
-        DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+) -> Vec<Vec<bool>> {
+    let flat_where = |p: &ContentPrimitive, flat: &dyn Fn([u32; 3]) -> bool| -> Vec<bool> {
+        p.indices
+            .chunks_exact(3)
+            .map(|t| flat([t[0], t[1], t[2]]))
+            .collect()
     };
-    indices
-        .chunks_exact(3)
-        .map(|t| {
-            let [a, b, c] = [at(t[0]), at(t[1]), at(t[2])];
+    let flat_f32 = |p: &ContentPrimitive, drawn: &[[f32; 3]]| {
+        let at = |i: u32| DVec3::from(drawn[i as usize].map(f64::from));
+        flat_where(p, &|[a, b, c]| {
+            let [a, b, c] = [at(a), at(b), at(c)];
             (b - a).cross(c - a).length_squared() == 0.0
+        })
+    };
+    let frame = match compression {
+        Compression::Quantized | Compression::Meshopt => {
+            QuantFrame::of(prims, max_position_error_m)
+        }
+        Compression::Draco | Compression::None => None,
+    };
+    prims
+        .iter()
+        .map(|p| {
+            let positions_y_up = y_up(&p.positions);
+            match (compression, &frame) {
+                (Compression::Draco, _) => flat_f32(
+                    p,
+                    &draco_grid_positions(&positions_y_up, max_position_error_m),
+                ),
+                (_, Some(f)) => {
+                    let q: Vec<[i64; 3]> = positions_y_up
+                        .iter()
+                        .map(|&v| f.quantize(v).map(i64::from))
+                        .collect();
+                    flat_where(p, &|[a, b, c]| {
+                        let [a, b, c] = [q[a as usize], q[b as usize], q[c as usize]];
+                        let (u, v) = (
+                            [0, 1, 2].map(|k| b[k] - a[k]),
+                            [0, 1, 2].map(|k| c[k] - a[k]),
+                        );
+                        u[1] * v[2] == u[2] * v[1]
+                            && u[2] * v[0] == u[0] * v[2]
+                            && u[0] * v[1] == u[1] * v[0]
+                    })
+                }
+                (Compression::Meshopt, None) => {
+                    match crate::encode::meshopt::exp_filtered(
+                        &positions_y_up,
+                        max_position_error_m,
+                    ) {
+                        Some(exp) => flat_f32(p, &exp.drawn),
+                        None => flat_f32(p, &positions_y_up),
+                    }
+                }
+                _ => flat_f32(p, &positions_y_up),
+            }
         })
         .collect()
 }
@@ -524,15 +572,32 @@ mod tests {
             [0.5, 0.0, 0.5],
         ];
         let indices = [0, 1, 2, 0, 1, 3, 0, 1, 4];
+        let flattens = |c, e| grid_flattens(c, &[primitive(&positions, &indices)], e).remove(0);
         assert_eq!(
-            draco_flattens(&positions, &indices, 0.001),
+            flattens(Compression::Draco, 0.001),
             vec![true, false, false]
         );
         // A finer grid keeps the thin one.
         assert_eq!(
-            draco_flattens(&positions, &indices, 0.0001),
+            flattens(Compression::Draco, 0.0001),
             vec![false, false, false]
         );
+        // The meshopt frame's step is twice the bound whatever the extent (2 mm): the 0.4 mm apex
+        // rounds onto the base, the 1.5 mm one a step above it; a 0.1 mm bound keeps both.
+        for c in [Compression::Meshopt, Compression::Quantized] {
+            assert_eq!(flattens(c, 0.001), vec![true, false, false]);
+            assert_eq!(flattens(c, 0.0001), vec![false, false, false]);
+        }
+        assert_eq!(flattens(Compression::None, 0.001), vec![false; 3]);
+    }
+
+    fn primitive(positions: &[[f32; 3]], indices: &[u32]) -> ContentPrimitive {
+        ContentPrimitive {
+            positions: positions.to_vec(),
+            feature_ids: vec![0; positions.len()],
+            indices: indices.to_vec(),
+            ..Default::default()
+        }
     }
 
     fn whole(c: u32) -> Vec<ContentItem> {
