@@ -132,3 +132,38 @@ pub(super) fn uvs_u16(uvs: &[[f32; 2]]) -> Option<Vec<[i32; 2]>> {
             .collect()
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_frame_takes_the_coarsest_step_within_the_bound() {
+        let prim = ContentPrimitive {
+            positions: vec![[-3.0, 0.25, 1.0], [4.5, -2.0, 0.125], [0.3337, 1.777, -0.9]],
+            ..Default::default()
+        };
+        for bound_m in [0.0001, 0.001, 0.02, 0.5] {
+            let f = QuantFrame::of(std::slice::from_ref(&prim), bound_m).expect("fits");
+            // A step of (nearly) twice the bound: no finer than it needs to be.
+            let step_m = f.scale / I16_MAX;
+            assert!(
+                step_m <= 2.0 * bound_m && step_m > 1.999 * bound_m,
+                "{bound_m}"
+            );
+            for (p, d) in y_up(&prim.positions)
+                .iter()
+                .zip(f.decoded_positions(&prim.positions))
+            {
+                for k in 0..3 {
+                    assert!(
+                        (p[k] as f64 - d[k]).abs() <= bound_m,
+                        "{bound_m}: {p:?} -> {d}"
+                    );
+                }
+            }
+        }
+        // 7.5 m across: 16 bits hold no step under 0.11 mm, so a finer bound keeps floats.
+        assert!(QuantFrame::of(&[prim], 0.00005).is_none());
+    }
+}
