@@ -153,8 +153,9 @@ impl HlodBuilder<'_> {
             let Some(kept) = without_flattened(self.opts.compression, content, per_axis_m) else {
                 return per_axis_m;
             };
-            let kept_err = reference.measure(&kept, &self.opts.simplify);
-            if kept_err.error_m <= err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE) {
+            // A measurement over the limit stops as soon as it shows it.
+            let limit_m = err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE);
+            if let Some(kept_err) = reference.measure_within(&kept, &self.opts.simplify, limit_m) {
                 (*content, *err) = (kept, kept_err);
                 return per_axis_m;
             }
