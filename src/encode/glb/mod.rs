@@ -559,7 +559,7 @@ mod tests {
     use glam::DMat4;
 
     #[test]
-    fn draco_flattens_the_triangles_its_grid_puts_on_a_line() {
+    fn each_grid_flattens_the_triangles_it_puts_on_a_line() {
         // 1 m extent, 1 mm: 9 bits, a step of 1/511 m (1.96 mm). An apex 0.4 mm above the base
         // rounds onto it; 1.5 mm above, onto the next grid line; 0.5 m above stays a triangle.
         let step = crate::encode::draco::quantization_step(1.0, 9);
