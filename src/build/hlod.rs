@@ -146,6 +146,8 @@ impl HlodBuilder<'_> {
     ) -> f64 {
         let fine_m = fine_grid_m(self.opts.compression);
         let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
+        // A measurement over the limit stops as soon as it shows it.
+        let limit_m = err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE);
         for _ in 0..GRID_TRIES {
             if per_axis_m <= fine_m {
                 return fine_m;
@@ -153,8 +155,6 @@ impl HlodBuilder<'_> {
             let Some(kept) = without_flattened(self.opts.compression, content, per_axis_m) else {
                 return per_axis_m;
             };
-            // A measurement over the limit stops as soon as it shows it.
-            let limit_m = err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE);
             if let Some(kept_err) = reference.measure_within(&kept, &self.opts.simplify, limit_m) {
                 (*content, *err) = (kept, kept_err);
                 return per_axis_m;

@@ -1,21 +1,21 @@
-//! Shared texture files whose copies cost less than a request, moved into the tiles that
-//! reference them (issue 28): once every tile is written, each file under `textures/`
-//! ([`super::external`]) that `n` tiles reference, where `(n - 1) x its bytes` is at most
-//! [`SEQUENTIAL_REQUEST_WORTH_BYTES`], becomes a `bufferView` image of each of those tiles' GLBs
+//! Shared texture files whose copies cost less than a request, moved into the tiles that reference
+//! them (issue 28): once every tile is written, each file under `textures/` ([`super::external`])
+//! whose copies pass [`copies_cost_less_than_a_request`] (`n` tiles reference it, `(n - 1) x its
+//! bytes` is at most a request's worth) becomes a `bufferView` image of each of those tiles' GLBs
 //! (glTF 2.0 §3.6.1.1, "images" with `bufferView` and `mimeType`) and the file is removed. A
 //! separate file is downloaded and cached once, but costs every tile that uses it a request
 //! (CesiumJS fetches a tile's images only after its GLB, so one round trip more before the tile
 //! shows): it pays off only when its copies would cost more than that, the rule the schema's
-//! placement follows. A file of one tile always moves. Run over the written tiles, not while
-//! they are written, because which tiles use a pyramid level is known only at the end (HLOD
-//! content, atlases, sharded jobs): the result depends only on the tiles' bytes, so every build
-//! of the same tileset (threads, memory budgets, shards) gives the same bytes.
+//! placement follows. A file of one tile always moves. Run over the written tiles, not while they
+//! are written, because which tiles use a pyramid level is known only at the end (HLOD content,
+//! atlases, sharded jobs): the result depends only on the tiles' bytes, so every build of the same
+//! tileset (threads, memory budgets, shards) gives the same bytes.
 
 use super::external::TEXTURE_DIR;
 use crate::error::{Error, Result};
 use crate::glb_container::glb_container;
 use crate::output_dir::write_renamed;
-use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
+use crate::transfer::copies_cost_less_than_a_request;
 use rayon::prelude::*;
 use serde_json::{json, Value};
 use std::collections::{BTreeMap, BTreeSet};
@@ -169,8 +169,7 @@ pub fn embed_files_cheaper_than_a_request(dir: &Path, tiles: &[&str]) -> Result<
     };
     let mut cheap = BTreeSet::new();
     for (&name, tiles) in &users {
-        let copies = tiles.len() as u64 - 1;
-        if copies * file_bytes(name)? <= SEQUENTIAL_REQUEST_WORTH_BYTES as u64 {
+        if copies_cost_less_than_a_request(tiles.len() as u64, file_bytes(name)?) {
             cheap.insert(name);
         }
     }
@@ -222,6 +221,7 @@ pub fn embed_files_cheaper_than_a_request(dir: &Path, tiles: &[&str]) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
 
     /// A GLB of two images, both files, and 6 bytes of buffer.
     fn glb_of_two_files() -> Vec<u8> {

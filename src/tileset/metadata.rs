@@ -9,7 +9,7 @@
 
 use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
 use crate::scene::{Component, ComponentId, ElementInfo, PropertyValue, Scene, SharedText};
-use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
+use crate::transfer::copies_cost_less_than_a_request;
 use serde_json::{json, Map, Value};
 use std::collections::{BTreeMap, HashMap};
 
@@ -38,15 +38,14 @@ pub enum SchemaPlacement {
 
 impl SchemaPlacement {
     /// Inline when every tile repeating the schema (`schema_bytes`, an upper bound of each tile's
-    /// part of it) costs no more than the request the file would: always for a one-tile tileset
-    /// (the same bytes, one round trip fewer), else when `(tiles - 1) x schema_bytes` is at most
-    /// [`SEQUENTIAL_REQUEST_WORTH_BYTES`]. `content_tiles`: tiles that may have content, at most.
+    /// part of it) costs no more than the request the file would
+    /// ([`copies_cost_less_than_a_request`]: always for a one-tile tileset, the same bytes and
+    /// one round trip fewer). `content_tiles`: tiles that may have content, at most.
     /// (The file is a sequential request: CesiumJS reads a tile's `EXT_structural_metadata`
     /// schema before the tile can show, so `schemaUri` costs the first tile one more round trip
     /// after its GLB.)
     pub fn choose(content_tiles: usize, schema_bytes: usize, file_uri: &str) -> SchemaPlacement {
-        let repeated_bytes = content_tiles.saturating_sub(1).saturating_mul(schema_bytes);
-        match repeated_bytes <= SEQUENTIAL_REQUEST_WORTH_BYTES {
+        match copies_cost_less_than_a_request(content_tiles as u64, schema_bytes as u64) {
             true => SchemaPlacement::Inline,
             false => SchemaPlacement::File(file_uri.into()),
         }
@@ -606,6 +605,7 @@ impl MetadataSchema {
 mod tests {
     use super::*;
     use crate::scene::*;
+    use crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES;
 
     fn scene_with(infos: Vec<ElementInfo>) -> Scene {
         let mut s = Scene::default();
