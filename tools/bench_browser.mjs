@@ -23,6 +23,8 @@
 //                      no GLB, e.g. a CityJSON file: the same data as one GLB in the tileset's frame)
 //   --no-warm          skip the repeat-visit (warm tile cache) loads
 //   --width W --height H   viewport (default 960x540: software WebGL time grows with pixels)
+//   --scale S          the page's drawing resolution (?scale=S); default the viewer's own choice:
+//                      half the canvas on a software renderer such as SwiftShader, else full
 //   --timeout S        per-load timeout (default 180)
 //   --json FILE        write the result there too
 //
@@ -469,10 +471,13 @@ async function main() {
       // emulated network on from the first page load.
       if (opts.network) throttled = await throttle(page, opts.network);
       const cacheQuery = opts.network ? "&cache=0" : "";
-      await page.goto(new URL(`/?msaa=1&sse=16${cacheQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      const scaleQuery = opts.scale ? `&scale=${opts.scale}` : "";
+      await page.goto(new URL(`/?msaa=1&sse=16${cacheQuery}${scaleQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
       entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);
+      // The drawing resolution the page chose (or was given): figures at 0.5 and 1 differ.
+      entry.resolutionScale = await page.evaluate(() => window.bimtilesStatus.adaptive.resolutionScale);
       if (opts.warm && !entry.serviceWorker.serviceWorker)
         throw new Error(`service worker not in control (${entry.serviceWorker.reason}): warm loads would not be repeat visits`);
       await measure(page, variants.raw + "?warm=1", opts); // warm-up of the other variant

@@ -376,7 +376,8 @@ async function waitAdaptive(page, done, timeoutMs) {
 /**
  * In SwiftShader frames are slow (a few fps): a target of 1000 fps must drive the SSE up to the
  * strategy's maximum, a target of 0.1 fps down to its minimum, and it must stay within the bounds;
- * ?sse=N fixes it. Returns the failures.
+ * a software rasteriser draws at half resolution unless ?scale=1; ?sse=N fixes the SSE. Returns the
+ * failures.
  */
 export async function checkAdaptive(context, url, timeoutMs = 90000) {
   const failures = [];
@@ -392,6 +393,25 @@ export async function checkAdaptive(context, url, timeoutMs = 90000) {
       const after = await adaptiveState(page);
       if (after.sse !== s[bound] || !inBounds(after)) failures.push(`?fps=${fps}: SSE left its bounds: ${after.line}`);
       if (!/SSE/.test(after.line) || !/fps/.test(after.line)) failures.push(`status line lacks SSE / fps: ${after.line}`);
+    }
+    // The drawing resolution: half on a software rasteriser (SwiftShader here), full with ?scale=1;
+    // the renderer asked here through a canvas of the test's own.
+    for (const [query, forced] of [["msaa=1", null], ["msaa=1&scale=1", 1]]) {
+      await page.goto(withQuery(url, query), { waitUntil: "load" });
+      const s = await waitAdaptive(page, (s) => s.resolutionScale !== undefined, timeoutMs);
+      const r = await page.evaluate(() => {
+        const gl = document.createElement("canvas").getContext("webgl2");
+        const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+        const name = gl ? String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)) : "";
+        const { viewer } = window.bimtiles;
+        return { name, bufferPx: viewer.scene.drawingBufferWidth, canvasPx: viewer.canvas.clientWidth };
+      });
+      const software = /swiftshader|llvmpipe|softpipe/i.test(r.name);
+      const scale = forced ?? (software ? 0.5 : 1);
+      if (s.resolutionScale !== scale || Math.abs(r.bufferPx - scale * r.canvasPx) > 2)
+        failures.push(`?${query} on "${r.name}": drawn at ${r.bufferPx} px of ${r.canvasPx} (scale ${s.resolutionScale}), not ${scale}x`);
+      if (software !== s.softwareRenderer || (software && !/software WebGL/.test(s.line)))
+        failures.push(`renderer "${r.name}": software ${software}, but the strategy says ${s.softwareRenderer}: ${s.line}`);
     }
     await page.goto(withQuery(url, "msaa=1&fps=1000&sse=12"), { waitUntil: "load" });
     const s = await waitAdaptive(page, (s) => s.fps !== null && s.fps !== undefined, timeoutMs);

@@ -2,11 +2,14 @@
 // rendering optimisations in strategy classes and picks one from the current scene's complexity;
 // here a strategy is a set of CesiumJS tileset settings (SSE bounds, how much coarser the view
 // gets while the camera moves, foveation, progressive resolution), picked from the scene's size
-// (tiles in its tileset.json) and the device (navigator.hardwareConcurrency and
-// navigator.deviceMemory). Then a controller measures the frame rate and moves
-// maximumScreenSpaceError within the strategy's bounds to hold the target frame rate.
+// (tiles in its tileset.json) and the device (navigator.hardwareConcurrency,
+// navigator.deviceMemory, and whether WebGL is rasterised in software). Then a controller measures
+// the frame rate and moves maximumScreenSpaceError within the strategy's bounds to hold the target
+// frame rate.
 //
-//   BimtilesAdaptive.plan(params, navigator, fixedSse)  device figures + tileset options, before load
+//   BimtilesAdaptive.renderer(canvas)  the WebGL renderer's name (software or not)
+//   BimtilesAdaptive.plan(params, navigator, fixedSse, renderer)  device figures + tileset options and
+//                                      the drawing resolution, before load
 //   BimtilesAdaptive.start(scene, tileset, plan, onState)  strategy from the tile tree; controller
 //   BimtilesAdaptive.describe(state)  the status line
 "use strict";
@@ -24,6 +27,12 @@
   const LOW = 0.85;
   const HIGH = 1.25;
   const STEP = 1.25;
+  // Without a GPU every pixel is shaded on the CPU, so a frame costs what its pixels cost: such a
+  // device draws at half the canvas's resolution, a quarter of the pixels. Renderers that name
+  // themselves software rasterisers (Chromium's SwiftShader, Mesa's llvmpipe and softpipe, Windows'
+  // Basic Render Driver).
+  const SOFTWARE_RESOLUTION_SCALE = 0.5;
+  const SOFTWARE_RENDERER = /swiftshader|llvmpipe|softpipe|software rasterizer|basic render/i;
 
   // The strategies (paper IV.B's strategy classes), finest first.
   const STRATEGIES = {
@@ -37,13 +46,36 @@
   };
   const ORDER = ["detail", "balanced", "economy"];
 
-  /** The device: cores, memory (GB, with its source) and a class (0 small, 1 mid, 2 strong). */
-  function device(nav) {
+  /** The name of the WebGL renderer drawing on `canvas` (the context the viewer created: asking
+   * a canvas for its own context type returns that context), or "" when it is not told. */
+  function renderer(canvas) {
+    try {
+      const gl = canvas.getContext("webgl2") || canvas.getContext("webgl");
+      if (!gl) return "";
+      const info = gl.getExtension("WEBGL_debug_renderer_info");
+      return String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) || "");
+    } catch (e) {
+      return "";
+    }
+  }
+
+  /** The device: cores, memory (GB, with its source), a class (0 small, 1 mid, 2 strong), and
+   * whether its WebGL is rasterised in software. */
+  function device(nav, rendererName) {
     const cores = nav.hardwareConcurrency || 2;
     const reported = typeof nav.deviceMemory === "number" && nav.deviceMemory > 0;
     const memoryGb = reported ? nav.deviceMemory : DEFAULT_DEVICE_MEMORY_GB;
     const cls = memoryGb >= 8 && cores >= 8 ? 2 : memoryGb < 4 || cores <= 2 ? 0 : 1;
-    return { cores, memoryGb, memoryReported: reported, class: cls };
+    const software = SOFTWARE_RENDERER.test(rendererName || "");
+    return { cores, memoryGb, memoryReported: reported, class: cls, software };
+  }
+
+  /** The drawing resolution, as a share of the canvas's: `scale=N` in the URL (0.1 to 2), else
+   * half on a software rasteriser, else full. */
+  function resolutionScale(params, dev) {
+    const forced = parseFloat(params.get("scale") || "");
+    if (Number.isFinite(forced) && forced >= 0.1 && forced <= 2) return forced;
+    return dev.software ? SOFTWARE_RESOLUTION_SCALE : 1;
   }
 
   /** Tile cache budget from the device memory: 64 MiB per GB, 64 MiB to 512 MiB (Cesium's
@@ -54,13 +86,14 @@
     return { cacheBytes, maximumCacheOverflowBytes: Math.round(cacheBytes / 2) };
   }
 
-  function plan(params, nav, fixedSse) {
-    const dev = device(nav);
+  function plan(params, nav, fixedSse, rendererName) {
+    const dev = device(nav, rendererName);
     const fps = parseFloat(params.get("fps") || "");
     const fixed = Number.isFinite(fixedSse) && fixedSse > 0;
     const forced = params.get("strategy");
     return {
       device: dev,
+      resolutionScale: resolutionScale(params, dev),
       targetFps: Number.isFinite(fps) && fps > 0 ? fps : DEFAULT_TARGET_FPS,
       adaptive: !fixed && params.get("adaptive") !== "0",
       fixedSse: fixed ? fixedSse : null,
@@ -113,6 +146,8 @@
       cores: p.device.cores,
       memoryGb: p.device.memoryGb,
       memoryReported: p.device.memoryReported,
+      softwareRenderer: p.device.software,
+      resolutionScale: p.resolutionScale,
       cacheBytes: tileset.cacheBytes,
       adaptive: p.adaptive,
       targetFps: p.targetFps,
@@ -178,11 +213,13 @@
     const mem = `${s.memoryGb} GB${s.memoryReported ? "" : " (assumed)"}`;
     const sse = s.adaptive ? `SSE ${s.sseApplied.toFixed(1)} [${s.sseMin}-${s.sseMax}]` : `SSE ${s.sse} fixed`;
     const fps = s.fps === null ? "- fps" : `${s.fps.toFixed(1)} fps`;
+    const gpu = s.softwareRenderer ? ", software WebGL" : "";
+    const res = s.resolutionScale === 1 ? "" : ` · ${s.resolutionScale}x resolution`;
     return (
       `${s.strategy}${s.forced ? " (forced)" : ""}: ${s.sceneClass} scene (${s.sceneTiles} tile${s.sceneTiles === 1 ? "" : "s"}), ` +
-      `${s.cores} cores, ${mem} · ${sse}${s.moving ? " moving" : ""} · ${fps} / ${s.targetFps} target`
+      `${s.cores} cores, ${mem}${gpu} · ${sse}${s.moving ? " moving" : ""}${res} · ${fps} / ${s.targetFps} target`
     );
   }
 
-  window.BimtilesAdaptive = { plan, start, describe, STRATEGIES };
+  window.BimtilesAdaptive = { renderer, plan, start, describe, STRATEGIES };
 })();

@@ -352,6 +352,7 @@
   let viewer = null;
   let tileset = null;
   let adaptive = null; // BimtilesAdaptive controller of the current tileset
+  let rendererName = ""; // the WebGL renderer's name (software or not, for the strategy)
 
   async function main() {
     status.cache = await setupCache();
@@ -382,6 +383,7 @@
       msaaSamples: Number.isFinite(msaa) ? msaa : 4,
     });
     const scene = viewer.scene;
+    rendererName = BimtilesAdaptive.renderer(viewer.canvas);
     scene.globe.baseColor = Cesium.Color.fromCssColorString("#5a6068");
     scene.backgroundColor = Cesium.Color.fromCssColorString("#1b1e23");
     scene.globe.depthTestAgainstTerrain = true;
@@ -432,7 +434,10 @@
     status.tilesetRequestedMs = performance.now();
     let ts;
     const fixedSse = options.maximumScreenSpaceError || parseFloat(params.get("sse") || "NaN");
-    const plan = BimtilesAdaptive.plan(params, navigator, fixedSse);
+    const plan = BimtilesAdaptive.plan(params, navigator, fixedSse, rendererName);
+    viewer.resolutionScale = plan.resolutionScale;
+    // Cesium shows its canvas pixelated (crisp at full resolution); scaled up, smooth reads better.
+    if (plan.resolutionScale < 1) viewer.canvas.style.imageRendering = "auto";
     try {
       ts = await Cesium.Cesium3DTileset.fromUrl(url, {
         ...plan.tilesetOptions,
