@@ -51,6 +51,20 @@ pub fn json_chunk(glb: &[u8]) -> Result<Value, GlbError> {
     )?)
 }
 
+/// The URIs a GLB's JSON names outside itself: images and buffers with a `uri`, and
+/// `EXT_structural_metadata`'s `schemaUri`. A GLB without any reads without its folder.
+pub fn external_uris(glb: &[u8]) -> Result<Vec<String>, GlbError> {
+    let json = json_chunk(glb)?;
+    let mut uris: Vec<String> = ["images", "buffers"]
+        .iter()
+        .flat_map(|k| json[*k].as_array().into_iter().flatten())
+        .filter_map(|item| item["uri"].as_str().map(str::to_string))
+        .collect();
+    let schema = json.pointer("/extensions/EXT_structural_metadata/schemaUri");
+    uris.extend(schema.and_then(Value::as_str).map(str::to_string));
+    Ok(uris)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -70,5 +84,19 @@ mod tests {
         let g = glb_container(br#"{"asset":{"version":"2.0"}}"#, &[]);
         assert_eq!(json_chunk(&g).unwrap()["asset"]["version"], "2.0");
         assert!(matches!(json_chunk(b"nope"), Err(GlbError::NotGlb)));
+    }
+
+    #[test]
+    fn external_uris_lists_what_a_glb_reads_beside_it() {
+        let json = br#"{"images":[{"uri":"../textures/a.png"},{"bufferView":0}],
+            "buffers":[{"byteLength":4}],
+            "extensions":{"EXT_structural_metadata":{"schemaUri":"../schema.json"}}}"#;
+        let g = glb_container(json, &[0; 4]);
+        assert_eq!(
+            external_uris(&g).unwrap(),
+            ["../textures/a.png", "../schema.json"]
+        );
+        let alone = glb_container(br#"{"images":[{"bufferView":0}]}"#, &[0; 4]);
+        assert!(external_uris(&alone).unwrap().is_empty());
     }
 }

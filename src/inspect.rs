@@ -62,7 +62,12 @@ fn read_lod_levels(dir: &Path) -> Result<Vec<crate::report::LodLevelReport>> {
 pub fn glb_triangle_count(path: &Path) -> Result<u64> {
     let bytes =
         crate::ingest::read_regular(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
-    let g = gltf::Gltf::from_slice_without_validation(&bytes)
+    triangles_in(&bytes, path)
+}
+
+/// Triangles of the GLB `bytes` (read from `path`, which errors name).
+fn triangles_in(bytes: &[u8], path: &Path) -> Result<u64> {
+    let g = gltf::Gltf::from_slice_without_validation(bytes)
         .map_err(|e| Error::input_from(path, "not a valid GLB", e))?;
     let mut tris = 0u64;
     for m in g.document.meshes() {
@@ -116,12 +121,10 @@ pub fn inspect_text(dir: &Path, text: &[u8]) -> Result<TilesetSummary> {
         l.geometric_error_min_m = l.geometric_error_min_m.min(ge);
         l.geometric_error_max_m = l.geometric_error_max_m.max(ge);
         if let Some(uri) = tile.pointer("/content/uri").and_then(Value::as_str) {
-            let p = inside_tileset(dir, dir, uri)?;
+            let (bytes, p) = tile_content(dir, uri)?;
             l.tiles_with_content += 1;
-            l.bytes += std::fs::metadata(&p)
-                .map_err(|e| Error::input_from(&p, "cannot read", e))?
-                .len();
-            l.triangles += glb_triangle_count(&p)?;
+            l.bytes += bytes.len() as u64;
+            l.triangles += triangles_in(&bytes, &p)?;
         }
         if let Some(children) = tile.get("children").and_then(Value::as_array) {
             for c in children.iter().rev() {
@@ -350,6 +353,20 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
     }
 }
 
+/// The bytes of a tile's content `uri` in the tileset at `dir`, and the path errors about them
+/// name: the file (inside the tileset, [`inside_tileset`]), or tileset.json for a data URI.
+fn tile_content(dir: &Path, uri: &str) -> Result<(Vec<u8>, std::path::PathBuf)> {
+    if let Some(decoded) = crate::transfer::data_uri_bytes(uri) {
+        let ts_path = dir.join("tileset.json");
+        let bytes = decoded.map_err(|e| Error::input_from(&ts_path, "a tile's content", e))?;
+        return Ok((bytes, ts_path));
+    }
+    let path = inside_tileset(dir, dir, uri)?;
+    let bytes = crate::ingest::read_regular(&path)
+        .map_err(|e| Error::input_from(&path, "cannot read", e))?;
+    Ok((bytes, path))
+}
+
 /// The file a URI of the tileset at `dir` names, relative to `base` (a folder of the tileset),
 /// refused unless it stays inside the tileset's folder, by its text and through symlinks: a
 /// tileset from elsewhere must not make `inspect` read other files.
@@ -410,8 +427,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
     let mut found: Option<FeatureSummary> = None;
     let mut schemas: std::collections::HashMap<std::path::PathBuf, Value> = Default::default();
     for uri in summary_tiles {
-        let path = inside_tileset(dir, dir, &uri)?;
-        let bytes = std::fs::read(&path).map_err(|e| Error::input_from(&path, "cannot read", e))?;
+        let (bytes, path) = tile_content(dir, &uri)?;
         let glb = gltf::binary::Glb::from_slice(&bytes)
             .map_err(|e| Error::input_from(&path, "not a GLB", e))?;
         let doc: Value = serde_json::from_slice(&glb.json)
@@ -465,7 +481,10 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
             properties: Default::default(),
             tiles: Vec::new(),
         });
-        f.tiles.push(uri.clone());
+        f.tiles.push(match uri.starts_with("data:") {
+            true => crate::transfer::INLINED_CONTENT_LABEL.to_string(),
+            false => uri.clone(),
+        });
         if is_alias(row) {
             if let Some(kept) = text("id", row) {
                 f.properties.insert("Alias of".into(), kept);

@@ -43,6 +43,9 @@ pub struct ConvertOptions {
     /// A model the budgets keep to one heavy tile gets a coarse HLOD root above it when that
     /// saves its first view a request's worth of bytes (`build::coarse_root`).
     pub coarse_root: bool,
+    /// The root tile's GLB goes into tileset.json as a data URI when it names no other file and
+    /// base64's growth costs at most a request's worth (`tileset::inline`).
+    pub inline_root: bool,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
     pub dedup: Option<DedupOptions>,
     /// Write a shape drawn several times in a tile once, placed per instance
@@ -78,6 +81,7 @@ impl ConvertOptions {
             hlod_error_fraction: DEFAULT_HLOD_ERROR_FRACTION,
             coarse_tile_properties: CoarseTileProperties::default(),
             coarse_root: true,
+            inline_root: false,
             dedup: Some(DedupOptions::default()),
             instancing: true,
             min_instanced_triangles_saved: None,

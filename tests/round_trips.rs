@@ -172,3 +172,94 @@ fn a_small_schema_is_inline_in_each_of_a_few_tiles() {
     }
     gltf_validator(&dir);
 }
+
+/// `--inline-root`: a one-tile model's GLB goes into tileset.json as a data URI, the bytes of the
+/// tile a plain run writes (decoded here with the `base64` crate, checked by gltf-validator), and
+/// the rest of tileset.json as the plain run's (valid against the 3D Tiles schemas); `inspect`
+/// reads it. A root that names other files (Mini_Project's schema.json) or whose base64 grows by
+/// more than a request's worth (LoD3_Railway's coarse root, 406 KB) stays a file: the output is
+/// the plain run's.
+#[test]
+fn inline_root_puts_a_self_contained_root_in_tileset_json() {
+    use base64::Engine;
+    let Some(model) = shared_file("IfcOpenHouse_IFC4.glb") else {
+        return;
+    };
+    // Outside target/test-out: the Python checks read every tileset there, and read content URIs
+    // as files.
+    let scratch = tempfile::tempdir().unwrap();
+    let base = scratch.path();
+    let (plain, inlined) = (base.join("plain"), base.join("inlined"));
+    convert(&model, &plain, &[]);
+    let report = convert(&model, &inlined, &["--inline-root"]);
+    let names: BTreeSet<String> = std::fs::read_dir(&inlined)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        BTreeSet::from(["report.json".into(), "tileset.json".into()])
+    );
+    let read_json =
+        |p: &Path| -> Value { serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap() };
+    let ts = read_json(&inlined.join("tileset.json"));
+    let uri = ts["root"]["content"]["uri"].as_str().unwrap();
+    let payload = uri
+        .strip_prefix("data:model/gltf-binary;base64,")
+        .expect("a GLB data URI");
+    let glb = base64::engine::general_purpose::STANDARD
+        .decode(payload)
+        .unwrap();
+    assert_eq!(glb, std::fs::read(plain.join("tiles/r.glb")).unwrap());
+    let mut expected = read_json(&plain.join("tileset.json"));
+    expected["root"]["content"]["uri"] = Value::from(uri);
+    assert_eq!(ts, expected, "only the root's content URI differs");
+    if let Some(errors) = tileset_schema_errors(&ts) {
+        assert!(errors.is_empty(), "{errors:?}");
+    }
+    let decoded = base.join("decoded");
+    std::fs::create_dir_all(&decoded).unwrap();
+    std::fs::write(decoded.join("r.glb"), &glb).unwrap();
+    if let Some((files, errors, _)) = gltf_validator(&decoded) {
+        assert_eq!((files, errors), (1, 0));
+    }
+    assert_eq!(report["tiles"][0]["content"], "tiles/r.glb");
+    assert_eq!(report["tiles"][0]["inlined_in_tileset"], true);
+    let summary = |dir: &Path| {
+        let o = run(&["inspect", dir.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    assert_eq!(summary(&inlined), summary(&plain));
+
+    for (name, file) in [
+        ("schema-file", "ISSUE_021_Mini_Project.glb"),
+        ("heavy", "LoD3_Railway.glb"),
+    ] {
+        let Some(model) = shared_file(file) else {
+            continue;
+        };
+        let (plain, kept) = (base.join(format!("{name}-plain")), base.join(name));
+        convert(&model, &plain, &[]);
+        let report = convert(&model, &kept, &["--inline-root"]);
+        assert!(report["tiles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|t| t.get("inlined_in_tileset").is_none()));
+        for f in ["tileset.json", "tiles/r.glb"]
+            .iter()
+            .chain(if name == "heavy" {
+                &["tiles/r-lod1.glb"][..]
+            } else {
+                &["schema.json"][..]
+            })
+        {
+            assert_eq!(
+                std::fs::read(kept.join(f)).unwrap(),
+                std::fs::read(plain.join(f)).unwrap(),
+                "{name}: {f}"
+            );
+        }
+    }
+}

@@ -281,7 +281,9 @@
         if (v !== null && typeof v === "object") v = JSON.stringify(v);
         rows.push([id, v]);
       }
-      rows.push(["tile", picked.content && picked.content.url]);
+      const tileUrl = picked.content && picked.content.url;
+      // A root inlined in tileset.json (bimtiles convert --inline-root) has the whole GLB as its URL.
+      rows.push(["tile", tileUrl && tileUrl.startsWith("data:") ? "tileset.json (inlined)" : tileUrl]);
       return { kind: "feature", rows };
     }
     if (picked && picked.content) {

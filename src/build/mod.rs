@@ -378,11 +378,14 @@ impl<'a> TileWriter<'a> {
         // No schema in tileset.json: no tileset, tile or group metadata uses one, and CesiumJS
         // fetches a tileset's `schemaUri` before the tileset is ready, then drops it (the tiles
         // fetch theirs again): a round trip before the first tile, for nothing.
-        let ts = tileset_json(&plan, &records, refine, &origin.enu_to_ecef(), extras);
+        let mut ts = tileset_json(&plan, &records, refine, &origin.enu_to_ecef(), extras);
         crate::tileset::check_numbers(&ts).map_err(|message| Error::Internal {
             path: (self.scene.sources.first()).map_or_else(Default::default, |s| s.path.clone()),
             message,
         })?;
+        if opts.inline_root {
+            crate::tileset::inline::inline_root_content(tmp, &mut ts, &mut records[0])?;
+        }
         let bytes = serde_json::to_vec_pretty(&ts)
             .map_err(|e| Error::output_from(tmp, "cannot serialize tileset.json", e))?;
         write_renamed(&tmp.join("tileset.json"), &bytes)?;

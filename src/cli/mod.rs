@@ -180,6 +180,12 @@ struct ConvertArgs {
     /// at least 100 KB.
     #[arg(long)]
     no_coarse_root: bool,
+    /// Put the root tile's GLB into tileset.json as a data URI (3D Tiles 1.1 allows it), so that a
+    /// one-tile model's first view is one request instead of two. Done when the GLB names no other
+    /// file (texture files, a schema file) and base64's third more bytes stay within a request's
+    /// worth (100 KB); report.json marks the tile `inlined_in_tileset`.
+    #[arg(long)]
+    inline_root: bool,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
     /// default) or paper-sse (the paper's screen-space error of the longest collapsed edge,
     /// formulas (1) and (2): not a distance bound). The report shows both per level.
@@ -614,6 +620,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             CoarsePropertiesArg::All => CoarseTileProperties::All,
         },
         coarse_root: !a.no_coarse_root,
+        inline_root: a.inline_root,
         dedup: (!a.no_dedup).then(|| DedupOptions {
             tolerance_m: a.dedup_tolerance_m,
             ..DedupOptions::default()

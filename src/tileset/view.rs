@@ -190,6 +190,11 @@ pub enum ViewError {
     },
     #[error("{path}: the root tile has no bounding box")]
     NoRootBox { path: PathBuf },
+    #[error("{path}: a tile's content data URI")]
+    DataUri {
+        path: PathBuf,
+        source: crate::transfer::DataUriError,
+    },
 }
 
 /// The bytes of `path`.
@@ -294,8 +299,17 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
         let refines = sse > v.max_sse_px && children.is_some();
         if !refines || refine == "ADD" {
             if let Some(uri) = t["content"]["uri"].as_str() {
-                let path = dir.join(uri);
-                let glb = read(&path)?;
+                let (path, glb) = match crate::transfer::data_uri_bytes(uri) {
+                    Some(decoded) => {
+                        let path = dir.join("tileset.json");
+                        let glb = decoded.map_err(|source| ViewError::DataUri {
+                            path: path.clone(),
+                            source,
+                        })?;
+                        (path, glb)
+                    }
+                    None => (dir.join(uri), read(&dir.join(uri))?),
+                };
                 let glb_error = |source| ViewError::Glb {
                     path: path.clone(),
                     source,
@@ -306,7 +320,10 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
                 out.texture_bytes += bytes;
                 out.images += n;
                 out.triangles += glb_drawn_triangles(&glb).map_err(glb_error)?;
-                out.selected.push(uri.to_string());
+                let inlined = uri.starts_with("data:");
+                let label = crate::transfer::INLINED_CONTENT_LABEL;
+                out.selected
+                    .push(if inlined { label } else { uri }.to_string());
                 depths.insert(depth);
             }
         }

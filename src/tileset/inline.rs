@@ -1,0 +1,97 @@
+//! The root tile's GLB inlined in tileset.json as a data URI (3D Tiles 1.1, "URIs": content URIs
+//! may be data URIs, RFC 2397). A client reads tileset.json before it can ask for the root's
+//! content, so a one-tile model's first view then needs one sequential request instead of two.
+//! Only a GLB that names no other file is inlined (inside a data URI its relative references
+//! would have no base), and only while base64's growth costs at most the request it saves
+//! ([`crate::transfer::inlining_costs_less_than_a_request`]).
+
+use crate::encode::TileRecord;
+use crate::error::{Error, Result};
+use serde_json::Value;
+use std::path::Path;
+
+/// Moves the root's content file (`root.uri`, in `dir`) into `tileset["root"]["content"]["uri"]`
+/// as a data URI and removes the file, when that pays off; returns whether it did. `root` is
+/// marked [`TileRecord::inlined_in_tileset`].
+pub fn inline_root_content(dir: &Path, tileset: &mut Value, root: &mut TileRecord) -> Result<bool> {
+    let Some(uri) = root.uri.as_deref() else {
+        return Ok(false);
+    };
+    if tileset.pointer("/root/content/uri").and_then(Value::as_str) != Some(uri) {
+        return Ok(false);
+    }
+    let path = dir.join(uri);
+    let glb = std::fs::read(&path)
+        .map_err(|e| Error::output_from(&path, "cannot read the root tile to inline it", e))?;
+    if !crate::transfer::inlining_costs_less_than_a_request(glb.len() as u64) {
+        return Ok(false);
+    }
+    let external = crate::glb_container::external_uris(&glb)
+        .map_err(|e| Error::output_from(&path, "cannot read the root tile's JSON", e))?;
+    if !external.is_empty() {
+        return Ok(false);
+    }
+    tileset["root"]["content"]["uri"] = Value::String(crate::transfer::glb_data_uri(&glb));
+    std::fs::remove_file(&path)
+        .map_err(|e| Error::output_from(&path, "cannot remove the inlined root tile", e))?;
+    // A tiles folder the root was alone in goes too (the output holds no empty folder).
+    if let Some(folder) = path.parent().filter(|f| *f != dir) {
+        let empty = std::fs::read_dir(folder).is_ok_and(|mut d| d.next().is_none());
+        if empty {
+            std::fs::remove_dir(folder).map_err(|e| {
+                Error::output_from(folder, "cannot remove the empty tiles folder", e)
+            })?;
+        }
+    }
+    root.inlined_in_tileset = true;
+    Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::glb_container::glb_container;
+    use serde_json::json;
+
+    fn setup(json: &[u8], bin_bytes: usize) -> (tempfile::TempDir, Value, TileRecord) {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("tiles")).unwrap();
+        let glb = glb_container(json, &vec![7; bin_bytes]);
+        std::fs::write(dir.path().join("tiles/r.glb"), glb).unwrap();
+        let ts = json!({"root": {"content": {"uri": "tiles/r.glb"}}});
+        let record = TileRecord {
+            uri: Some("tiles/r.glb".into()),
+            ..Default::default()
+        };
+        (dir, ts, record)
+    }
+
+    #[test]
+    fn a_self_contained_root_goes_into_the_tileset_and_its_file_away() {
+        let (dir, mut ts, mut root) = setup(br#"{"asset":{"version":"2.0"}}"#, 1000);
+        let glb = std::fs::read(dir.path().join("tiles/r.glb")).unwrap();
+        assert!(inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
+        let uri = ts["root"]["content"]["uri"].as_str().unwrap();
+        assert_eq!(crate::transfer::data_uri_bytes(uri).unwrap().unwrap(), glb);
+        assert!(
+            !dir.path().join("tiles").exists(),
+            "no empty tiles folder left"
+        );
+        assert!(root.inlined_in_tileset);
+        assert_eq!(root.uri.as_deref(), Some("tiles/r.glb"));
+    }
+
+    #[test]
+    fn a_root_that_reads_other_files_or_costs_more_than_a_request_stays_a_file() {
+        let json = br#"{"images":[{"uri":"../textures/a.png"}]}"#;
+        let (dir, mut ts, mut root) = setup(json, 1000);
+        assert!(!inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
+        assert_eq!(ts["root"]["content"]["uri"], "tiles/r.glb");
+        assert!(dir.path().join("tiles/r.glb").exists() && !root.inlined_in_tileset);
+
+        let big = 3 * crate::transfer::SEQUENTIAL_REQUEST_WORTH_BYTES + 300;
+        let (dir, mut ts, mut root) = setup(br#"{"asset":{"version":"2.0"}}"#, big);
+        assert!(!inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
+        assert!(dir.path().join("tiles/r.glb").exists() && !root.inlined_in_tileset);
+    }
+}
