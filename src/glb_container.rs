@@ -51,10 +51,9 @@ pub fn json_chunk(glb: &[u8]) -> Result<Value, GlbError> {
     )?)
 }
 
-/// The URIs a GLB's JSON names outside itself: images and buffers with a `uri`, and
-/// `EXT_structural_metadata`'s `schemaUri`. A GLB without any reads without its folder.
-pub fn external_uris(glb: &[u8]) -> Result<Vec<String>, GlbError> {
-    let json = json_chunk(glb)?;
+/// The URIs a GLB's JSON (`json_chunk`) names outside the GLB: images and buffers with a `uri`,
+/// and `EXT_structural_metadata`'s `schemaUri`. A GLB without any reads without its folder.
+pub fn external_uris(json: &Value) -> Vec<String> {
     let mut uris: Vec<String> = ["images", "buffers"]
         .iter()
         .flat_map(|k| json[*k].as_array().into_iter().flatten())
@@ -62,7 +61,7 @@ pub fn external_uris(glb: &[u8]) -> Result<Vec<String>, GlbError> {
         .collect();
     let schema = json.pointer("/extensions/EXT_structural_metadata/schemaUri");
     uris.extend(schema.and_then(Value::as_str).map(str::to_string));
-    Ok(uris)
+    uris
 }
 
 #[cfg(test)]
@@ -93,10 +92,10 @@ mod tests {
             "extensions":{"EXT_structural_metadata":{"schemaUri":"../schema.json"}}}"#;
         let g = glb_container(json, &[0; 4]);
         assert_eq!(
-            external_uris(&g).unwrap(),
+            external_uris(&json_chunk(&g).unwrap()),
             ["../textures/a.png", "../schema.json"]
         );
         let alone = glb_container(br#"{"images":[{"bufferView":0}]}"#, &[0; 4]);
-        assert!(external_uris(&alone).unwrap().is_empty());
+        assert!(external_uris(&json_chunk(&alone).unwrap()).is_empty());
     }
 }

@@ -176,9 +176,10 @@ fn a_small_schema_is_inline_in_each_of_a_few_tiles() {
 /// `--inline-root`: a one-tile model's GLB goes into tileset.json as a data URI, the bytes of the
 /// tile a plain run writes (decoded here with the `base64` crate, checked by gltf-validator), and
 /// the rest of tileset.json as the plain run's (valid against the 3D Tiles schemas); `inspect`
-/// reads it. A root that names other files (Mini_Project's schema.json) or whose base64 grows by
-/// more than a request's worth (LoD3_Railway's coarse root, 406 KB) stays a file: the output is
-/// the plain run's.
+/// reads it. A root that names other files (Mini_Project's schema.json), whose base64 grows by
+/// more than a request's worth (LoD3_Railway's coarse root, 406 KB) or whose resources would cost
+/// CesiumJS's cache keys too much (the sample: 177 resources x 155 KB) stays a file: the output
+/// is the plain run's.
 #[test]
 fn inline_root_puts_a_self_contained_root_in_tileset_json() {
     use base64::Engine;
@@ -232,11 +233,21 @@ fn inline_root_puts_a_self_contained_root_in_tileset_json() {
     };
     assert_eq!(summary(&inlined), summary(&plain));
 
-    for (name, file) in [
-        ("schema-file", "ISSUE_021_Mini_Project.glb"),
-        ("heavy", "LoD3_Railway.glb"),
+    let sample = sample();
+    for (name, model, files) in [
+        (
+            "schema-file",
+            shared_file("ISSUE_021_Mini_Project.glb"),
+            &["schema.json"][..],
+        ),
+        (
+            "heavy",
+            shared_file("LoD3_Railway.glb"),
+            &["tiles/r-lod1.glb"][..],
+        ),
+        ("cache-keys", Some(sample), &[][..]),
     ] {
-        let Some(model) = shared_file(file) else {
+        let Some(model) = model else {
             continue;
         };
         let (plain, kept) = (base.join(format!("{name}-plain")), base.join(name));
@@ -247,14 +258,7 @@ fn inline_root_puts_a_self_contained_root_in_tileset_json() {
             .unwrap()
             .iter()
             .all(|t| t.get("inlined_in_tileset").is_none()));
-        for f in ["tileset.json", "tiles/r.glb"]
-            .iter()
-            .chain(if name == "heavy" {
-                &["tiles/r-lod1.glb"][..]
-            } else {
-                &["schema.json"][..]
-            })
-        {
+        for f in ["tileset.json", "tiles/r.glb"].iter().chain(files) {
             assert_eq!(
                 std::fs::read(kept.join(f)).unwrap(),
                 std::fs::read(plain.join(f)).unwrap(),

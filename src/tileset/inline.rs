@@ -2,13 +2,31 @@
 //! may be data URIs, RFC 2397). A client reads tileset.json before it can ask for the root's
 //! content, so a one-tile model's first view then needs one sequential request instead of two.
 //! Only a GLB that names no other file is inlined (inside a data URI its relative references
-//! would have no base), and only while base64's growth costs at most the request it saves
-//! ([`crate::transfer::inlining_costs_less_than_a_request`]).
+//! would have no base), only while base64's growth costs at most the request it saves
+//! ([`crate::transfer::inlining_costs_less_than_a_request`]), and only while CesiumJS's resource
+//! cache can afford the URI ([`CACHE_KEY_CHARS_MAX`]).
 
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
 use serde_json::Value;
 use std::path::Path;
+
+/// CesiumJS keys its resource cache (`ResourceCache`, `ResourceCacheKey`) by the content's URL, one
+/// key per buffer view, accessor, image and texture of a glTF, each looked up as a property name:
+/// with a data URI every lookup hashes the whole GLB in base64. A GLB is inlined only while its
+/// resources times its URI's length stay within this many characters (README, "First view:
+/// round trips", has what it cost).
+pub const CACHE_KEY_CHARS_MAX: u64 = 10_000_000;
+
+/// The characters CesiumJS's cache keys hash for a glTF (`json`) inlined as a data URI of
+/// `uri_chars` characters ([`CACHE_KEY_CHARS_MAX`]).
+fn cache_key_chars(json: &Value, uri_chars: u64) -> u64 {
+    let resources: usize = ["bufferViews", "accessors", "images", "textures"]
+        .iter()
+        .map(|k| json[*k].as_array().map_or(0, Vec::len))
+        .sum();
+    resources as u64 * uri_chars
+}
 
 /// Moves the root's content file (`root.uri`, in `dir`) into `tileset["root"]["content"]["uri"]`
 /// as a data URI and removes the file, when that pays off; returns whether it did. `root` is
@@ -26,12 +44,16 @@ pub fn inline_root_content(dir: &Path, tileset: &mut Value, root: &mut TileRecor
     if !crate::transfer::inlining_costs_less_than_a_request(glb.len() as u64) {
         return Ok(false);
     }
-    let external = crate::glb_container::external_uris(&glb)
+    let json = crate::glb_container::json_chunk(&glb)
         .map_err(|e| Error::output_from(&path, "cannot read the root tile's JSON", e))?;
-    if !external.is_empty() {
+    if !crate::glb_container::external_uris(&json).is_empty() {
         return Ok(false);
     }
-    tileset["root"]["content"]["uri"] = Value::String(crate::transfer::glb_data_uri(&glb));
+    let data_uri = crate::transfer::glb_data_uri(&glb);
+    if cache_key_chars(&json, data_uri.len() as u64) > CACHE_KEY_CHARS_MAX {
+        return Ok(false);
+    }
+    tileset["root"]["content"]["uri"] = Value::String(data_uri);
     std::fs::remove_file(&path)
         .map_err(|e| Error::output_from(&path, "cannot remove the inlined root tile", e))?;
     // A tiles folder the root was alone in goes too (the output holds no empty folder).
@@ -82,7 +104,7 @@ mod tests {
     }
 
     #[test]
-    fn a_root_that_reads_other_files_or_costs_more_than_a_request_stays_a_file() {
+    fn a_root_that_reads_other_files_or_costs_more_than_it_saves_stays_a_file() {
         let json = br#"{"images":[{"uri":"../textures/a.png"}]}"#;
         let (dir, mut ts, mut root) = setup(json, 1000);
         assert!(!inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
@@ -93,5 +115,15 @@ mod tests {
         let (dir, mut ts, mut root) = setup(br#"{"asset":{"version":"2.0"}}"#, big);
         assert!(!inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
         assert!(dir.path().join("tiles/r.glb").exists() && !root.inlined_in_tileset);
+
+        // 100 resources x a URI of about 133 KB: over CesiumJS's cache-key budget.
+        let views = vec![json!({"buffer": 0, "byteLength": 4}); 100];
+        let json = serde_json::to_vec(&json!({"bufferViews": views})).unwrap();
+        let (dir, mut ts, mut root) = setup(&json, 100_000);
+        assert!(!inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
+        assert!(dir.path().join("tiles/r.glb").exists() && !root.inlined_in_tileset);
+        // The same resources in a small GLB are within it.
+        let (dir, mut ts, mut root) = setup(&json, 10_000);
+        assert!(inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
     }
 }
