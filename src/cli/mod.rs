@@ -182,8 +182,10 @@ struct ConvertArgs {
     no_coarse_root: bool,
     /// Put the root tile's GLB into tileset.json as a data URI (3D Tiles 1.1 allows it), so that a
     /// one-tile model's first view is one request instead of two. Done when the GLB names no other
-    /// file (texture files, a schema file) and base64's third more bytes stay within a request's
-    /// worth (100 KB); report.json marks the tile `inlined_in_tileset`.
+    /// file (texture files, a schema file), base64's third more bytes stay within a request's
+    /// worth (100 KB), and its buffer views, accessors, images and textures times the URI's length
+    /// stay within 10 million characters (CesiumJS hashes the URI once per resource);
+    /// report.json marks the tile `inlined_in_tileset`.
     #[arg(long)]
     inline_root: bool,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
