@@ -43,8 +43,8 @@ pub struct ConvertOptions {
     /// A model the budgets keep to one heavy tile gets a coarse HLOD root above it when that
     /// saves its first view a request's worth of bytes (`build::coarse_root`).
     pub coarse_root: bool,
-    /// The root tile's GLB goes into tileset.json as a data URI when it names no other file and
-    /// base64's growth costs at most a request's worth (`tileset::inline`).
+    /// The root tile's GLB goes into tileset.json as a data URI when it names no other file, and
+    /// base64's growth and CesiumJS's cache keys cost less than the request (`tileset::inline`).
     pub inline_root: bool,
     /// Redundant and repeated components (paper III.A); `None` leaves the scene as read.
     pub dedup: Option<DedupOptions>,
