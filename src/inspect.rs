@@ -481,10 +481,8 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
             properties: Default::default(),
             tiles: Vec::new(),
         });
-        f.tiles.push(match uri.starts_with("data:") {
-            true => crate::transfer::INLINED_CONTENT_LABEL.to_string(),
-            false => uri.clone(),
-        });
+        f.tiles
+            .push(crate::transfer::content_label(&uri).to_string());
         if is_alias(row) {
             if let Some(kept) = text("id", row) {
                 f.properties.insert("Alias of".into(), kept);

@@ -36,8 +36,15 @@ pub fn glb_data_uri(glb: &[u8]) -> String {
 
 const GLB_DATA_URI_PREFIX: &str = "data:model/gltf-binary;base64,";
 
-/// How listings name content inlined in tileset.json (its data URI is the whole GLB).
-pub const INLINED_CONTENT_LABEL: &str = "tileset.json (inlined)";
+/// How listings name a tile's content `uri`: the URI itself, or `tileset.json (inlined)` for a
+/// data URI (which is the whole GLB).
+pub fn content_label(uri: &str) -> &str {
+    if uri.starts_with("data:") {
+        "tileset.json (inlined)"
+    } else {
+        uri
+    }
+}
 
 /// Why a data URI could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -86,6 +93,8 @@ mod tests {
         assert!(uri.starts_with("data:model/gltf-binary;base64,"));
         assert_eq!(data_uri_bytes(&uri).unwrap().unwrap(), bytes);
         assert!(data_uri_bytes("tiles/r.glb").is_none());
+        assert_eq!(content_label(&uri), "tileset.json (inlined)");
+        assert_eq!(content_label("tiles/r.glb"), "tiles/r.glb");
         assert!(matches!(
             data_uri_bytes("data:text/plain,hello"),
             Some(Err(DataUriError::NotBase64))

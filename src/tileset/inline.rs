@@ -39,11 +39,15 @@ pub fn inline_root_content(dir: &Path, tileset: &mut Value, root: &mut TileRecor
         return Ok(false);
     }
     let path = dir.join(uri);
-    let glb = std::fs::read(&path)
-        .map_err(|e| Error::output_from(&path, "cannot read the root tile to inline it", e))?;
-    if !crate::transfer::inlining_costs_less_than_a_request(glb.len() as u64) {
+    // The size decides first, so a heavy root (megabytes on a wide scene) is never read back.
+    let bytes = std::fs::metadata(&path)
+        .map_err(|e| Error::output_from(&path, "cannot read the root tile to inline it", e))?
+        .len();
+    if !crate::transfer::inlining_costs_less_than_a_request(bytes) {
         return Ok(false);
     }
+    let glb = std::fs::read(&path)
+        .map_err(|e| Error::output_from(&path, "cannot read the root tile to inline it", e))?;
     let json = crate::glb_container::json_chunk(&glb)
         .map_err(|e| Error::output_from(&path, "cannot read the root tile's JSON", e))?;
     if !crate::glb_container::external_uris(&json).is_empty() {

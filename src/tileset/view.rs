@@ -308,7 +308,11 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
                         })?;
                         (path, glb)
                     }
-                    None => (dir.join(uri), read(&dir.join(uri))?),
+                    None => {
+                        let path = dir.join(uri);
+                        let glb = read(&path)?;
+                        (path, glb)
+                    }
                 };
                 let glb_error = |source| ViewError::Glb {
                     path: path.clone(),
@@ -320,10 +324,8 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
                 out.texture_bytes += bytes;
                 out.images += n;
                 out.triangles += glb_drawn_triangles(&glb).map_err(glb_error)?;
-                let inlined = uri.starts_with("data:");
-                let label = crate::transfer::INLINED_CONTENT_LABEL;
                 out.selected
-                    .push(if inlined { label } else { uri }.to_string());
+                    .push(crate::transfer::content_label(uri).to_string());
                 depths.insert(depth);
             }
         }
