@@ -81,7 +81,7 @@ impl ConvertOptions {
             hlod_error_fraction: DEFAULT_HLOD_ERROR_FRACTION,
             coarse_tile_properties: CoarseTileProperties::default(),
             coarse_root: true,
-            inline_root: false,
+            inline_root: true,
             dedup: Some(DedupOptions::default()),
             instancing: true,
             min_instanced_triangles_saved: None,

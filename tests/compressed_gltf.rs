@@ -78,7 +78,7 @@ fn elements_of(dir: &Path) -> Elements {
     let (_, tiles) = decode_tileset(dir);
     let mut out = Elements::new();
     for uri in tiles.iter().filter_map(|t| t.uri.as_ref()) {
-        let bytes = read_tile(&dir.join(uri));
+        let bytes = read_content(dir, uri);
         let (doc, blob) = glb_chunks(&bytes);
         let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
         let tables = &doc["extensions"]["EXT_structural_metadata"]["propertyTables"];

@@ -513,7 +513,7 @@ fn no_cracks_between_tiles_at_any_level() {
                 assert!(
                     gap <= 1e-3_f64.min(tiles[o].geometric_error + 1e-4),
                     "depth {depth}: a {gap} m gap at {p} where {:?} meets a neighbour (error {})",
-                    tiles[o].uri,
+                    tiles[o].name,
                     tiles[o].geometric_error,
                 );
             }
@@ -556,7 +556,7 @@ fn sample_paper_sse_metric_declares_the_papers_error_and_reports_both() {
     let (_, tiles) = decode_tileset(&out);
     let by_uri: HashMap<&str, &DecodedTile> = tiles
         .iter()
-        .filter_map(|t| Some((t.uri.as_deref()?, t)))
+        .filter_map(|t| Some((t.name.as_deref()?, t)))
         .collect();
     let mut simplified = 0;
     for t in report["tiles"].as_array().unwrap() {
@@ -640,15 +640,15 @@ fn check_chains(name: &str, out: &std::path::Path, report: &serde_json::Value, r
         .filter_map(|t| Some((t["content"].as_str()?, t)))
         .collect();
     for (i, t) in tiles.iter().enumerate() {
-        let Some(uri) = &t.uri else {
+        let Some(name) = &t.name else {
             continue;
         };
-        let k = rep[uri.as_str()]["lod_level"].as_u64().unwrap() as usize;
+        let k = rep[name.as_str()]["lod_level"].as_u64().unwrap() as usize;
         per_level[k] += t.triangles;
         if k > 0 {
             assert_eq!(ch[i].len(), 1, "{name}: a chain tile has one child");
             let c = &tiles[ch[i][0]];
-            assert_eq!(rep[c.uri.as_deref().unwrap()]["lod_level"], k as u64 - 1);
+            assert_eq!(rep[c.name.as_deref().unwrap()]["lod_level"], k as u64 - 1);
             assert!(c.geometric_error < t.geometric_error);
             assert!((c.box_min - t.box_min).abs().max_element() < 0.5);
         } else {
@@ -761,15 +761,15 @@ fn check_ladder(name: &str, dir: &std::path::Path, within_framed: bool) -> (usiz
     let ch = children(&tiles);
     let mut worst_framed: f64 = 0.0;
     for (i, t) in tiles.iter().enumerate() {
-        if let Some(uri) = &t.uri {
-            assert!(t.triangles > 0, "{name}: {uri} draws nothing");
+        if let Some(content) = &t.name {
+            assert!(t.triangles > 0, "{name}: {content} draws nothing");
         }
         if let Some(p) = t.parent {
             let parent = tiles[p].geometric_error;
             assert!(
                 t.geometric_error < parent && t.geometric_error <= LADDER_CHILD_RATIO * parent,
                 "{name}: tile {i} ({:?}) declares {} m under a parent of {parent} m",
-                t.uri,
+                t.name,
                 t.geometric_error
             );
         }
@@ -781,7 +781,7 @@ fn check_ladder(name: &str, dir: &std::path::Path, within_framed: bool) -> (usiz
                 assert!(
                     f <= 1.0,
                     "{name}: tile {i} ({:?}) declares {} m, {f:.2} x its framed error",
-                    t.uri,
+                    t.name,
                     t.geometric_error
                 );
             }
@@ -824,7 +824,7 @@ fn wide_sparse_airport_gets_a_ladder_of_honest_levels() {
             assert!(
                 span <= 2.0 * 128.0 + 2.0 * largest + 1.0,
                 "{:?} spans {span} m (largest triangle {largest} m)",
-                t.uri
+                t.name
             );
         }
     }
@@ -856,17 +856,18 @@ fn railway_and_mini_keep_a_ladder_of_honest_levels() {
     }
 }
 
-/// What a client fetches for a tile (its GLB and the texture files it references), and the texels
-/// of its images.
-fn fetched_and_texels(dir: &std::path::Path, uri: &str) -> (u64, u64) {
-    let path = dir.join(uri);
-    let glb = read_tile(&path);
+/// What a client fetches for the tile report.json names `name` (its GLB and the texture files it
+/// references), and the texels of its images.
+fn fetched_and_texels(dir: &std::path::Path, name: &str) -> (u64, u64) {
+    let uri = content_uri(dir, name);
+    let fetched_glb = content_bytes(dir, &uri);
+    let glb = plain_glb(fetched_glb.clone());
     let g = gltf::Gltf::from_slice_without_validation(&glb).unwrap();
     let blob = g.blob.as_deref().unwrap_or_default();
-    let mut fetched = std::fs::metadata(&path).unwrap().len();
+    let mut fetched = fetched_glb.len() as u64;
     let mut texels = 0;
     for image in g.images() {
-        let bytes = image_bytes(&path, blob, &image);
+        let bytes = image_bytes(dir, &uri, blob, &image);
         if let gltf::image::Source::Uri { .. } = image.source() {
             fetched += bytes.len() as u64;
         }

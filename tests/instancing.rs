@@ -91,7 +91,7 @@ fn drawn(dir: &Path, anchor: DVec3) -> Drawn {
         instances: 0,
     };
     for uri in tiles.iter().filter_map(|t| t.uri.as_ref()) {
-        let bytes = read_tile(&dir.join(uri));
+        let bytes = read_content(dir, uri);
         let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
         let blob = g.blob.as_deref().unwrap();
         let doc = glb_json(&bytes);

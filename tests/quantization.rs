@@ -49,9 +49,10 @@ fn worst_axis_deviation(a: &[DVec3], b: &[DVec3], within_m: f64) -> f64 {
     worst
 }
 
-/// Counts of (POSITION, NORMAL, TEXCOORD_0) accessors stored as integers, and of all.
-fn integer_attributes(dir: &Path, uri: &str) -> ([usize; 3], [usize; 3]) {
-    let json = glb_json(&std::fs::read(dir.join(uri)).unwrap());
+/// Counts of (POSITION, NORMAL, TEXCOORD_0) accessors stored as integers, and of all, in the
+/// tile `uri` (named `tile` in messages).
+fn integer_attributes(dir: &Path, uri: &str, tile: &str) -> ([usize; 3], [usize; 3]) {
+    let json = glb_json(&content_bytes(dir, uri));
     let required: Vec<&str> = json["extensionsRequired"]
         .as_array()
         .into_iter()
@@ -60,7 +61,7 @@ fn integer_attributes(dir: &Path, uri: &str) -> ([usize; 3], [usize; 3]) {
         .collect();
     assert!(
         required.contains(&"KHR_mesh_quantization"),
-        "{uri}: KHR_mesh_quantization required"
+        "{tile}: KHR_mesh_quantization required"
     );
     let (mut ints, mut all) = ([0; 3], [0; 3]);
     for m in json["meshes"].as_array().into_iter().flatten() {
@@ -72,7 +73,7 @@ fn integer_attributes(dir: &Path, uri: &str) -> ([usize; 3], [usize; 3]) {
                 let acc = &json["accessors"][a as usize];
                 all[k] += 1;
                 if acc["componentType"] != 5126 {
-                    assert_eq!(acc["normalized"], true, "{uri}: {name} normalized");
+                    assert_eq!(acc["normalized"], true, "{tile}: {name} normalized");
                     ints[k] += 1;
                 }
             }
@@ -83,17 +84,10 @@ fn integer_attributes(dir: &Path, uri: &str) -> ([usize; 3], [usize; 3]) {
 
 /// Every tile with geometry requires EXT_meshopt_compression, and its fallback buffer has no data.
 fn assert_meshopt_required(dir: &Path) {
-    let ts: Value =
-        serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
-    let mut stack = vec![&ts["root"]];
-    let mut uris = Vec::new();
-    while let Some(t) = stack.pop() {
-        uris.extend(t.pointer("/content/uri").and_then(Value::as_str));
-        stack.extend(t["children"].as_array().into_iter().flatten());
-    }
-    assert!(!uris.is_empty());
-    for uri in uris {
-        let json = glb_json(&std::fs::read(dir.join(uri)).unwrap());
+    let contents = tileset_contents(dir);
+    assert!(!contents.is_empty());
+    for (uri, bytes) in contents {
+        let json = glb_json(&bytes);
         if json["meshes"].as_array().is_none_or(|m| m.is_empty()) {
             continue;
         }
@@ -168,15 +162,17 @@ fn check_against_plain(name: &str, plain: &Path, quant: &Path, rp: &Value, rq: &
     let (mut worst, mut ints, mut all) = (0.0f64, [0; 3], [0; 3]);
     let (mut coarse, mut coarse_compared) = (0, 0);
     for (a, b) in tp.iter().zip(&tq) {
-        assert_eq!(a.uri, b.uri);
-        let Some(uri) = &b.uri else { continue };
-        let grid_m = grids_m.get(uri).copied();
+        assert_eq!(a.name, b.name);
+        let (Some(uri), Some(tile)) = (&b.uri, &b.name) else {
+            continue;
+        };
+        let grid_m = grids_m.get(tile).copied();
         if grid_m.is_some_and(|g| g > 0.001 + 1e-9) {
             coarse += 1;
         }
         match grid_m {
             None => {
-                assert_eq!(a.triangles, b.triangles, "{name}: {uri} triangles");
+                assert_eq!(a.triangles, b.triangles, "{name}: {tile} triangles");
                 assert_eq!(a.positions.len(), b.positions.len());
                 worst = worst.max(worst_axis_deviation(&a.positions, &b.positions, 0.001));
             }
@@ -187,18 +183,18 @@ fn check_against_plain(name: &str, plain: &Path, quant: &Path, rp: &Value, rq: &
                 let f32_m = 3e-7 * (b.box_max - b.box_min).length();
                 assert!(
                     d <= g * (1.0 + 1e-6) + 1e-5 + f32_m,
-                    "{name}: {uri} a vertex moved {d} m on an axis, its grid allows {g} m"
+                    "{name}: {tile} a vertex moved {d} m on an axis, its grid allows {g} m"
                 );
                 coarse_compared += 1;
             }
             Some(_) => assert!(
                 b.triangles > 0 && b.triangles <= a.triangles,
-                "{name}: {uri} keeps {} of {} triangles",
+                "{name}: {tile} keeps {} of {} triangles",
                 b.triangles,
                 a.triangles
             ),
         }
-        let (i, n) = integer_attributes(quant, uri);
+        let (i, n) = integer_attributes(quant, uri, tile);
         for k in 0..3 {
             ints[k] += i[k];
             all[k] += n[k];

@@ -10,12 +10,13 @@ use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// Per image of each tile GLB: `Ok(bytes)` when embedded, `Err(uri)` when a file; by tile URI.
+/// Per image of each tile GLB: `Ok(bytes)` when embedded, `Err(uri)` when a file; by tile URI
+/// (a data URI for an inlined root).
 fn tile_images(dir: &Path) -> BTreeMap<String, Vec<Result<Vec<u8>, String>>> {
     let (_, tiles) = decode_tileset(dir);
     let mut out = BTreeMap::new();
     for uri in tiles.iter().filter_map(|t| t.uri.clone()) {
-        let bytes = read_tile(&dir.join(&uri));
+        let bytes = read_content(dir, &uri);
         let g = gltf::Gltf::from_slice_without_validation(&bytes)
             .expect("the gltf crate reads the tile");
         let blob = g.blob.as_deref().unwrap_or(&[]);
@@ -39,7 +40,7 @@ fn decodes(bytes: &[u8]) -> bool {
 
 /// The `EXT_structural_metadata` of a tile GLB.
 fn metadata_of(dir: &Path, tile_uri: &str) -> Value {
-    let json = glb_json(&std::fs::read(dir.join(tile_uri)).unwrap());
+    let json = glb_json(&content_bytes(dir, tile_uri));
     json["extensions"]["EXT_structural_metadata"].clone()
 }
 
@@ -157,8 +158,9 @@ fn a_small_schema_is_inline_in_each_of_a_few_tiles() {
     assert!(tiles > 1);
     assert!(!dir.join("schema.json").exists());
     let (_, decoded) = decode_tileset(&dir);
-    for uri in decoded.iter().filter_map(|t| t.uri.as_deref()) {
-        let ext = metadata_of(&dir, uri);
+    for t in decoded.iter().filter(|t| t.uri.is_some()) {
+        let ext = metadata_of(&dir, t.uri.as_deref().unwrap());
+        let name = t.name.as_deref().unwrap();
         let props = ext["schema"]["classes"]["element"]["properties"]
             .as_object()
             .unwrap();
@@ -166,17 +168,17 @@ fn a_small_schema_is_inline_in_each_of_a_few_tiles() {
         let (a, b): (BTreeSet<_>, BTreeSet<_>) = (props.keys().collect(), columns.keys().collect());
         assert_eq!(
             a, b,
-            "{uri}: the schema has the table's properties, no more"
+            "{name}: the schema has the table's properties, no more"
         );
         check_inline_schema(&dir, &ext["schema"]);
     }
     gltf_validator(&dir);
 }
 
-/// `--inline-root`: a one-tile model's GLB goes into tileset.json as a data URI, the bytes of the
-/// tile a plain run writes (decoded here with the `base64` crate, checked by gltf-validator), and
-/// the rest of tileset.json as the plain run's (valid against the 3D Tiles schemas); `inspect`
-/// reads it. A root that names other files (Mini_Project's schema.json), whose base64 grows by
+/// The root inlined (the default): a one-tile model's GLB goes into tileset.json as a data URI,
+/// the bytes of the tile a `--no-inline-root` run writes (decoded here with the `base64` crate,
+/// checked by gltf-validator), and the rest of tileset.json as the plain run's (valid against the
+/// 3D Tiles schemas); `inspect` reads it. A root that names other files (Mini_Project's schema.json), whose base64 grows by
 /// more than a request's worth (LoD3_Railway's coarse root, 406 KB) or whose resources would cost
 /// CesiumJS's cache keys too much (the sample: 177 resources x 155 KB) stays a file: the output
 /// is the plain run's.
@@ -186,13 +188,10 @@ fn inline_root_puts_a_self_contained_root_in_tileset_json() {
     let Some(model) = shared_file("IfcOpenHouse_IFC4.glb") else {
         return;
     };
-    // Outside target/test-out: the Python checks read every tileset there, and read content URIs
-    // as files.
-    let scratch = tempfile::tempdir().unwrap();
-    let base = scratch.path();
+    let base = tmpdir("inline-root");
     let (plain, inlined) = (base.join("plain"), base.join("inlined"));
-    convert(&model, &plain, &[]);
-    let report = convert(&model, &inlined, &["--inline-root"]);
+    convert(&model, &plain, &["--no-inline-root"]);
+    let report = convert(&model, &inlined, &[]);
     let names: BTreeSet<String> = std::fs::read_dir(&inlined)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -251,8 +250,8 @@ fn inline_root_puts_a_self_contained_root_in_tileset_json() {
             continue;
         };
         let (plain, kept) = (base.join(format!("{name}-plain")), base.join(name));
-        convert(&model, &plain, &[]);
-        let report = convert(&model, &kept, &["--inline-root"]);
+        convert(&model, &plain, &["--no-inline-root"]);
+        let report = convert(&model, &kept, &[]);
         assert!(report["tiles"]
             .as_array()
             .unwrap()

@@ -16,8 +16,12 @@ struct TexturedVertex {
     color: Option<[u8; 4]>,
 }
 
-fn textured_vertices(glb_path: &Path, offset: DVec3) -> (Vec<TexturedVertex>, usize, f64) {
-    let g = gltf::Gltf::from_slice_without_validation(&read_tile(glb_path)).unwrap();
+fn textured_vertices(
+    glb: &[u8],
+    folder: &Path,
+    offset: DVec3,
+) -> (Vec<TexturedVertex>, usize, f64) {
+    let g = gltf::Gltf::from_slice_without_validation(&plain_glb(glb.to_vec())).unwrap();
     let blob = g.blob.as_deref().unwrap();
     let images: Vec<image::RgbaImage> = g
         .document
@@ -27,9 +31,9 @@ fn textured_vertices(glb_path: &Path, offset: DVec3) -> (Vec<TexturedVertex>, us
                 let b = &blob[view.offset()..view.offset() + view.length()];
                 image::load_from_memory(b).unwrap().to_rgba8()
             }
-            // Shared texture files, relative to the tile.
+            // Shared texture files, relative to the tile's `folder`.
             gltf::image::Source::Uri { uri, .. } => {
-                let b = std::fs::read(glb_path.parent().unwrap().join(uri)).unwrap();
+                let b = std::fs::read(folder.join(uri)).unwrap();
                 image::load_from_memory(&b).unwrap().to_rgba8()
             }
         })
@@ -114,12 +118,16 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
         assert!(
             t.triangles <= 2000,
             "{:?} holds {} triangles",
-            t.uri,
+            t.name,
             t.triangles
         );
     }
     // Same triangles (count and total area) and the same texture colour at every vertex.
-    let (before, in_tris, in_area) = textured_vertices(&input, DVec3::ZERO);
+    let (before, in_tris, in_area) = textured_vertices(
+        &std::fs::read(&input).unwrap(),
+        input.parent().unwrap(),
+        DVec3::ZERO,
+    );
     let mut colors: HashMap<(i64, i64, i64), Vec<[u8; 4]>> = HashMap::new();
     for v in &before {
         if let Some(c) = v.color {
@@ -135,8 +143,10 @@ fn railway_scene_is_cut_into_tiles_with_textures_intact() {
         a[2].as_f64().unwrap(),
     );
     let (mut out_tris, mut out_area, mut checked, mut textured) = (0, 0.0, 0usize, 0usize);
-    for t in tiles.iter().filter(|t| t.uri.is_some()) {
-        let (after, n, area) = textured_vertices(&out.join(t.uri.as_ref().unwrap()), anchor);
+    for uri in tiles.iter().filter_map(|t| t.uri.as_deref()) {
+        // Texture files are relative to the tile (an inlined root names none).
+        let folder = out.join(uri).parent().unwrap().to_path_buf();
+        let (after, n, area) = textured_vertices(&content_bytes(&out, uri), &folder, anchor);
         out_tris += n;
         out_area += area;
         for v in after {
@@ -261,7 +271,7 @@ fn merged_by_material_exports_tile_like_per_element_ones() {
             assert!(
                 t.triangles <= 5000,
                 "{:?}: {} triangles over the budget",
-                t.uri,
+                t.name,
                 t.triangles
             );
         }

@@ -30,7 +30,7 @@
 //
 // An .ifc model has no raw GLB: its raw variant is bimtiles' own single-tile GLB of it (one
 // octree cell: --max-tile-triangles and --max-tile-bytes at their largest, no coarse root above it,
-// Draco whatever our default).
+// Draco whatever our default, the GLB a file as a raw model is, not inlined in tileset.json).
 //
 // Fly-in (each run, each variant, after the cold load): the tileset is loaded again at a new URL
 // (nothing cached) with the camera at the first stop, then moved to each stop in turn (heading 0.6,
@@ -138,7 +138,7 @@ function rawTileset(ours, glbName) {
  */
 function singleTileGlb(bimtiles, ifc, outDir) {
   const most = String(2 ** 32 - 1);
-  execFileSync(bimtiles, ["convert", ifc, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--no-coarse-root"], { stdio: "inherit" });
+  execFileSync(bimtiles, ["convert", ifc, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--no-coarse-root", "--no-inline-root"], { stdio: "inherit" });
   const ts = JSON.parse(readFileSync(join(outDir, "tileset.json")));
   if (!ts.root.content || (ts.root.children && ts.root.children.length))
     throw new Error(`${ifc}: the single-tile conversion has more than one tile`);

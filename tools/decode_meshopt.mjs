@@ -6,12 +6,20 @@
 // meshopt_decoder_reference.js: written from the extension's bitstream description, not the C++
 // codec bimtiles encodes with).
 //
+// GLBs inlined in a tileset.json as data URIs (3D Tiles 1.1 allows them; bimtiles inlines the root
+// tile's GLB by default): every `content.uri` / `contents[].uri` of the tile tree of each file named
+// tileset.json that is a `data:model/gltf-binary;base64,` URI is decoded the same way and written back
+// as such a data URI into the copied tileset.json (pretty-printed with two spaces when the original had
+// line breaks). A data URI of another media type is copied as it is; one that is not base64 or does not
+// decode is malformed. A tileset.json without GLB data URIs is copied byte for byte.
+//
 // Usage: node tools/decode_meshopt.mjs IN_DIR OUT_DIR
-// Prints one JSON line: {"files": N, "decodedViews": N}. Exit 1 on any malformed file.
+// Prints one JSON line: {"files": N, "decodedViews": N}; `files` counts the GLBs rewritten, files and
+// inlined ones alike. Exit 1 on any malformed file.
 
 import { promises as fs } from 'node:fs';
 import path from 'node:path';
-import { readGlb, writeGlb } from './glb.mjs';
+import { isBase64, parseDataUri, readGlb, tileContentRefs, writeGlb } from './glb.mjs';
 
 // The package does not export the reference decoder: loaded by its path (tools/package.json pins
 // meshoptimizer).
@@ -63,6 +71,38 @@ function decodeGlb(bytes) {
   return [writeGlb(json, out), decoded];
 }
 
+const GLB_DATA_URI = 'data:model/gltf-binary;base64,';
+
+/** The tileset.json text with its inlined GLBs decoded; returns [text, GLBs decoded, views decoded]. */
+function decodeTileset(text, where) {
+  let tileset;
+  try {
+    tileset = JSON.parse(text);
+  } catch (e) {
+    throw new Error(`${where}: ${e.message}`);
+  }
+  let files = 0;
+  let views = 0;
+  for (const { pointer, holder, key } of tileContentRefs(tileset)) {
+    const d = parseDataUri(holder[key]);
+    if (!d || d.mediaType.toLowerCase() !== 'model/gltf-binary') continue;
+    if (!d.base64) throw new Error(`${where}#${pointer}: GLB data URI is not base64`);
+    if (!isBase64(d.payload)) throw new Error(`${where}#${pointer}: data URI does not decode as base64`);
+    let bytes;
+    let n;
+    try {
+      [bytes, n] = decodeGlb(new Uint8Array(Buffer.from(d.payload, 'base64')));
+    } catch (e) {
+      throw new Error(`${where}#${pointer}: ${e.message}`);
+    }
+    holder[key] = GLB_DATA_URI + Buffer.from(bytes).toString('base64');
+    files++;
+    views += n;
+  }
+  if (files === 0) return [text, 0, 0];
+  return [JSON.stringify(tileset, null, text.includes('\n') ? 2 : 0), files, views];
+}
+
 async function copyTree(src, dst, stats) {
   await fs.mkdir(dst, { recursive: true });
   for (const entry of await fs.readdir(src, { withFileTypes: true })) {
@@ -74,6 +114,12 @@ async function copyTree(src, dst, stats) {
       await fs.writeFile(d, bytes);
       stats.files++;
       stats.decodedViews += n;
+    } else if (entry.name === 'tileset.json') {
+      const [text, files, views] = decodeTileset(await fs.readFile(s, 'utf8'), s);
+      if (files) await fs.writeFile(d, text);
+      else await fs.copyFile(s, d);
+      stats.files += files;
+      stats.decodedViews += views;
     } else await fs.copyFile(s, d);
   }
 }

@@ -1,5 +1,6 @@
 // The GLB container (glTF 2.0 §4.4): its JSON and BIN chunks, read and written, for the tools
-// here (decode_meshopt.mjs, check_ktx2.mjs, bench_browser.mjs).
+// here (decode_meshopt.mjs, check_ktx2.mjs, bench_browser.mjs); and GLBs inlined in a tileset.json
+// (data URIs, the walk over a tile tree's content uris) for decode_meshopt.mjs and validate_gltf.mjs.
 
 const MAGIC = 0x46546c67; // "glTF"
 const JSON_CHUNK = 0x4e4f534a;
@@ -43,5 +44,52 @@ export function writeGlb(json, bin) {
     dv.setUint32(24 + jl, BIN_CHUNK, true);
     out.set(bin, 28 + jl);
   }
+  return out;
+}
+
+/** Whether `s` is strict base64 (RFC 4648 alphabet, padded): Buffer.from alone skips characters it does not know. */
+export const isBase64 = (s) => s.length % 4 === 0 && /^[A-Za-z0-9+/]*={0,2}$/.test(s)
+  && Buffer.from(s, "base64").toString("base64") === s;
+
+/**
+ * The parts of an RFC 2397 data URI: {mediaType, base64, payload}, or null when `uri` does not start
+ * with `data:`. mediaType is as written (compare it lowercased; "" when none); base64 is true when the
+ * URI has a comma and its last parameter is `base64`; payload is the text after the first comma
+ * (not decoded), null when there is no comma.
+ */
+export function parseDataUri(uri) {
+  if (!uri.startsWith("data:")) return null;
+  const comma = uri.indexOf(",");
+  const params = uri.slice(5, comma < 0 ? uri.length : comma).split(";");
+  return {
+    mediaType: params[0],
+    base64: comma >= 0 && params.length >= 2 && params[params.length - 1].toLowerCase() === "base64",
+    payload: comma < 0 ? null : uri.slice(comma + 1),
+  };
+}
+
+/**
+ * Every content URI of a 3D Tiles tileset's tile tree (`content.uri`, 1.0's `content.url`, and
+ * `contents[].uri`; string ones only), depth first: [{pointer, holder, key}] with holder[key] the uri
+ * (read it, or assign it to rewrite the uri in place) and pointer its JSON pointer, e.g.
+ * `/root/children/0/content/uri`.
+ */
+export function tileContentRefs(tileset) {
+  const out = [];
+  const walk = (tile, ptr) => {
+    if (!tile || typeof tile !== "object") return;
+    const c = tile.content;
+    if (c && typeof c === "object") {
+      const key = "uri" in c ? "uri" : "url";
+      if (typeof c[key] === "string") out.push({ pointer: `${ptr}/content/${key}`, holder: c, key });
+    }
+    (Array.isArray(tile.contents) ? tile.contents : []).forEach((x, i) => {
+      if (x && typeof x === "object" && typeof x.uri === "string") {
+        out.push({ pointer: `${ptr}/contents/${i}/uri`, holder: x, key: "uri" });
+      }
+    });
+    (Array.isArray(tile.children) ? tile.children : []).forEach((ch, i) => walk(ch, `${ptr}/children/${i}`));
+  };
+  walk(tileset && tileset.root, "/root");
   return out;
 }

@@ -12,6 +12,17 @@
 // EXT_instance_features, KHR_draco_mesh_compression) and hints never make the run fail.
 // Exit code: 0 = no errors, 1 = at least one error (or a file that could not be read/parsed), 2 = usage.
 //
+// Contents inlined in a tileset (3D Tiles 1.1 content URIs may be RFC 2397 data URIs; bimtiles inlines the
+// root tile's GLB by default): when an input is a folder that directly holds a tileset.json, every
+// data-URI content of its tile tree (`content.uri` and `contents[].uri` of every tile) is decoded from
+// base64 and validated as one more file, labelled `<folder>/tileset.json#<JSON pointer to the uri>`
+// (e.g. `out/tileset.json#/root/content/uri`); it counts in files/errors/warnings like a file. Only such
+// inputs: a tileset.json found deeper while searching a folder, or beside an input (DIR/tiles given
+// for DIR), is not read. Media type model/gltf-binary is validated as GLB, model/gltf+json as glTF; a
+// data URI that is not base64, does not decode, or has another media type is an error result for its
+// label, and so is a tileset.json that cannot be read or parsed. An inlined glTF's own relative uris
+// resolve against the tileset folder.
+//
 // External resources (buffers/images by uri) are read relative to the glTF's folder; a uri that escapes that
 // folder (.., absolute paths, other schemes) is refused and reported as an error by the validator. With
 // --root DIR, relative uris may reach anything inside DIR instead (a tileset folder: tiles in tiles/ share
@@ -20,6 +31,7 @@
 import { promises as fs } from 'node:fs';
 import path from 'node:path';
 import { createRequire } from 'node:module';
+import { isBase64, parseDataUri, tileContentRefs } from './glb.mjs';
 
 const require = createRequire(import.meta.url);
 const validator = require('gltf-validator');
@@ -57,7 +69,7 @@ function parseArgs(argv) {
 
 const isGltf = (p) => /\.(glb|gltf)$/i.test(p);
 
-async function collect(input, out) {
+async function collect(input, out, top = true) {
   let st;
   try {
     st = await fs.stat(input);
@@ -73,17 +85,52 @@ async function collect(input, out) {
       const p = path.join(input, name);
       let s;
       try { s = await fs.stat(p); } catch { continue; }
-      if (s.isDirectory()) await collect(p, out);
+      if (s.isDirectory()) await collect(p, out, false);
       else if (isGltf(name)) out.push({ path: p });
     }
+    if (top && entries.includes('tileset.json')) await collectDataUris(path.join(input, 'tileset.json'), out);
   } else {
     out.push({ path: input });
   }
 }
 
+const FORMATS = { 'model/gltf-binary': 'glb', 'model/gltf+json': 'gltf' };
+
+// One entry per data-URI content of `tilesetPath` (decoded bytes, or an error to report for its label).
+async function collectDataUris(tilesetPath, out) {
+  let tileset;
+  try {
+    tileset = JSON.parse(await fs.readFile(tilesetPath, 'utf8'));
+  } catch (e) {
+    out.push({ path: tilesetPath, bad: { code: 'TILESET_UNREADABLE', message: String(e.message || e) } });
+    return;
+  }
+  for (const { pointer, holder, key } of tileContentRefs(tileset)) {
+    const uri = holder[key];
+    const d = parseDataUri(uri);
+    if (!d) continue;
+    const label = `${tilesetPath}#${pointer}`;
+    const base = path.dirname(tilesetPath);
+    const format = FORMATS[d.mediaType.toLowerCase()];
+    let bad = null;
+    if (!d.base64) {
+      bad = { code: 'DATA_URI_NOT_BASE64', message: `data URI is not base64: ${uri.slice(0, 60)}` };
+    } else if (!isBase64(d.payload)) {
+      bad = { code: 'DATA_URI_BAD_BASE64', message: 'data URI payload does not decode as base64' };
+    } else if (!format) {
+      bad = { code: 'DATA_URI_MEDIA_TYPE', message: `data URI media type ${d.mediaType || '(none)'} is not glTF` };
+    }
+    if (bad) out.push({ path: label, bad });
+    else {
+      out.push({ path: label, uri: `${path.basename(tilesetPath)}#${pointer}`, format, base,
+        bytes: new Uint8Array(Buffer.from(d.payload, 'base64')) });
+    }
+  }
+}
+
 // Reads `uri` relative to the folder of the glTF; refuses anything that escapes `root` (default: that folder).
-function resourceLoader(gltfPath, root) {
-  const base = path.resolve(path.dirname(gltfPath));
+function resourceLoader(base, root) {
+  base = path.resolve(base);
   const limit = root ?? base;
   return async (uri) => {
     let rel;
@@ -109,21 +156,27 @@ async function validateOne(file, maxMessages, root) {
     return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,
       messages: [{ code: 'FILE_NOT_FOUND', severity: 'error', message: file.missing }] };
   }
-  let bytes;
-  try {
-    bytes = new Uint8Array(await fs.readFile(file.path));
-  } catch (e) {
+  if (file.bad) {
     return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,
-      messages: [{ code: 'IO_ERROR', severity: 'error', message: String(e.message || e) }] };
+      messages: [{ code: file.bad.code, severity: 'error', message: file.bad.message }] };
+  }
+  let bytes = file.bytes;
+  if (!bytes) {
+    try {
+      bytes = new Uint8Array(await fs.readFile(file.path));
+    } catch (e) {
+      return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,
+        messages: [{ code: 'IO_ERROR', severity: 'error', message: String(e.message || e) }] };
+    }
   }
   let report;
   try {
     report = await validator.validateBytes(bytes, {
-      uri: path.basename(file.path),
-      format: /\.glb$/i.test(file.path) ? 'glb' : 'gltf',
+      uri: file.uri ?? path.basename(file.path),
+      format: file.format ?? (/\.glb$/i.test(file.path) ? 'glb' : 'gltf'),
       maxIssues: 0,
       writeTimestamp: false,
-      externalResourceFunction: resourceLoader(file.path, root),
+      externalResourceFunction: resourceLoader(file.base ?? path.dirname(file.path), root),
     });
   } catch (e) {
     return { file: file.path, errors: 1, warnings: 0, infos: 0, hints: 0,

@@ -282,7 +282,7 @@
         rows.push([id, v]);
       }
       const tileUrl = picked.content && picked.content.url;
-      // A root inlined in tileset.json (bimtiles convert --inline-root) has the whole GLB as its URL.
+      // A root inlined in tileset.json (bimtiles convert, by default for a small root) has the whole GLB as its URL.
       rows.push(["tile", tileUrl && tileUrl.startsWith("data:") ? "tileset.json (inlined)" : tileUrl]);
       return { kind: "feature", rows };
     }

@@ -180,14 +180,15 @@ struct ConvertArgs {
     /// at least 100 KB.
     #[arg(long)]
     no_coarse_root: bool,
-    /// Put the root tile's GLB into tileset.json as a data URI (3D Tiles 1.1 allows it), so that a
-    /// one-tile model's first view is one request instead of two. Done when the GLB names no other
-    /// file (texture files, a schema file), base64's third more bytes stay within a request's
-    /// worth (100 KB), and its buffer views, accessors, images and textures times the URI's length
-    /// stay within 10 million characters (CesiumJS hashes the URI once per resource);
-    /// report.json marks the tile `inlined_in_tileset`.
+    /// Keep the root tile's GLB a file of its own. By default it goes into tileset.json as a data
+    /// URI (3D Tiles 1.1 allows it), so that a one-tile model's first view is one request instead
+    /// of two. That is done when the GLB names no other file (texture files, a schema file),
+    /// base64's third more bytes stay within a request's worth (100 KB), and its buffer views,
+    /// accessors, images and textures times the URI's length stay within 10 million characters
+    /// (CesiumJS hashes the URI once per resource); report.json marks the tile
+    /// `inlined_in_tileset`.
     #[arg(long)]
-    inline_root: bool,
+    no_inline_root: bool,
     /// geometricError of simplified tiles: measured (the real distance to full detail, checked;
     /// default) or paper-sse (the paper's screen-space error of the longest collapsed edge,
     /// formulas (1) and (2): not a distance bound). The report shows both per level.
@@ -622,7 +623,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             CoarsePropertiesArg::All => CoarseTileProperties::All,
         },
         coarse_root: !a.no_coarse_root,
-        inline_root: a.inline_root,
+        inline_root: !a.no_inline_root,
         dedup: (!a.no_dedup).then(|| DedupOptions {
             tolerance_m: a.dedup_tolerance_m,
             ..DedupOptions::default()

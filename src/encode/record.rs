@@ -68,8 +68,8 @@ pub struct TileRecord {
     /// Discrete chains (`--lod-ratios`): the tile's LOD (0 = full detail).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lod_level: Option<usize>,
-    /// The root's content went into tileset.json as a data URI (`--inline-root`); `uri` names the
-    /// file it would have been, and is not written.
+    /// The root's content went into tileset.json as a data URI (the default; `--no-inline-root`
+    /// keeps it a file); `uri` names the file it would have been, and is not written.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub inlined_in_tileset: bool,
 }

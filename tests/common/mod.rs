@@ -8,7 +8,8 @@
 //!   (`tests/support/height_field.rs`);
 //! * glTF read back with tools that are not our writer (the `gltf` crate, [`read_accessor`]) and
 //!   expanded to world space (`tests/support/world.rs`: [`world_nodes`], [`world_mesh`];
-//!   [`drawn_meshes`] with GPU instances, [`decode_tileset`] for whole tilesets);
+//!   [`drawn_meshes`] with GPU instances, [`decode_tileset`] for whole tilesets); tile contents
+//!   read by their URI, a file or a data URI ([`content_bytes`], [`tileset_contents`]);
 //! * checks by independent tools: gltf-validator, the official 3D Tiles JSON schemas
 //!   ([`check_tileset`]), and the README's element-id rule ([`expected_element_ids`]).
 // Each test crate uses only some of these helpers.
@@ -307,7 +308,11 @@ pub fn tileset_schema_errors(tileset: &Value) -> Option<Vec<String>> {
 
 /// A tile read back: its box (centre, half-axes) in the tileset's root frame, and its content.
 pub struct DecodedTile {
+    /// The content URI in tileset.json: a file's path, or the data URI of an inlined root.
     pub uri: Option<String>,
+    /// The content's name in report.json ([`content_name`]): the file name, also for the inlined
+    /// root.
+    pub name: Option<String>,
     pub box_min: DVec3,
     pub box_max: DVec3,
     pub geometric_error: f64,
@@ -356,7 +361,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
         let (mut positions, mut indices, mut triangles, mut area) =
             (Vec::new(), Vec::new(), 0, 0.0);
         if let Some(u) = &uri {
-            let bytes = read_tile(&dir.join(u));
+            let bytes = read_content(dir, u);
             let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
             let blob = g.blob.as_deref().unwrap();
             for (mesh, placement) in drawn_meshes(&g, &glb_json(&bytes), blob) {
@@ -378,6 +383,7 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
         }
         let me = out.len();
         out.push(DecodedTile {
+            name: uri.as_deref().map(|u| content_name(dir, u)),
             uri,
             box_min: c - h,
             box_max: c + h,
@@ -398,15 +404,14 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
     (ts, out)
 }
 
-/// The metadata schema the tile `tile_uri` (relative to the tileset folder `dir`) uses: inline in
+/// The metadata schema the tile `tile_uri` (a file in the tileset folder `dir`, or a data URI) uses: inline in
 /// its `EXT_structural_metadata`, or the file its `schemaUri` names.
 pub fn tile_schema(dir: &Path, tile_uri: &str) -> Value {
-    let tile = dir.join(tile_uri);
-    let json = glb_json(&std::fs::read(&tile).unwrap());
+    let json = glb_json(&content_bytes(dir, tile_uri));
     let ext = &json["extensions"]["EXT_structural_metadata"];
     match ext["schemaUri"].as_str() {
         Some(uri) => {
-            let file = tile.parent().unwrap().join(uri);
+            let file = dir.join(tile_uri).parent().unwrap().join(uri);
             serde_json::from_slice(&std::fs::read(&file).unwrap()).unwrap()
         }
         None => ext["schema"].clone(),
@@ -574,6 +579,86 @@ pub fn plain_glb(bytes: Vec<u8>) -> Vec<u8> {
 /// The GLB at `path`, as [`plain_glb`] makes it.
 pub fn read_tile(path: &Path) -> Vec<u8> {
     plain_glb(std::fs::read(path).unwrap())
+}
+
+/// The bytes of the content `uri` of the tileset in `dir`: the file it names, or for a data URI
+/// (3D Tiles 1.1 allows them; bimtiles inlines a small root so) its payload, decoded with the
+/// `base64` crate rather than our own reader.
+pub fn content_bytes(dir: &Path, uri: &str) -> Vec<u8> {
+    use base64::Engine;
+    match uri.strip_prefix("data:") {
+        Some(rest) => {
+            let (media, payload) = rest.split_once(',').expect("a data URI has a comma");
+            assert!(
+                media.ends_with(";base64"),
+                "{}: data URI not base64",
+                dir.display()
+            );
+            base64::engine::general_purpose::STANDARD
+                .decode(payload)
+                .unwrap_or_else(|e| panic!("{}: data URI: {e}", dir.display()))
+        }
+        None => std::fs::read(dir.join(uri))
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.join(uri).display())),
+    }
+}
+
+/// [`content_bytes`] as [`plain_glb`] makes them.
+pub fn read_content(dir: &Path, uri: &str) -> Vec<u8> {
+    plain_glb(content_bytes(dir, uri))
+}
+
+/// The name report.json gives the content `uri` of the tileset in `dir`: the URI itself, or for
+/// the root inlined as a data URI, the file name its record keeps (`inlined_in_tileset`).
+pub fn content_name(dir: &Path, uri: &str) -> String {
+    if !uri.starts_with("data:") {
+        return uri.to_string();
+    }
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    let root = &report["tiles"][0];
+    assert_eq!(root["inlined_in_tileset"], true, "{}", dir.display());
+    root["content"].as_str().unwrap().to_string()
+}
+
+/// The content URI tileset.json gives the tile report.json names `name` (the inverse of
+/// [`content_name`]): the name itself, or the root's data URI when it was inlined.
+pub fn content_uri(dir: &Path, name: &str) -> String {
+    let read = |file: &str| -> Value {
+        serde_json::from_slice(&std::fs::read(dir.join(file)).unwrap()).unwrap()
+    };
+    let root = &read("report.json")["tiles"][0];
+    if root["inlined_in_tileset"] == true && root["content"] == name {
+        return read("tileset.json")["root"]["content"]["uri"]
+            .as_str()
+            .unwrap()
+            .to_string();
+    }
+    name.to_string()
+}
+
+/// Every content of the tileset in `dir`, in tree order: (its name in report.json, its bytes).
+pub fn tileset_contents(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let ts: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
+    let mut out = Vec::new();
+    let mut stack = vec![&ts["root"]];
+    while let Some(t) = stack.pop() {
+        let uris = t.pointer("/content/uri").into_iter().chain(
+            t["contents"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(|c| &c["uri"]),
+        );
+        for uri in uris.filter_map(Value::as_str) {
+            out.push((content_name(dir, uri), content_bytes(dir, uri)));
+        }
+        if let Some(children) = t["children"].as_array() {
+            stack.extend(children.iter().rev());
+        }
+    }
+    out
 }
 
 /// Positions and triangle indices of a primitive, decoding Draco when it is compressed.
@@ -909,22 +994,29 @@ pub fn input_images(model: &Path) -> std::collections::BTreeSet<Vec<u8>> {
         .collect()
 }
 
-/// An image of a tile: embedded in the GLB (`blob`) or a shared file relative to it (`path`).
-pub fn image_bytes(path: &Path, blob: &[u8], image: &gltf::Image) -> Vec<u8> {
+/// An image of the tile `tile_uri` of the tileset in `dir`: embedded in the GLB (`blob`) or a
+/// shared file relative to the tile (an inlined root names no file).
+pub fn image_bytes(dir: &Path, tile_uri: &str, blob: &[u8], image: &gltf::Image) -> Vec<u8> {
     match image.source() {
         gltf::image::Source::View { view, .. } => {
             blob[view.offset()..view.offset() + view.length()].to_vec()
         }
         gltf::image::Source::Uri { uri, .. } => {
             assert!(uri.starts_with("../textures/"), "{uri}");
-            std::fs::read(path.parent().unwrap().join(uri)).unwrap()
+            assert!(
+                !tile_uri.starts_with("data:"),
+                "an inlined tile names {uri}"
+            );
+            let tile = dir.join(tile_uri);
+            std::fs::read(tile.parent().unwrap().join(uri)).unwrap()
         }
     }
 }
 
-/// Textured primitives of a GLB written without Draco (`--compression none`).
-pub fn read_textured(path: &Path) -> Vec<Textured> {
-    let bytes = read_tile(path);
+/// Textured primitives of the tile `uri` of the tileset in `dir`, written without Draco
+/// (`--compression none`).
+pub fn read_textured(dir: &Path, uri: &str) -> Vec<Textured> {
+    let bytes = read_content(dir, uri);
     let g = gltf::Gltf::from_slice_without_validation(&bytes).unwrap();
     let blob = g.blob.as_deref().unwrap();
     let mut out = Vec::new();
@@ -933,7 +1025,7 @@ pub fn read_textured(path: &Path) -> Vec<Textured> {
             let Some(info) = p.material().pbr_metallic_roughness().base_color_texture() else {
                 continue;
             };
-            let image = image_bytes(path, blob, &info.texture().source());
+            let image = image_bytes(dir, uri, blob, &info.texture().source());
             let dims = image::ImageReader::new(std::io::Cursor::new(&image))
                 .with_guessed_format()
                 .unwrap()

@@ -7,6 +7,8 @@ checks, with the property tables decoded by test_metadata_reader's independent d
 * the elements are exactly the CityObjects that have geometry (ids and count);
 * each element's class is its CityObject type;
 * the CityObject attributes are in the property table (strings as written, numbers as numbers).
+
+Every tile is read, the root too when it is inlined in tileset.json as a data URI (tile_content.py).
 """
 
 import json
@@ -29,6 +31,7 @@ for _k in ("c_make_encoder", "float"):
         json.encoder.__dict__.pop(_k, None)
 
 from test_metadata_reader import decode_table, read_glb, tileset_dirs  # noqa: E402
+from tile_content import record_base, record_bytes, record_label  # noqa: E402
 
 SURFACE_TYPES = {"MultiSurface", "CompositeSurface", "Solid", "MultiSolid", "CompositeSolid"}
 
@@ -70,15 +73,18 @@ def test_cityjson_elements_and_attributes_match_cjio():
         rows = {}
         # Properties by id over every tile's schema (an inline schema holds only its tile's).
         properties = {}
+        tiles_read = inlined = 0
         for tile in report["tiles"]:
             if not tile["content"]:
                 continue
-            doc, blob = read_glb(d / tile["content"])
+            doc, blob = read_glb(record_label(d, tile), record_bytes(d, tile))
+            tiles_read += 1
+            inlined += bool(tile.get("inlined_in_tileset"))
             ext = doc["extensions"]["EXT_structural_metadata"]
             if "schema" in ext:
                 schema = ext["schema"]
             else:
-                schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+                schema = json.loads(record_base(d, tile).joinpath(ext["schemaUri"]).read_text())
             properties.update(schema["classes"]["element"]["properties"])
             for r in decode_table(doc, blob, schema):
                 rows.setdefault(r["id"], {}).update({k: v for k, v in r.items() if v is not None})
@@ -112,6 +118,7 @@ def test_cityjson_elements_and_attributes_match_cjio():
                     assert got == value or (value == "" and got is None), f"{oid}.{key}: {got!r} != {value!r}"
                 attributes_checked += 1
         checked += 1
-        print(f"{d}: {len(expected)} CityObjects with geometry, {attributes_checked} attribute values match cjio")
+        print(f"{d}: {len(expected)} CityObjects with geometry, {attributes_checked} attribute values match cjio "
+              f"({tiles_read} tiles, {inlined} inlined in tileset.json)")
     if checked == 0:
         pytest.skip("no tileset converted from a CityJSON input among BIMTILES_TILESET_DIRS")

@@ -15,7 +15,8 @@ Two sources of streams:
    the Cargo.toml (default: the repository's); ``CARGO_TARGET_DIR`` is honoured.
 
 2. Tiles (run when ``BIMTILES_TILE_DIR`` is set): every ``*.glb`` in a ``tiles/`` folder of a
-   tileset (one with a ``tileset.json`` beside it) below that folder;
+   tileset (one with a ``tileset.json`` beside it) below that folder, and every content inlined in
+   such a ``tileset.json`` as a data URI (bimtiles' default for the root: tile_content.py);
    each primitive with ``KHR_draco_mesh_compression`` is decoded and its accessors are
    checked against the decoded data (counts, POSITION min/max, attribute ids, integer
    feature ids), as the extension requires.
@@ -31,6 +32,8 @@ import struct
 import subprocess
 
 import pytest
+
+from tile_content import inlined_contents, record_bytes, record_label
 
 np = pytest.importorskip("numpy")
 DracoPy = pytest.importorskip("DracoPy")
@@ -167,8 +170,10 @@ def test_fixtures_decode_with_dracopy(fixture_dir):
 # --------------------------------------------------------------------------- tiles
 
 
-def read_glb(path):
-    data = path.read_bytes()
+def read_glb(path, data=None):
+    """(JSON, BIN chunk) of the GLB at `path`, or of its bytes `data` (then `path` only names it)."""
+    if data is None:
+        data = pathlib.Path(path).read_bytes()
     magic, version, length = struct.unpack_from("<4sII", data, 0)
     assert magic == b"glTF" and version == 2, f"{path}: not a GLB 2.0"
     off, doc, blob = 12, None, None
@@ -187,16 +192,17 @@ def read_glb(path):
 COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
-def check_glb(path):
-    """Checks every Draco primitive of one GLB; returns the number checked."""
-    doc, blob = read_glb(path)
+def check_glb(path, data=None):
+    """Checks every Draco primitive of one GLB (the file `path`, or its bytes `data` named by `path`);
+    returns the number checked."""
+    doc, blob = read_glb(path, data)
     checked = 0
     for mi, mesh_def in enumerate(doc.get("meshes", [])):
         for pi, prim in enumerate(mesh_def.get("primitives", [])):
             ext = prim.get("extensions", {}).get("KHR_draco_mesh_compression")
             if ext is None:
                 continue
-            where = f"{path.name} mesh {mi} primitive {pi}"
+            where = f"{pathlib.Path(path).name} mesh {mi} primitive {pi}"
             assert "KHR_draco_mesh_compression" in doc.get("extensionsUsed", []), where
             assert prim.get("mode", 4) in (4, 5), where
             bv = doc["bufferViews"][ext["bufferView"]]
@@ -236,19 +242,30 @@ def tile_files():
                   if p.parent.name == "tiles" and (p.parent.parent / "tileset.json").is_file())
 
 
+def inlined_tiles():
+    """(label, bytes) of the contents inlined as data URIs in the tileset.json files below
+    BIMTILES_TILE_DIR."""
+    d = os.environ.get("BIMTILES_TILE_DIR")
+    if not d:
+        return []
+    return [c for t in sorted(pathlib.Path(d).rglob("tileset.json")) for c in inlined_contents(t.parent)]
+
+
 @pytest.mark.skipif(not os.environ.get("BIMTILES_TILE_DIR"), reason="BIMTILES_TILE_DIR not set")
 def test_tiles_decode_with_dracopy():
-    files = tile_files()
-    assert files, "no .glb under BIMTILES_TILE_DIR"
+    files, inlined = tile_files(), inlined_tiles()
+    assert files or inlined, "no .glb under BIMTILES_TILE_DIR"
     total = sum(check_glb(f) for f in files)
-    print(f"checked {total} Draco primitives in {len(files)} GLB files")
+    total_inlined = sum(check_glb(label, data) for label, data in inlined)
+    print(f"checked {total + total_inlined} Draco primitives in {len(files)} GLB files and {len(inlined)} "
+          f"GLBs inlined in tileset.json ({total_inlined} of the primitives)")
 
 
-def shading_deviation_deg(path):
-    """Per Draco primitive with normals: the median angle (degrees) between each decoded vertex
-    normal and the area-weighted normal of the decoded faces that use the vertex (its copies
-    included)."""
-    doc, blob = read_glb(path)
+def shading_deviation_deg(path, data=None):
+    """Per Draco primitive with normals (of the GLB file `path`, or its bytes `data` named by
+    `path`): the median angle (degrees) between each decoded vertex normal and the area-weighted
+    normal of the decoded faces that use the vertex (its copies included)."""
+    doc, blob = read_glb(path, data)
     out = []
     for mesh_def in doc.get("meshes", []):
         for prim in mesh_def.get("primitives", []):
@@ -284,14 +301,20 @@ def shading_deviation_deg(path):
 
 
 def simplified_tile_files():
-    """Tiles that report.json lists as simplified (HLOD and LOD-chain content)."""
+    """Tiles that report.json lists as simplified (HLOD and LOD-chain content): (label, bytes),
+    the root's read from tileset.json when it is inlined there."""
     d = os.environ.get("BIMTILES_TILE_DIR")
     out = []
     for report in sorted(pathlib.Path(d).rglob("report.json")) if d else []:
         tiles = json.loads(report.read_text()).get("tiles", [])
-        out += [report.parent / t["content"] for t in tiles
-                if t.get("simplified_from_triangles") and t.get("content")]
-    return [f for f in out if f.suffix == ".glb" and f.is_file()]
+        for t in tiles:
+            if not (t.get("simplified_from_triangles") and t.get("content") and t["content"].endswith(".glb")):
+                continue
+            if t.get("inlined_in_tileset"):
+                out.append((record_label(report.parent, t), record_bytes(report.parent, t)))
+            elif (report.parent / t["content"]).is_file():
+                out.append((str(report.parent / t["content"]), None))
+    return out
 
 
 @pytest.mark.skipif(not os.environ.get("BIMTILES_TILE_DIR"), reason="BIMTILES_TILE_DIR not set")
@@ -304,7 +327,9 @@ def test_simplified_tiles_shade_the_faces_they_draw():
     files = simplified_tile_files()
     if not files:
         pytest.skip("no simplified tiles under BIMTILES_TILE_DIR")
-    worst = sorted(((d, str(f)) for f in files for d in shading_deviation_deg(f)), reverse=True)
+    worst = sorted(((d, label) for label, data in files for d in shading_deviation_deg(label, data)), reverse=True)
     assert worst, "no Draco primitive with normals in the simplified tiles"
-    print(f"{len(files)} simplified tiles; median normal-to-face angle per primitive, worst: {worst[:3]}")
+    inlined = sum(1 for _, data in files if data is not None)
+    print(f"{len(files)} simplified tiles ({inlined} inlined in tileset.json); median normal-to-face angle "
+          f"per primitive, worst: {worst[:3]}")
     assert worst[0][0] < 2.0, f"normals off their faces: {worst[:5]}"

@@ -29,6 +29,8 @@ import subprocess
 
 import pytest
 
+from tile_content import content_bytes
+
 np = pytest.importorskip("numpy")
 pyproj = pytest.importorskip("pyproj", reason="pyproj is not installed (pip install pyproj==3.7.2)")
 ifcopenshell = pytest.importorskip("ifcopenshell")
@@ -137,9 +139,9 @@ def node_matrix(node):
     return m
 
 
-def glb_positions(path):
-    """Float POSITIONs of a GLB's drawn nodes, in the glTF scene frame (y-up)."""
-    data = pathlib.Path(path).read_bytes()
+def glb_positions(glb):
+    """Float POSITIONs of a GLB's drawn nodes (a path, or the GLB's bytes), in the glTF scene frame (y-up)."""
+    data = glb if isinstance(glb, (bytes, bytearray)) else pathlib.Path(glb).read_bytes()
     jlen = struct.unpack_from("<I", data, 12)[0]
     doc = json.loads(data[20 : 20 + jlen])
     bin_chunk = data[20 + jlen + 8 :]
@@ -173,7 +175,8 @@ Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]
 
 
 def tileset_ecef_vertices(out_dir):
-    """Every vertex of every tile, in ECEF (tile transforms, glTF y-up to z-up)."""
+    """Every vertex of every tile, in ECEF (tile transforms, glTF y-up to z-up); a content inlined
+    in tileset.json as a data URI (the root, by default) is read from there."""
     ts = json.loads((out_dir / "tileset.json").read_text())
     pts = []
 
@@ -183,7 +186,7 @@ def tileset_ecef_vertices(out_dir):
             m = parent @ np.asarray(tile["transform"], dtype=np.float64).reshape(4, 4).T
         uri = tile.get("content", {}).get("uri")
         if uri:
-            p = glb_positions(out_dir / uri)
+            p = glb_positions(content_bytes(out_dir, uri))
             p = np.c_[p, np.ones(len(p))] @ (m @ Y_UP_TO_Z_UP).T
             pts.append(p[:, :3])
         for c in tile.get("children", []):

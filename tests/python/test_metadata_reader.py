@@ -10,7 +10,8 @@ then checks against the *input* file, read here from its JSON chunk:
 * and every feature ID stored on the vertices names a row of the tile's table.
 
 Tiles with EXT_meshopt_compression are read from a copy decoded by meshoptimizer's reference
-decoder (meshopt_decode.py).
+decoder (meshopt_decode.py). A tile inlined in tileset.json as a data URI (report.json's
+``inlined_in_tileset``) is read from there (tile_content.py), with the same checks.
 
 Run: BIMTILES_TILESET_DIRS=out/a:out/b python3 -m pytest -q tests/python/test_metadata_reader.py
 """
@@ -24,12 +25,15 @@ import struct
 import pytest
 
 from meshopt_decode import decoded_tileset
+from tile_content import record_base, record_bytes, record_label
 
 GUID = re.compile(r"^[0-3][0-9A-Za-z_$]{21}$")
 
 
-def read_glb(path):
-    data = pathlib.Path(path).read_bytes()
+def read_glb(path, data=None):
+    """(JSON, BIN chunk) of the GLB at `path`, or of its bytes `data` (then `path` only names it)."""
+    if data is None:
+        data = pathlib.Path(path).read_bytes()
     assert data[:4] == b"glTF", f"{path}: not a GLB"
     jlen = struct.unpack_from("<I", data, 12)[0]
     doc = json.loads(data[20:20 + jlen])
@@ -213,14 +217,15 @@ def test_metadata_names_every_input_element():
         for tile in report["tiles"]:
             if not tile["content"]:
                 continue
-            doc, blob = read_glb(d / tile["content"])
+            where = record_label(d, tile)
+            doc, blob = read_glb(where, record_bytes(d, tile))
             ext = doc.get("extensions", {}).get("EXT_structural_metadata")
-            assert ext, f"{tile['content']}: no EXT_structural_metadata"
+            assert ext, f"{where}: no EXT_structural_metadata"
             assert "EXT_structural_metadata" in doc["extensionsUsed"]
             if "schema" in ext:
                 schema = ext["schema"]
             else:
-                schema = json.loads((d / tile["content"]).parent.joinpath(ext["schemaUri"]).read_text())
+                schema = json.loads(record_base(d, tile).joinpath(ext["schemaUri"]).read_text())
             assert schema["id"] == "bimtiles"
             rows = decode_table(doc, blob, schema)
             assert len(rows) == tile["features"]
@@ -235,7 +240,7 @@ def test_metadata_names_every_input_element():
                         assert merged.setdefault(k, v) == v, f"{r['id']}: {k} {merged[k]!r} vs {v!r}"
                 if r.get("name") is None and expected.get(r["id"], (None,))[0] is not None:
                     assert r["id"].endswith("/" + expected[r["id"]][0]) or r["id"] == expected[r["id"]][0], \
-                        f"{r['id']}: name left out of {tile['content']} but the id does not end with it"
+                        f"{r['id']}: name left out of {where} but the id does not end with it"
                 # Exact duplicates that were not drawn are listed by the element drawn for them.
                 for alias in json.loads(r.get("aliases") or "[]"):
                     assert aliases.setdefault(alias, r["id"]) == r["id"], f"{alias}: alias of two elements"
@@ -250,6 +255,8 @@ def test_metadata_names_every_input_element():
             assert r.get("class") == cls, f"{key}: class {r.get('class')!r} != {cls!r}"
             assert r.get("storey") == storey, f"{key}: storey {r.get('storey')!r} != {storey!r}"
         checked += len(expected)
-        print(f"{d}: {len(expected)} elements named correctly in {sum(1 for t in report['tiles'] if t['content'])} tiles")
+        inlined = sum(1 for t in report["tiles"] if t["content"] and t.get("inlined_in_tileset"))
+        print(f"{d}: {len(expected)} elements named correctly in "
+              f"{sum(1 for t in report['tiles'] if t['content'])} tiles ({inlined} inlined in tileset.json)")
     if checked == 0:
         pytest.skip("no tileset converted from a single glTF input among BIMTILES_TILESET_DIRS")

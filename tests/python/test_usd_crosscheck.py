@@ -8,7 +8,9 @@ BIMTILES_TILESET_DIRS (colon-separated; skipped when unset) it
    (usually local -> ECEF) is ignored: everything is compared in the root's local frame;
 2. reads each tile's GLB content with the small pure-Python reader below (JSON + BIN chunks, accessors with
    byteOffset/byteStride, FLOAT/normalized-int positions, UNSIGNED_BYTE/SHORT/INT indices, the node
-   hierarchy with translation/rotation/scale/matrix, EXT_mesh_gpu_instancing on nodes);
+   hierarchy with translation/rotation/scale/matrix, EXT_mesh_gpu_instancing on nodes); a GLB inlined in
+   the tileset JSON as a data URI (bimtiles' default for the root) is decoded (tile_content.py) and read
+   the same way;
 3. builds an in-memory USD stage: one UsdGeom.Xform per tile with the composed transform, a child Xform with
    the glTF y-up -> 3D Tiles z-up rotation ((x, y, z) -> (x, -z, y), +90 deg about X), children Xforms per
    glTF node, one UsdGeom.Mesh per primitive;
@@ -31,6 +33,7 @@ import struct
 
 import pytest
 from meshopt_decode import decoded_tileset
+from tile_content import GLB_MEDIA_TYPE, data_uri_bytes, data_uri_label, data_uri_media_type, is_data_uri
 
 pxr = pytest.importorskip("pxr", reason="usd-core is not installed (pip install -r tests/python/requirements.txt)")
 from pxr import Gf, Usd, UsdGeom, Vt  # noqa: E402
@@ -105,10 +108,14 @@ NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MA
 
 
 class Glb:
-    def __init__(self, path):
+    def __init__(self, path, data=None, base=None):
+        """The GLB file `path`, or its bytes `data` (then `path` only names it, and `base` is the folder its
+        relative buffer uris resolve against)."""
         self.path = path
-        with open(path, "rb") as fh:
-            data = fh.read()
+        self.base = base or os.path.dirname(os.path.abspath(path))
+        if data is None:
+            with open(path, "rb") as fh:
+                data = fh.read()
         magic, version, length = struct.unpack_from("<4sII", data, 0)
         if magic != b"glTF" or version != 2:
             raise ValueError(f"{path}: not a glTF 2.0 binary")
@@ -138,7 +145,7 @@ class Glb:
             elif uri.startswith("data:"):
                 self._buffers[i] = base64.b64decode(uri.split(",", 1)[1])
             else:
-                base = os.path.dirname(os.path.abspath(self.path))
+                base = os.path.abspath(self.base)
                 full = os.path.abspath(os.path.join(base, uri))
                 if not full.startswith(base + os.sep):
                     raise ValueError(f"{self.path}: buffer uri escapes its folder: {uri}")
@@ -349,14 +356,17 @@ def walk_tileset(tileset_path, stage, notes):
     root_dir = os.path.dirname(os.path.abspath(tileset_path))
     UsdGeom.Xform.Define(stage, "/Tileset")
 
-    def content_uris(tile):
+    def content_uris(tile, ptr):
+        """(JSON pointer, uri) of the tile's contents."""
         out = []
         if "content" in tile:
-            out.append(tile["content"]["uri"] if "uri" in tile["content"] else tile["content"]["url"])
-        out += [c["uri"] for c in tile.get("contents", [])]
+            key = "uri" if "uri" in tile["content"] else "url"
+            out.append((f"{ptr}/content/{key}", tile["content"][key]))
+        out += [(f"{ptr}/contents/{i}/uri", c["uri"]) for i, c in enumerate(tile.get("contents", []))]
         return out
 
-    def visit(tile, base_dir, parent_matrix, parent_check, label, is_root, depth):
+    def visit(tile, json_path, ptr, parent_matrix, parent_check, label, is_root, depth):
+        base_dir = os.path.dirname(json_path)
         if depth > 256:
             raise ValueError("tile tree too deep")
         local = IDENTITY if ("transform" not in tile or is_root) else mat_from_column_major(tile["transform"])
@@ -366,13 +376,22 @@ def walk_tileset(tileset_path, stage, notes):
         if "implicitTiling" in tile:
             notes.append(f"{label}: implicit tiling is not followed by this checker")
         glbs, externals = [], []
-        for uri in content_uris(tile):
+        for uri_ptr, uri in content_uris(tile, ptr):
+            if is_data_uri(uri):
+                # Inlined content: decoded here, read like a file; its own relative uris resolve against
+                # the tileset JSON's folder.
+                where = data_uri_label(json_path, uri_ptr)
+                if data_uri_media_type(uri) == GLB_MEDIA_TYPE:
+                    glbs.append((where, data_uri_bytes(uri, where), base_dir))
+                else:
+                    notes.append(f"{label}: content {where} ({data_uri_media_type(uri)}, not GLB) skipped")
+                continue
             full = os.path.normpath(os.path.join(base_dir, uri.split("?")[0]))
             if not os.path.abspath(full).startswith(root_dir + os.sep):
                 raise ValueError(f"{label}: content uri escapes the tileset folder: {uri}")
             low = full.lower()
             if low.endswith(".glb"):
-                glbs.append(full)
+                glbs.append((full, None, None))
             elif low.endswith(".json"):
                 externals.append(full)
             else:
@@ -382,24 +401,24 @@ def walk_tileset(tileset_path, stage, notes):
             xf.AddTransformOp().Set(to_gf(m))
             up = UsdGeom.Xform.Define(stage, f"/Tileset/{label}/yup")
             up.AddTransformOp().Set(to_gf(Y_UP_TO_Z_UP))
-            for ci, full in enumerate(glbs):
+            for ci, (full, data, base) in enumerate(glbs):
                 cx = UsdGeom.Xform.Define(stage, f"/Tileset/{label}/yup/c{ci}")
-                check.triangles += add_glb_to_stage(stage, str(cx.GetPath()), Glb(full), notes)
+                check.triangles += add_glb_to_stage(stage, str(cx.GetPath()), Glb(full, data, base), notes)
                 check.content_files.append(os.path.relpath(full, root_dir))
             check.prim_path = f"/Tileset/{label}"
         for ext in externals:
             with open(ext) as fh:
                 sub = json.load(fh)
             # the external tileset's root is a child of this tile (its transform applies)
-            visit(sub["root"], os.path.dirname(ext), m, check, f"{label}_x", False, depth + 1)
+            visit(sub["root"], ext, "/root", m, check, f"{label}_x", False, depth + 1)
         for i, child in enumerate(tile.get("children", [])):
-            visit(child, base_dir, m, check, f"{label}_{i}", False, depth + 1)
+            visit(child, json_path, f"{ptr}/children/{i}", m, check, f"{label}_{i}", False, depth + 1)
 
     with open(tileset_path) as fh:
         ts = json.load(fh)
     if "transform" in ts["root"]:
         notes.append("root transform ignored: bounds compared in the root tile's local frame")
-    visit(ts["root"], root_dir, IDENTITY, None, "t0", True, 0)
+    visit(ts["root"], os.path.abspath(tileset_path), "/root", IDENTITY, None, "t0", True, 0)
     return ts, tiles
 
 
@@ -542,9 +561,10 @@ def column_major(m):
     return [m[r][c] for c in range(4) for r in range(4)]
 
 
-def make_tileset(d, root_box=None, child_box=None):
+def make_tileset(d, root_box=None, child_box=None, inline_root=False):
     """Root tile (ECEF-like root transform, content root.glb) with one child (own transform: 90 deg about Z
-    plus translation (3, 0, 0); content child/child.glb).
+    plus translation (3, 0, 0); content child/child.glb). With inline_root, root.glb is inlined in
+    tileset.json as a base64 data URI instead (as bimtiles writes the root by default) and not kept as a file.
 
     root.glb: node 0 translation (0, 5, 0) with child node 1 rotated 90 deg about +Y holding the box ->
       glTF half extents (0.25, 0.5, 1) at (0, 5, 0) -> z-up: x [-0.25, 0.25], y [-1, 1], z [4.5, 5.5].
@@ -581,6 +601,10 @@ def make_tileset(d, root_box=None, child_box=None):
             }],
         },
     }
+    if inline_root:
+        with open(os.path.join(d, "root.glb"), "rb") as fh:
+            ts["root"]["content"]["uri"] = f"data:{GLB_MEDIA_TYPE};base64," + base64.b64encode(fh.read()).decode()
+        os.remove(os.path.join(d, "root.glb"))
     with open(os.path.join(d, "tileset.json"), "w") as fh:
         json.dump(ts, fh, indent=1)
     return d
@@ -602,6 +626,32 @@ def test_handbuilt_tileset_passes(tmp_path):
     # content box 0.5 x 2 x 1 = 1 m^3 in a 6 x 3 x 7 = 126 m^3 box
     assert root["tightness"] == pytest.approx(1 / 126, rel=1e-6)
     assert any("root transform ignored" in n for n in rep["notes"])
+
+
+def test_inlined_root_is_read(tmp_path):
+    # The root's GLB as a data URI in tileset.json: read as the file was (same bounds, same triangles).
+    rep = check_tileset(make_tileset(str(tmp_path), inline_root=True))
+    assert rep["problems"] == []
+    assert rep["tiles"] == 2 and rep["triangles"] == 24
+    root = _row(rep, "t0")
+    assert root["content"] == ["tileset.json#/root/content/uri"]
+    for got, want in zip(root["content_min"] + root["content_max"], [-0.25, -1, 4.5, 0.25, 1, 5.5]):
+        assert got == pytest.approx(want, abs=1e-6)
+    # ... and checked as the file was: a box that does not hold it fails.
+    bad = check_tileset(make_tileset(str(tmp_path / "bad"), root_box=[1.5, 0, 3, 3, 0, 0, 0, 0.9, 0, 0, 0, 3.5],
+                                     inline_root=True), verbose=False)
+    assert any(p.startswith("t0: content") for p in bad["problems"]), bad["problems"]
+
+
+def test_inlined_root_not_base64_fails(tmp_path):
+    d = make_tileset(str(tmp_path), inline_root=True)
+    with open(os.path.join(d, "tileset.json")) as fh:
+        ts = json.load(fh)
+    ts["root"]["content"]["uri"] = ts["root"]["content"]["uri"].replace(";base64,", ",", 1)
+    with open(os.path.join(d, "tileset.json"), "w") as fh:
+        json.dump(ts, fh)
+    with pytest.raises(AssertionError, match="not base64"):
+        check_tileset(d, verbose=False)
 
 
 def test_box_not_containing_content_fails(tmp_path):
