@@ -178,10 +178,10 @@ fn a_small_schema_is_inline_in_each_of_a_few_tiles() {
 /// The root inlined (the default): a one-tile model's GLB goes into tileset.json as a data URI,
 /// the bytes of the tile a `--no-inline-root` run writes (decoded here with the `base64` crate,
 /// checked by gltf-validator), and the rest of tileset.json as the plain run's (valid against the
-/// 3D Tiles schemas); `inspect` reads it. A root that names other files (Mini_Project's schema.json), whose base64 grows by
-/// more than a request's worth (LoD3_Railway's coarse root, 406 KB) or whose resources would cost
-/// CesiumJS's cache keys too much (the sample: 177 resources x 155 KB) stays a file: the output
-/// is the plain run's.
+/// 3D Tiles schemas); `inspect` reads it. A root that names other files (Mini_Project's
+/// schema.json), whose base64 grows by more than a request's worth (LoD3_Railway's coarse root,
+/// 406 KB) or whose resources would cost CesiumJS's cache keys too much (the sample: 177
+/// resources x 155 KB) stays a file: the output is the plain run's.
 #[test]
 fn inline_root_puts_a_self_contained_root_in_tileset_json() {
     use base64::Engine;

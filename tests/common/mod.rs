@@ -404,8 +404,8 @@ pub fn decode_tileset(dir: &Path) -> (Value, Vec<DecodedTile>) {
     (ts, out)
 }
 
-/// The metadata schema the tile `tile_uri` (a file in the tileset folder `dir`, or a data URI) uses: inline in
-/// its `EXT_structural_metadata`, or the file its `schemaUri` names.
+/// The metadata schema the tile `tile_uri` (a file in the tileset folder `dir`, or a data URI)
+/// uses: inline in its `EXT_structural_metadata`, or the file its `schemaUri` names.
 pub fn tile_schema(dir: &Path, tile_uri: &str) -> Value {
     let json = glb_json(&content_bytes(dir, tile_uri));
     let ext = &json["extensions"]["EXT_structural_metadata"];
