@@ -27,6 +27,10 @@
 //                      half the canvas on a software renderer such as SwiftShader, else full
 //   --timeout S        per-load timeout (default 180)
 //   --json FILE        write the result there too
+//   --cpu-profile DIR  write a CPU profile (CDP Profiler, Chrome DevTools' .cpuprofile) of each
+//                      measured cold load there, DIR/MODEL-VARIANT-runN.cpuprofile: from the
+//                      tileset request to all tiles loaded. Sampling slows the page a little: use
+//                      it to see where a load's time goes, not for the figures
 //
 // An .ifc model has no raw GLB: its raw variant is bimtiles' own single-tile GLB of it (one
 // octree cell: --max-tile-triangles and --max-tile-bytes at their largest, no coarse root above it,
@@ -81,6 +85,7 @@ function parseArgs(argv) {
     o.rawGlb[k] = v;
   }
   o.bimtiles = o.bimtiles || join(REPO, "target/release/bimtiles");
+  if (o["cpu-profile"]) mkdirSync(o["cpu-profile"], { recursive: true });
   o.stopRadii = o.stops === "none" ? [] : o.stops.split(",").map(Number);
   if (o.stopRadii.some((r) => !(r > 0))) throw new Error(`--stops: radii must be positive numbers, got ${o.stops}`);
   if (o.throttle) {
@@ -308,15 +313,41 @@ async function swCounters(page) {
   return s || { hits: 0, misses: 0, networkBytes: 0, invalidations: 0, workerTransferBytes: null };
 }
 
-/** One load of `url` in the page; with `path`, then the far-to-near camera path. */
-async function measure(page, url, opts, path = true) {
+/**
+ * One load of `url` in the page; with `path`, then the far-to-near camera path. With `profilePath`,
+ * a CPU profile of the load (request to all tiles loaded) is written there.
+ */
+async function measure(page, url, opts, path = true, profilePath = null) {
   const sw0 = await swCounters(page);
+  let profiler = null;
+  if (profilePath) {
+    profiler = await page.context().newCDPSession(page);
+    await profiler.send("Profiler.enable");
+    await profiler.send("Profiler.setSamplingInterval", { interval: 200 });
+    await profiler.send("Profiler.start");
+  }
   const ok = await page.evaluate((u) => window.bimtiles.loadTileset(u), url);
   if (!ok) throw new Error(`cannot load ${url}`);
   const w = await waitLoaded(page, opts.timeout * 1000);
   if (!w.ok) throw new Error(`${url}: ${w.reason}`);
+  if (profiler) {
+    const { profile } = await profiler.send("Profiler.stop");
+    writeFileSync(profilePath, JSON.stringify(profile));
+    await profiler.detach();
+  }
   const s = await collect(page);
   const sw1 = await swCounters(page);
+  // Each file fetched for this load (Resource Timing): when its request started and its last
+  // byte arrived, from the tileset request on; what is left of allTilesLoadedMs is the client's.
+  // (cleared after: the browser keeps only 250 entries)
+  const fetches = await page.evaluate((t0) => {
+    const list = performance
+      .getEntriesByType("resource")
+      .filter((e) => e.startTime >= t0)
+      .map((e) => ({ file: new URL(e.name).pathname.split("/").pop(), startMs: e.startTime - t0, responseEndMs: e.responseEnd - t0 }));
+    performance.clearResourceTimings();
+    return list;
+  }, s.tilesetRequestedMs);
   const r = {
     tilesetJsonMs: s.tilesetReadyMs - s.tilesetRequestedMs,
     firstFrameWithContentMs: s.firstFrameWithContentMs - s.tilesetRequestedMs,
@@ -339,6 +370,7 @@ async function measure(page, url, opts, path = true) {
     jsHeapBytesAfterGc: s.jsHeapBytesAfterGc,
     ...(await tilesetMemory(page)),
     tileFailures: s.tileFailures.length,
+    fetches,
   };
   if (path && opts["path-frames"] > 0) {
     const frames = await cameraPath(page, opts["path-frames"]);
@@ -485,7 +517,8 @@ async function main() {
         const order = run % 2 === 0 ? ["ours", "raw"] : ["raw", "ours"];
         for (const v of order) {
           const url = `${variants[v]}?run=${run}`;
-          const cold = await measure(page, url, opts, true);
+          const profilePath = opts["cpu-profile"] ? join(opts["cpu-profile"], `${name}-${v}-run${run}.cpuprofile`) : null;
+          const cold = await measure(page, url, opts, true, profilePath);
           if (opts.stopRadii.length) cold.flyIn = await flyIn(page, `${variants[v]}?fly=${run}`, opts);
           entry.loads[v].cold.push(cold);
           let line = `${name} run ${run} ${v}: cold all tiles ${Math.round(cold.allTilesLoadedMs)} ms, ${cold.tileBytes} B`;
