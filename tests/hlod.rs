@@ -932,3 +932,70 @@ fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
     let sample_out = tmpdir("coarse-root-sample").join("tiles");
     assert_eq!(convert(&sample(), &sample_out, &[])["output"]["tiles"], 1);
 }
+
+#[test]
+fn ifc_building_gets_a_simplified_coarse_root_inlined_in_the_tileset() {
+    // The IFC duplex is one tile by the budgets (422 KB, most of it property sets). Its first
+    // coarser try is far off (0.6 m at a quarter of its triangles) while half of them are within
+    // a few centimetres: finer tries that jumped to every triangle left it no coarse root.
+    let Some(model) = shared_file("duplex.ifc") else {
+        return;
+    };
+    let out = tmpdir("coarse-root-duplex-ifc").join("tiles");
+    let report = convert(&model, &out, &[]);
+    let full_triangles = report["input"]["triangles"].as_u64().unwrap() as usize;
+    check_tileset(&out, full_triangles);
+    let tiles = report["tiles"].as_array().unwrap();
+    let paths: Vec<&str> = tiles.iter().map(|t| t["path"].as_str().unwrap()).collect();
+    assert_eq!(paths, ["r-lod1", "r"]);
+    let (root, leaf) = (&tiles[0], &tiles[1]);
+    let root_triangles = root["triangles"].as_u64().unwrap();
+    let leaf_triangles = leaf["triangles"].as_u64().unwrap();
+    assert!(
+        root_triangles * 10 <= leaf_triangles * 6,
+        "the root is simplified: {root_triangles} of {leaf_triangles} triangles"
+    );
+    // The first view is the root alone, one request: it is in tileset.json.
+    assert_eq!(root["inlined_in_tileset"], true);
+    let ts: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    let root_uri = ts["root"]["content"]["uri"].as_str().unwrap();
+    assert!(
+        root_uri.starts_with("data:"),
+        "{}",
+        &root_uri[..40.min(root_uri.len())]
+    );
+    // Its elements stay clickable by name and class; property sets come with full detail.
+    let root_glb = glb_json(&content_bytes(&out, root_uri));
+    let leaf_glb = glb_json(&content_bytes(&out, &content_uri(&out, "tiles/r.glb")));
+    let columns = |doc: &serde_json::Value| -> Vec<String> {
+        let table = &doc["extensions"]["EXT_structural_metadata"]["propertyTables"][0];
+        table["properties"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .cloned()
+            .collect()
+    };
+    let (root_columns, leaf_columns) = (columns(&root_glb), columns(&leaf_glb));
+    for name in ["id", "name", "class"] {
+        assert!(
+            root_columns.iter().any(|c| c == name),
+            "{name} in {root_columns:?}"
+        );
+    }
+    assert!(
+        root_columns.len() * 10 < leaf_columns.len(),
+        "{} root columns, {} full-detail",
+        root_columns.len(),
+        leaf_columns.len()
+    );
+    // Honest: the full detail lies within the root's declared error.
+    for (i, measured, declared, ..) in measure_hlod(&out) {
+        assert!(
+            measured <= declared * 1.0001 + 2e-5 + LEAF_GRID_M,
+            "tile {i}: {measured} m > declared {declared} m"
+        );
+    }
+    gltf_validator(&out);
+}
