@@ -877,6 +877,17 @@ fn fetched_and_texels(dir: &std::path::Path, name: &str) -> (u64, u64) {
     (fetched, texels)
 }
 
+/// Every tile of the default (meshopt) tileset in `dir` is honest: the full detail below it lies
+/// within its declared error, up to the leaves' quantization grid.
+fn assert_within_declared_errors(dir: &std::path::Path) {
+    for (i, measured, declared, ..) in measure_hlod(dir) {
+        assert!(
+            measured <= declared * 1.0001 + 2e-5 + LEAF_GRID_M,
+            "tile {i}: {measured} m > declared {declared} m"
+        );
+    }
+}
+
 #[test]
 fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
     // LoD3_Railway is one tile by the budgets: its first view was every texel at full detail.
@@ -898,12 +909,7 @@ fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
     check_ladder("LoD3_Railway", &out, true);
     // Honest: the full detail lies within the root's error. (Not tight: the root declares the
     // error its texture levels are chosen for, above its geometry's.)
-    for (i, measured, declared, ..) in measure_hlod(&out) {
-        assert!(
-            measured <= declared * 1.0001 + 2e-5 + LEAF_GRID_M,
-            "tile {i}: {measured} m > declared {declared} m"
-        );
-    }
+    assert_within_declared_errors(&out);
     let (root_fetched, root_texels) = fetched_and_texels(&out, "tiles/r-lod1.glb");
     let (leaf_fetched, leaf_texels) = fetched_and_texels(&out, "tiles/r.glb");
     eprintln!(
@@ -991,11 +997,6 @@ fn ifc_building_gets_a_simplified_coarse_root_inlined_in_the_tileset() {
         leaf_columns.len()
     );
     // Honest: the full detail lies within the root's declared error.
-    for (i, measured, declared, ..) in measure_hlod(&out) {
-        assert!(
-            measured <= declared * 1.0001 + 2e-5 + LEAF_GRID_M,
-            "tile {i}: {measured} m > declared {declared} m"
-        );
-    }
+    assert_within_declared_errors(&out);
     gltf_validator(&out);
 }
