@@ -941,9 +941,9 @@ fn compact_textured_model_gets_a_coarse_root_with_coarser_textures() {
 
 #[test]
 fn ifc_building_gets_a_simplified_coarse_root_inlined_in_the_tileset() {
-    // The IFC duplex is one tile by the budgets (422 KB, most of it property sets). Its first
-    // coarser try is far off (0.6 m at a quarter of its triangles) while half of them are within
-    // a few centimetres: finer tries that jumped to every triangle left it no coarse root.
+    // The IFC duplex is one tile by the budgets, most of its bytes property sets. Its first
+    // coarser try is far off while half of its triangles are close: finer tries that jumped to
+    // every triangle left it no coarse root.
     let Some(model) = shared_file("duplex.ifc") else {
         return;
     };

@@ -315,9 +315,9 @@ type Tried = (HlodContent, TileError, usize);
 /// budget, or all of the children's, which then stand as they are), so the tries span the four
 /// times between a first try (a quarter of the children's) and all of them. Doubling, not the
 /// 1/triangles prediction [`coarsen`] uses: a building's error falls much faster than that as its
-/// small elements come back (the IFC duplex: 0.63 m at 7.2k triangles, 0.07 m at 10k), and the
-/// prediction jumped past the count that met the error to keep every triangle, a root no coarser
-/// than its child. Each try starts again from the children, and is
+/// small elements come back, and the prediction jumped past the count that met the error to every
+/// triangle, a root no coarser than its child (README, "The ladder of levels", has the IFC
+/// duplex's figures). Each try starts again from the children, and is
 /// kept when it meets the allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]):
 /// halving buys the parent a rung (it declares at least twice its children's error), while a
 /// finer tile that gains less costs its bytes in every view for nothing (Mini_Project's root grew
