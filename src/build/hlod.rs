@@ -456,8 +456,10 @@ pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
 
 /// Grids a simplified tile tries, each [`GRID_FALLBACK_STEP`] times finer than the last, before
 /// its grid is kept finer than its thinnest triangle: the airport's root flattens triangles that
-/// matter on the grid of its error's share, not on one 16 times finer.
-const GRID_TRIES: usize = 3;
+/// matter on the grid of its error's share, not on one 16 times finer. Five reach the finest grid
+/// from the share of an error of metres (256 times finer): one sliver of a whole element would
+/// otherwise put a campus root on the finest grid when a grid of a few millimetres keeps it.
+const GRID_TRIES: usize = 5;
 const GRID_FALLBACK_STEP: f64 = 4.0;
 
 /// Quantization of a simplified tile whose content lies within `measured_m` of full detail:
