@@ -963,9 +963,7 @@ fn ifc_building_gets_a_simplified_coarse_root_inlined_in_the_tileset() {
     );
     // The first view is the root alone, one request: it is in tileset.json.
     assert_eq!(root["inlined_in_tileset"], true);
-    let ts: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
-    let root_uri = ts["root"]["content"]["uri"].as_str().unwrap();
+    let root_uri = &content_uri(&out, root["content"].as_str().unwrap());
     assert!(
         root_uri.starts_with("data:"),
         "{}",

@@ -326,6 +326,8 @@ async function measure(page, url, opts, path = true, profilePath = null) {
     await profiler.send("Profiler.setSamplingInterval", { interval: 200 });
     await profiler.send("Profiler.start");
   }
+  // The browser keeps only 250 Resource Timing entries: a fly-in before this load can fill them.
+  await page.evaluate(() => performance.clearResourceTimings());
   const ok = await page.evaluate((u) => window.bimtiles.loadTileset(u), url);
   if (!ok) throw new Error(`cannot load ${url}`);
   const w = await waitLoaded(page, opts.timeout * 1000);
@@ -339,15 +341,12 @@ async function measure(page, url, opts, path = true, profilePath = null) {
   const sw1 = await swCounters(page);
   // Each file fetched for this load (Resource Timing): when its request started and its last
   // byte arrived, from the tileset request on; what is left of allTilesLoadedMs is the client's.
-  // (cleared after: the browser keeps only 250 entries)
-  const fetches = await page.evaluate((t0) => {
-    const list = performance
+  const fetches = await page.evaluate((t0) =>
+    performance
       .getEntriesByType("resource")
       .filter((e) => e.startTime >= t0)
-      .map((e) => ({ file: new URL(e.name).pathname.split("/").pop(), startMs: e.startTime - t0, responseEndMs: e.responseEnd - t0 }));
-    performance.clearResourceTimings();
-    return list;
-  }, s.tilesetRequestedMs);
+      .map((e) => ({ file: new URL(e.name).pathname.split("/").pop(), startMs: e.startTime - t0, responseEndMs: e.responseEnd - t0 })),
+    s.tilesetRequestedMs);
   const r = {
     tilesetJsonMs: s.tilesetReadyMs - s.tilesetRequestedMs,
     firstFrameWithContentMs: s.firstFrameWithContentMs - s.tilesetRequestedMs,
