@@ -305,7 +305,7 @@ fn atlas(
             inputs.push(p);
         } else {
             eprintln!(
-                "{} not found (run `cargo test --release --test textures atlas`)",
+                "{} not found (run `cargo test --release --test tests textures::atlas`)",
                 p.display()
             );
         }

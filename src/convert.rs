@@ -6,7 +6,6 @@
 //! parallel, each written and freed at once; file names and contents depend only on the input and
 //! the options, never on the thread count.
 
-use crate::build::TileWriter;
 use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
@@ -14,6 +13,7 @@ use crate::output_dir::StagingDir;
 use crate::prepare::{prepare, read_scene};
 use crate::scene::Scene;
 use crate::simplify::model::{simplify_scene, SimplifiedModel};
+use crate::tiling::TileWriter;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -30,6 +30,7 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
 /// Reads an input set (sample, model files or a campus manifest) and converts it.
 pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
+    let opts = &opts.resolve();
     // The output is locked and checked before the input is read: a second run to the same
     // output, or a folder that may not be replaced, fails at once.
     let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
@@ -47,6 +48,7 @@ pub fn convert_scene(
     t0: Instant,
     t_ingest: f64,
 ) -> Result<Report> {
+    let opts = &opts.resolve();
     let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
     build_into(staging, scene, opts, t0, t_ingest)
 }
@@ -55,7 +57,7 @@ pub fn convert_scene(
 fn build_into(
     staging: StagingDir,
     scene: &mut Scene,
-    opts: &ConvertOptions,
+    opts: &Settings,
     t0: Instant,
     t_ingest: f64,
 ) -> Result<Report> {

@@ -8,7 +8,6 @@
 //! `convert` runs it end to end, `inspect` reads a
 //! result back and `serve` shows it in a local CesiumJS viewer.
 
-pub mod build;
 pub mod convert;
 pub mod dedup;
 pub mod draco;
@@ -20,6 +19,7 @@ pub mod geometry;
 pub mod glb_container;
 pub mod ingest;
 pub mod inspect;
+pub mod lod;
 pub mod memory;
 pub mod options;
 pub mod output_dir;
@@ -32,6 +32,7 @@ pub mod shard;
 pub mod simplify;
 pub mod texture;
 pub mod tileset;
+pub mod tiling;
 pub mod transfer;
 
 pub use error::{Error, Result};
@@ -59,8 +60,9 @@ pub const LAYERS: &[&[&str]] = &[
     &["encode"],
     &["tileset"],
     &["options"],
+    &["lod"],
     &["prepare"],
-    &["build"],
+    &["tiling"],
     &["report"],
     &["convert", "inspect"],
     &["shard", "serve"],

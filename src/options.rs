@@ -32,16 +32,16 @@ pub struct ConvertOptions {
     pub error_metric: ErrorMetric,
     /// Options of the QEM simplifier for LOD content (targets are set per tile).
     pub simplify: crate::simplify::SimplifyOptions,
-    /// HLOD tiles are made coarser (up to `build::hlod::HLOD_COARSEN_TRIES` smaller triangle targets, each
+    /// HLOD tiles are made coarser (up to `lod::hlod::HLOD_COARSEN_TRIES` smaller triangle targets, each
     /// measured) while their measured error stays under this fraction of their framed error
     /// ([`crate::tileset::view::framed_error_m`] of the tile's bounding sphere: the error at which
     /// a viewer that sees the whole tile draws it). 0: the tile budget and
-    /// `build::hlod::HLOD_CHILDREN_DIVISOR` alone set how coarse they are. See [`DEFAULT_HLOD_ERROR_FRACTION`].
+    /// `lod::hlod::HLOD_CHILDREN_DIVISOR` alone set how coarse they are. See [`DEFAULT_HLOD_ERROR_FRACTION`].
     pub hlod_error_fraction: f64,
     /// Which properties simplified (HLOD, LOD chain) tiles carry; full-detail tiles carry all.
     pub coarse_tile_properties: CoarseTileProperties,
     /// A model the budgets keep to one heavy tile gets a coarse HLOD root above it when that
-    /// saves its first view a request's worth of bytes (`build::coarse_root`).
+    /// saves its first view a request's worth of bytes (`lod::coarse_root`).
     pub coarse_root: bool,
     /// The root tile's GLB goes into tileset.json as a data URI when it names no other file, and
     /// base64's growth and CesiumJS's cache keys cost less than the request (`tileset::inline`).
@@ -92,6 +92,41 @@ impl ConvertOptions {
     }
 }
 
+/// The options every stage reads: [`ConvertOptions`] as asked, with each default that depends on
+/// another option decided once ([`ConvertOptions::resolve`]), so that the stages and the report
+/// cannot decide it twice, or differently. The options as asked are read through it (`Deref`).
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// The options as asked (also what a sharded plan's digest covers).
+    pub asked: ConvertOptions,
+    /// [`ConvertOptions::min_instanced_triangles_saved`], decided.
+    pub min_instanced_triangles_saved: usize,
+    /// [`ConvertOptions::merge_plain_materials`], decided.
+    pub merge_plain_materials: bool,
+}
+
+impl ConvertOptions {
+    /// The settings the stages read: every default left to another option decided.
+    pub fn resolve(&self) -> Settings {
+        Settings {
+            asked: self.clone(),
+            min_instanced_triangles_saved: self
+                .min_instanced_triangles_saved
+                .unwrap_or_else(|| default_min_instanced_triangles_saved(self.compression)),
+            merge_plain_materials: self
+                .merge_plain_materials
+                .unwrap_or_else(|| default_merge_plain_materials(self.compression)),
+        }
+    }
+}
+
+impl std::ops::Deref for Settings {
+    type Target = ConvertOptions;
+    fn deref(&self) -> &ConvertOptions {
+        &self.asked
+    }
+}
+
 /// Default of [`ConvertOptions::min_instanced_triangles_saved`], chosen by measurement on the
 /// sample and the shared models (README, dedup section). Draco already compresses a repeated
 /// shape to a few bytes per triangle, so an instanced shape's own node, mesh, accessors and
@@ -139,7 +174,7 @@ pub enum LodMode {
     None,
     /// The paper's discrete LODs (III.C, Table IV): every leaf becomes a chain of tiles with its
     /// bounds, coarsest first, simplified to these ratios of its triangles (finest first, as
-    /// [`crate::simplify::lod_chain::chain_ratios`] gives them), full detail last;
+    /// [`crate::lod::chain_levels::chain_ratios`] gives them), full detail last;
     /// `refine: "REPLACE"`; internal tiles are empty, with a size-bound error.
     Ratios(Vec<f32>),
 }

@@ -6,12 +6,12 @@ use crate::dedup::{deduplicate, DedupReport};
 use crate::error::{Error, Result};
 use crate::geodesy::GeoOrigin;
 use crate::ingest::InputSet;
-use crate::options::{default_merge_plain_materials, ConvertOptions, LodMode};
+use crate::lod::chain_levels::with_lod_chains;
+use crate::options::{LodMode, Settings};
 use crate::partition::content::AppearanceClasses;
 use crate::partition::{plan_octree, TilePlan};
 use crate::scene::placement::Placement;
 use crate::scene::Scene;
-use crate::simplify::lod_chain::with_lod_chains;
 use crate::texture::admit::ImageLimits;
 use glam::DVec3;
 use serde::Serialize;
@@ -39,7 +39,7 @@ pub struct InputReport {
 
 /// Reads an input set into one scene; an input without triangles is an error, and so is a
 /// georeference that could not be used under `--strict-georef`.
-pub(crate) fn read_scene(inputs: &InputSet, opts: &ConvertOptions) -> Result<Scene> {
+pub(crate) fn read_scene(inputs: &InputSet, opts: &Settings) -> Result<Scene> {
     let scene = inputs.read_with(opts.crs.as_deref(), opts.cityjson_lod.as_deref())?;
     if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
         return Err(Error::input(
@@ -94,7 +94,7 @@ pub(crate) struct Prepared {
 
 /// Place, dedup, texture preparation and the octree plan. Fails on an image over the limits
 /// (`crate::texture::admit`).
-pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepared> {
+pub(crate) fn prepare(scene: &mut Scene, opts: &Settings) -> Result<Prepared> {
     let input = InputReport {
         files: scene
             .sources
@@ -148,10 +148,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &ConvertOptions) -> Result<Prepar
     let limits = ImageLimits::under_budget(crate::scene::memory_budget().map(|b| b.bytes));
     let textures_prepared = crate::texture::prepare(scene, &opts.texture, &limits)
         .map_err(|(file, refused)| Error::input_from(file, "", refused))?;
-    let merge_materials = opts
-        .merge_plain_materials
-        .unwrap_or_else(|| default_merge_plain_materials(opts.compression));
-    let appearance = match merge_materials {
+    let appearance = match opts.merge_plain_materials {
         true => AppearanceClasses::add_to(scene),
         false => AppearanceClasses::default(),
     };

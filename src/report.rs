@@ -5,7 +5,7 @@
 use crate::dedup::DedupReport;
 use crate::encode::TileRecord;
 use crate::geodesy::GeoOrigin;
-use crate::options::{default_min_instanced_triangles_saved, ConvertOptions, ErrorMetric, LodMode};
+use crate::options::{ErrorMetric, LodMode, Settings};
 use crate::prepare::{InputReport, Prepared};
 use crate::scene::Scene;
 use crate::tileset::view::{paper_delta_mesh_px, sse_px, switch_distance_m, ViewOptions};
@@ -165,7 +165,7 @@ impl MemoryReport {
 pub(crate) fn make_report(
     prep: Prepared,
     tiles: Vec<TileRecord>,
-    opts: &ConvertOptions,
+    opts: &Settings,
     dir: &Path,
     timings: Timings,
     texture_levels: crate::texture::TextureLevels,
@@ -255,8 +255,7 @@ pub(crate) fn make_report(
             "dedup": opts.dedup.is_some(),
             "dedup_tolerance_m": opts.dedup.as_ref().map(|d| d.tolerance_m),
             "instancing": opts.instancing,
-            "min_instanced_triangles_saved": opts.min_instanced_triangles_saved
-                .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression)),
+            "min_instanced_triangles_saved": opts.min_instanced_triangles_saved,
             "texture": opts.texture,
             "cityjson_lod": opts.cityjson_lod,
         }),

@@ -1,9 +1,10 @@
 //! Bad input: every case gives a clear one-line error naming the file, a non-zero exit, no panic,
-//! and leaves no output (not even a temporary folder).
+//! and leaves no output (not even a temporary folder). What is not a regular file, or leads out of
+//! the input's folder, is refused before it is read.
 
-mod common;
-use common::*;
+use crate::common::*;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// Runs convert on `input` and checks the failure contract; returns stderr.
 fn expect_failure(input: &Path, case: &str, must_mention: &[&str]) -> String {
@@ -532,4 +533,91 @@ fn duplicate_ifc_entity_ids_are_refused() {
     let twice = format!("{context}\n#11=IFCCARTESIANPOINT((0.,0.,0.));");
     let p = write(&d, "twice.ifc", &patched_ifc(&house, context, &twice));
     expect_failure(&p, "duplicate-id", &["#11 is defined twice"]);
+}
+
+/// What is not a regular file is refused at once: a FIFO would hold the run forever, a device
+/// never ends.
+#[test]
+fn fifos_and_devices_are_refused() {
+    let dir = tmpdir("safety-special");
+    let fifo = dir.join("pipe.glb");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    for (input, what) in [(fifo.as_path(), "FIFO"), (Path::new("/dev/zero"), "device")] {
+        let t = Instant::now();
+        let o = run(&[
+            "convert",
+            input.to_str().unwrap(),
+            "--out",
+            dir.join("out").to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(what) && err.contains(input.to_str().unwrap()),
+            "{err}"
+        );
+        assert!(t.elapsed() < Duration::from_secs(10));
+    }
+    // A manifest entry and a glTF buffer URI that are FIFOs.
+    std::fs::write(
+        dir.join("m.json"),
+        r#"{"origin": {"longitude_deg": 8, "latitude_deg": 49}, "models": [{"path": "pipe.glb"}]}"#,
+    )
+    .unwrap();
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("m.json").to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("FIFO"));
+    std::fs::write(
+        dir.join("uri.gltf"),
+        r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "pipe.glb", "byteLength": 12}]}"#,
+    )
+    .unwrap();
+    let o = run(&[
+        "convert",
+        dir.join("uri.gltf").to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("FIFO"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// A manifest entry that is a symlink inside the manifest's folder, leading out of it, is refused
+/// (as glTF URIs are).
+#[test]
+fn manifest_symlinks_leading_out_are_refused() {
+    let dir = tmpdir("safety-manifest-symlink");
+    std::os::unix::fs::symlink(sample(), dir.join("outside.glb")).unwrap();
+    std::fs::write(
+        dir.join("m.json"),
+        r#"{"models": [{"path": "outside.glb"}]}"#,
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("m.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("m.json") && err.contains("symlink leads outside"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }

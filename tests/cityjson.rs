@@ -7,8 +7,7 @@
 //! reads one LoD (and names the LoDs present when asked for one no object has); appearance
 //! textures reach the tiles with their images and UVs.
 
-mod common;
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use serde_json::Value;
 use std::collections::BTreeMap;

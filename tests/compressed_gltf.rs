@@ -5,8 +5,7 @@
 //! codec's quantization, the same bounding box. Tiles are written uncompressed, with `--lod none`,
 //! so each element's triangles are read back exactly; gltf-validator checks the tiles.
 
-mod common;
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use serde_json::Value;
 use std::collections::BTreeMap;

@@ -4,7 +4,6 @@
 //! absent, a failure under `BIMTILES_REQUIRE_TOOLS`). After dedup, every component is expanded back to world geometry and compared with
 //! the input, and identities are counted. Run with `-- --nocapture` to see the per-model table.
 
-mod common;
 use bimtiles::dedup::{deduplicate, shape_groups, DedupOptions, DedupReport};
 use bimtiles::ingest::read_input;
 use bimtiles::scene::{Component, ComponentId, ElementInfo, Scene};
@@ -253,9 +252,9 @@ fn by_key(s: &Scene, key: &str) -> ComponentId {
 
 #[test]
 fn sample_building_every_baked_copy_and_duplicate() {
-    let path = common::sample();
+    let path = crate::common::sample();
     let expect: Value = serde_json::from_str(
-        &std::fs::read_to_string(common::repo().join("samples/sample_building.expect.json"))
+        &std::fs::read_to_string(crate::common::repo().join("samples/sample_building.expect.json"))
             .unwrap(),
     )
     .unwrap();
@@ -374,7 +373,7 @@ fn row(name: &str, r: &DedupReport, read_s: f64) -> String {
 
 #[test]
 fn shared_models_table_and_correctness() {
-    let Some(files) = common::shared_files(&["glb", "ifc"]) else {
+    let Some(files) = crate::common::shared_files(&["glb", "ifc"]) else {
         return;
     };
     assert!(!files.is_empty(), "no .glb/.ifc in the shared data");

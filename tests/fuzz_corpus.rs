@@ -3,8 +3,7 @@
 //! (`bimtiles::fuzzing::TARGETS`, what `cargo fuzz` runs), which must return (an error is fine)
 //! rather than panic.
 
-mod common;
-use common::*;
+use crate::common::*;
 
 #[test]
 fn every_corpus_file_is_read_without_a_panic() {

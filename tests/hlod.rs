@@ -9,9 +9,8 @@
 //! points, every centroid and points by area); it shares no code with the simplifier's
 //! measurement.
 
-mod common;
-use common::height_field::height_field_glb;
-use common::*;
+use crate::common::height_field::height_field_glb;
+use crate::common::*;
 use glam::DVec3;
 use std::collections::HashMap;
 

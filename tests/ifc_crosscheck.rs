@@ -1,7 +1,7 @@
 //! Cross-check of the IFC reader against IfcOpenShell's exports of the same files.
 //!
 //! For every `.ifc` in the shared data folder (`$BIMTILES_SHARED/data`, default `../shared/data`
-//! beside the crate: `common::shared_data`), read it with `bimtiles::ingest::ifc` and compare with
+//! beside the crate: `crate::common::shared_data`), read it with `bimtiles::ingest::ifc` and compare with
 //! the matching `.glb` that IfcOpenShell 0.9 exported from it (one node per product, node name =
 //! GlobalId, extras {ifc_class, name, storey}, world coordinates baked, y-up):
 //! * the set of GlobalIds with geometry, their classes and storeys;
@@ -17,7 +17,6 @@
 //! Also here: bad input (truncated, garbage, unknown schema, broken references, mangled entities)
 //! gives an error, never a panic.
 
-mod common;
 use bimtiles::ingest::ifc::{
     read_ifc_bytes, read_ifc_bytes_with_crs, read_ifc_georef, read_ifc_with_report, IfcGeoref,
     IfcReadReport,
@@ -27,18 +26,18 @@ use serde_json::{json, Value};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
-/// Every `.ifc` of the shared data folder (see `common::shared_files`).
+/// Every `.ifc` of the shared data folder (see `crate::common::shared_files`).
 fn ifc_files() -> Vec<PathBuf> {
-    let v = common::shared_files(&["ifc"]).unwrap_or_default();
+    let v = crate::common::shared_files(&["ifc"]).unwrap_or_default();
     if v.is_empty() {
         eprintln!("SKIPPED: no .ifc files in the shared data; IFC cross-check not run");
     }
     v
 }
 
-/// The text of the shared IfcOpenHouse_IFC4.ifc (see `common::shared_file`).
+/// The text of the shared IfcOpenHouse_IFC4.ifc (see `crate::common::shared_file`).
 fn open_house_text() -> Option<String> {
-    Some(std::fs::read_to_string(common::shared_file("IfcOpenHouse_IFC4.ifc")?).unwrap())
+    Some(std::fs::read_to_string(crate::common::shared_file("IfcOpenHouse_IFC4.ifc")?).unwrap())
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -57,7 +56,7 @@ struct GlbElement {
 fn read_glb(path: &Path) -> HashMap<String, GlbElement> {
     let b = std::fs::read(path).unwrap();
     assert_eq!(&b[0..4], b"glTF", "{}", path.display());
-    let (j, bin) = common::glb_chunks(&b);
+    let (j, bin) = crate::common::glb_chunks(&b);
     let mut out = HashMap::new();
     for node in j["nodes"].as_array().unwrap() {
         let Some(mi) = node["mesh"].as_u64() else {
@@ -79,7 +78,7 @@ fn read_glb(path: &Path) -> HashMap<String, GlbElement> {
         for p in j["meshes"][mi as usize]["primitives"].as_array().unwrap() {
             let pa = p["attributes"]["POSITION"].as_u64().unwrap() as usize;
             assert_eq!(j["accessors"][pa]["componentType"], 5126);
-            let positions = common::read_accessor(&j, &bin, pa);
+            let positions = crate::common::read_accessor(&j, &bin, pa);
             for v in &positions {
                 let (x, y, z) = (v[0], v[1], v[2]);
                 let zu = [x, -z, y];
@@ -394,7 +393,7 @@ fn check_scene_invariants(name: &str, scene: &Scene) {
 
 #[test]
 fn semantics_of_fzk_haus() {
-    let Some(f) = common::shared_file("AC20-FZK-Haus.ifc") else {
+    let Some(f) = crate::common::shared_file("AC20-FZK-Haus.ifc") else {
         return;
     };
     let (scene, _) = read_ifc_with_report(&f).unwrap();

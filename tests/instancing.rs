@@ -5,8 +5,7 @@
 //! independently from the input GLB. Every input element must be drawn exactly once, under its own
 //! id, or be listed once as an alias of an element drawn with the same geometry.
 
-mod common;
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use serde_json::Value;
 use std::collections::{BTreeMap, HashMap};

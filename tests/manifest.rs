@@ -2,9 +2,8 @@
 //! tiles pass the glTF validator and the 3D Tiles schema, draw every input triangle once, keep each
 //! element's identity and building, and put the geometry at the right place on Earth.
 
-mod common;
+use crate::common::*;
 use bimtiles::geodesy::GeoOrigin;
-use common::*;
 use glam::{DMat4, DVec3};
 use serde_json::Value;
 use std::path::Path;

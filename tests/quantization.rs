@@ -8,8 +8,7 @@
 //! where the frame and ranges allow; fewer bytes; gltf-validator 0 errors on the tiles and on
 //! their decoded data. Runs on the bundled sample and every model of ../shared/data.
 
-mod common;
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 use serde_json::Value;
 use std::collections::HashMap;

@@ -5,8 +5,7 @@
 //! rerunning only that job completes the build. A tiny `--memory-budget` (geometry spilled to disk
 //! and read back) gives the same tileset too, for a campus of GLBs and for CityJSON districts.
 
-mod common;
-use common::*;
+use crate::common::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -2,8 +2,7 @@
 //! ../shared/data (ISSUE_021_Mini_Project runs as groups of parts in parallel), the GLB it
 //! writes checked by gltf-validator and decoded back; bad input fails cleanly.
 
-mod common;
-use common::*;
+use crate::common::*;
 use serde_json::Value;
 use std::path::Path;
 

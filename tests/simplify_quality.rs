@@ -4,7 +4,6 @@
 //! and the effect of each option.
 //! Run with `-- --nocapture` to see the tables.
 
-mod common;
 use std::path::Path;
 use std::time::Instant;
 
@@ -43,9 +42,9 @@ impl Model {
     }
 }
 
-/// All primitives merged in world coordinates, group id = node index (`common::world_mesh`).
+/// All primitives merged in world coordinates, group id = node index (`crate::common::world_mesh`).
 fn load_glb(path: &Path) -> Option<Model> {
-    let m = common::world_mesh(path)?;
+    let m = crate::common::world_mesh(path)?;
     Some(Model {
         name: path.file_name()?.to_string_lossy().into_owned(),
         positions: m.positions,
@@ -195,7 +194,7 @@ fn allowed_ratio(model: &str, target: f32) -> f64 {
 fn quality_vs_meshopt_table_iv_and_options() {
     let t_all = Instant::now();
     let mut models = vec![synthetic(if cfg!(debug_assertions) { 100 } else { 400 })];
-    let paths = common::shared_models();
+    let paths = crate::common::shared_models();
     match paths.is_empty() {
         false => {
             for p in paths {

@@ -6,8 +6,7 @@
 //! gltf-validator finds 0 errors. Runs on the bundled sample and on
 //! ../shared/data/LoD3_Railway.glb when it exists.
 
-mod common;
-use common::*;
+use crate::common::*;
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -793,7 +792,7 @@ fn atlas_sharded_build_is_byte_identical() {
     let dir = tmpdir("atlas-shard-jobs").join("tiles");
     let d = dir.to_str().unwrap();
     let ok = |args: &[&str]| {
-        let o = common::run(args);
+        let o = crate::common::run(args);
         assert!(
             o.status.success(),
             "{args:?}: {}",

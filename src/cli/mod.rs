@@ -607,7 +607,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         },
         lod: match (&a.lod_ratios, a.lod) {
             (Some(r), _) => LodMode::Ratios(
-                bimtiles::simplify::lod_chain::chain_ratios(r).context("--lod-ratios")?,
+                bimtiles::lod::chain_levels::chain_ratios(r).context("--lod-ratios")?,
             ),
             (None, LodArg::Hlod) => LodMode::Hlod,
             (None, LodArg::None) => LodMode::None,

@@ -56,7 +56,7 @@ pub struct OctreeOptions {
 }
 
 /// Default [`OctreeOptions::max_leaf_extent_m`]. A leaf's parent spans at most about twice this,
-/// so its error is capped at about 0.8 of its framed error (`build::hlod`), some 4 m: full detail
+/// so its error is capped at about 0.8 of its framed error (`lod::hlod`), some 4 m: full detail
 /// is fetched within about 300 m of it. City blocks and airport aprons are tiled; a building (or a
 /// campus of them) is not split for its extent.
 pub const MAX_LEAF_EXTENT_M: f64 = 128.0;

@@ -14,7 +14,7 @@
 //! names through temporary names and, last, `DIR/jobs/job-K.bin` ([`wire`]): its tiles' figures
 //! and, for HLOD, what its subtree roots hand their parents. `merge` accepts a job only through
 //! that file, builds the top levels from the subtree roots exactly as `convert` does
-//! ([`crate::build::TileWriter`] is the one code path: `convert` is a single job over the whole
+//! ([`crate::tiling::TileWriter`] is the one code path: `convert` is a single job over the whole
 //! tree, merged in memory), moves the texture files of one tile into it, and writes schema.json
 //! (when the tiles share it), tileset.json and report.json.
 //!
@@ -24,15 +24,15 @@
 
 pub(crate) mod wire;
 
-use crate::build::TileWriter;
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
-use crate::options::{ConvertOptions, LodMode};
+use crate::options::{ConvertOptions, LodMode, Settings};
 use crate::output_dir::{check_replaceable, write_renamed, StagingDir};
 use crate::partition::TilePlan;
 use crate::prepare::{prepare, read_scene, Prepared};
 use crate::report::{make_report, peak_memory_bytes, MemoryReport, Report, Timings};
 use crate::scene::Scene;
+use crate::tiling::TileWriter;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -160,6 +160,7 @@ pub fn plan(
     jobs: usize,
     command: serde_json::Value,
 ) -> Result<PlanFile> {
+    let opts = &opts.resolve();
     let dir = &opts.out_dir;
     if matches!(opts.lod, LodMode::Ratios(_)) {
         // A chain hangs below a whole leaf; jobs split the tree above leaves (not built yet).
@@ -248,7 +249,7 @@ struct Loaded {
     roots: Vec<Vec<usize>>,
 }
 
-fn load(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Loaded> {
+fn load(dir: &Path, inputs: &InputSet, opts: &Settings) -> Result<Loaded> {
     let t0 = Instant::now();
     let file = read_plan(dir)?;
     let mut scene = read_scene(inputs, opts)?;
@@ -302,6 +303,7 @@ pub fn build_job(
     opts: &ConvertOptions,
 ) -> Result<JobSummary> {
     let t0 = Instant::now();
+    let opts = &opts.resolve();
     let l = load(dir, inputs, opts)?;
     let Some(roots) = l.roots.get(job) else {
         return Err(Error::Options(format!(
@@ -367,6 +369,7 @@ fn leftover_temp_files(dir: &Path) -> Vec<PathBuf> {
 /// tileset.json and report.json into `dir`.
 pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
+    let opts = &opts.resolve();
     let missing = missing_jobs(dir)?;
     if !missing.is_empty() {
         let list: Vec<String> = missing.iter().map(|k| k.to_string()).collect();
@@ -450,7 +453,7 @@ mod tests {
         let mut scene = crate::ingest::read_embedded_sample().unwrap();
         let mut opts = ConvertOptions::new("unused");
         opts.octree.max_tile_triangles = 1500;
-        let prep = prepare(&mut scene, &opts).unwrap();
+        let prep = prepare(&mut scene, &opts.resolve()).unwrap();
         let plan = &prep.plan;
         assert!(plan.tiles.len() > 10);
         for n in 1..=7 {

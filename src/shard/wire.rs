@@ -5,11 +5,11 @@
 //! end mark, so a truncated file is refused. A tile's plan path, depth and LOD level are not
 //! stored: `merge` sets them from the plan.
 
-use crate::build::hlod::BuiltSubtree;
-use crate::build::JobOutput;
 use crate::encode::{ContentFigures, TileRecord};
+use crate::lod::hlod::BuiltSubtree;
 use crate::partition::content::{ContentPrimitive, InstancedShape, ShapeInstance, TileContent};
 use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
+use crate::tiling::JobOutput;
 use glam::{DMat4, DVec3};
 
 const MAGIC: &[u8; 8] = b"BIMTJOB3";

@@ -74,8 +74,6 @@
 
 mod curvature;
 pub mod hausdorff;
-pub mod hlod;
-pub mod lod_chain;
 pub mod model;
 pub mod normals;
 mod parts;

@@ -12,8 +12,6 @@
 //!   read by their URI, a file or a data URI ([`content_bytes`], [`tileset_contents`]);
 //! * checks by independent tools: gltf-validator, the official 3D Tiles JSON schemas
 //!   ([`check_tileset`]), and the README's element-id rule ([`expected_element_ids`]).
-// Each test crate uses only some of these helpers.
-#![allow(dead_code, unused_imports)]
 
 use glam::{DMat4, DVec3};
 use serde_json::{json, Value};

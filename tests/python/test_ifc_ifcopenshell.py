@@ -18,7 +18,7 @@ IfcOpenShell refuses IFC4X3_RC2 files (KIT-Simple-Road): those are reported and 
 Run:
     pip install ifcopenshell==0.9.0.post1 pytest
     mkdir -p /tmp/ifcdump
-    BIMTILES_IFC_DUMP_DIR=/tmp/ifcdump cargo test --features ifc --test ifc_crosscheck -- ifc_matches --nocapture
+    BIMTILES_IFC_DUMP_DIR=/tmp/ifcdump cargo test --release --test tests -- ifc_crosscheck::ifc_matches --nocapture
     BIMTILES_IFC_DUMP_DIR=/tmp/ifcdump python3 -m pytest -s tests/python/test_ifc_ifcopenshell.py
 """
 

@@ -59,7 +59,7 @@ impl QuantFrame {
     /// would move a vertex by more than `max_error_m` on an axis (the mesh stays float) or the
     /// mesh is empty. The step is the coarsest within `max_error_m`, not the finest the extent
     /// allows: fewer distinct values cost the meshopt codec and gzip fewer bytes (a simplified
-    /// tile's bound is a share of its measured error, `build::hlod::coarse_grid_m`).
+    /// tile's bound is a share of its measured error, `lod::hlod::coarse_grid_m`).
     pub(super) fn of(prims: &[ContentPrimitive], max_error_m: f64) -> Option<QuantFrame> {
         let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
         for p in prims.iter().flat_map(|m| y_up(&m.positions)) {

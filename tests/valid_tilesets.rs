@@ -1,8 +1,7 @@
 //! End-to-end: the real binary on the bundled sample and on every model of ../shared/data, checked
 //! with independent readers (gltf crate, gltf-validator, the official 3D Tiles schemas).
 
-mod common;
-use common::*;
+use crate::common::*;
 use glam::DVec3;
 
 #[test]

@@ -21,11 +21,11 @@
 //! Adding the children's errors to the whole tile's simplification error instead was measured to
 //! be up to 3.4x loose on Mini_Project (errors add only where they coincide).
 
-use super::hausdorff::{sample_surface_dense, MeshBvh, TriMesh};
-use super::{simplify, MeshInput, SimplifyError, SimplifyOptions};
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::{ComponentId, Scene};
+use crate::simplify::hausdorff::{sample_surface_dense, MeshBvh, TriMesh};
+use crate::simplify::{simplify, MeshInput, SimplifiedMesh, SimplifyError, SimplifyOptions};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
@@ -478,7 +478,7 @@ pub fn simplify_children(
 /// material: a vertex group) are dropped, smallest box diagonal first, until the tile fits. Parts
 /// with a locked vertex stay (their neighbours rely on their borders). The error measured
 /// afterwards ([`ErrorReference`]) accounts for what was dropped.
-fn drop_smallest_parts(r: &mut super::SimplifiedMesh, locked: Option<&[bool]>, target: usize) {
+fn drop_smallest_parts(r: &mut SimplifiedMesh, locked: Option<&[bool]>, target: usize) {
     let mut parts: BTreeMap<u32, (usize, [f32; 3], [f32; 3], bool)> = BTreeMap::new();
     for t in r.indices.chunks_exact(3) {
         let e = parts.entry(r.groups[t[0] as usize]).or_insert((

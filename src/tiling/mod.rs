@@ -1,31 +1,28 @@
-//! Building the tiles of a plan: content gathered per tile, HLOD content simplified bottom-up
-//! ([`hlod`]) or discrete LOD chains ([`chains`]), each tile encoded and written as soon as it is
-//! made, then the texture files of one tile moved into it, schema.json (when the tiles share it)
-//! and tileset.json. One code path for `convert` (a single job over the
-//! whole tree) and for sharded builds (`crate::shard`: jobs build subtrees, `merge` the top).
-
-pub mod chains;
-mod coarse_root;
-pub mod hlod;
+//! Tiling: the tiles of a plan made and written. Content gathered per tile, its levels made by the
+//! LOD stage (HLOD bottom-up, [`crate::lod::hlod`], or discrete chains, [`crate::lod::chains`]),
+//! each tile encoded and written as soon as it is made, then the texture files of one tile moved
+//! into it, schema.json (when the tiles share it) and tileset.json. One code path for `convert`
+//! (a single job over the whole tree) and for sharded builds (`crate::shard`: jobs build
+//! subtrees, `merge` the top).
 
 use crate::encode::glb::encode_content_with_images;
 use crate::encode::{TileEncoding, TileRecord};
 use crate::error::{Error, Result};
 use crate::geodesy::GeoOrigin;
-use crate::options::{
-    default_min_instanced_triangles_saved, CoarseTileProperties, ConvertOptions, LodMode,
-};
+use crate::lod::chains::build_chains;
+use crate::lod::coarse_root::{coarse_root, RootInputs};
+use crate::lod::gather;
+use crate::lod::hlod::{self, BuiltSubtree, HlodBuilder};
+use crate::options::{CoarseTileProperties, LodMode, Settings};
 use crate::output_dir::write_renamed;
 use crate::partition::content::{AppearanceClasses, TileContent};
-use crate::partition::{ContentItem, PlannedTile, TilePlan};
+use crate::partition::{PlannedTile, TilePlan};
 use crate::prepare::Prepared;
 use crate::scene::Scene;
 use crate::texture::single_use::embed_files_cheaper_than_a_request;
 use crate::tileset::metadata::{MetadataSchema, SchemaPlacement, TableScope};
 use crate::tileset::{tileset_json, Refine};
-use chains::build_chains;
 use glam::DVec3;
-use hlod::{BuiltSubtree, HlodBuilder};
 use rayon::prelude::*;
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -45,30 +42,13 @@ pub(crate) fn progress_bar(show: bool, len: usize, what: &'static str) -> indica
     pb
 }
 
-/// A tile's content as the options want it written: instanced or plain.
-pub(crate) fn gather(
-    scene: &Scene,
-    opts: &ConvertOptions,
-    items: &[ContentItem],
-    center: DVec3,
-) -> TileContent {
-    if opts.instancing {
-        let min_saved = opts
-            .min_instanced_triangles_saved
-            .unwrap_or_else(|| default_min_instanced_triangles_saved(opts.compression));
-        TileContent::gather_instanced(scene, items, center, min_saved)
-    } else {
-        TileContent::gather(scene, items, center)
-    }
-}
-
 /// The metadata schema file, in the tileset's folder, and how a tile (in `tiles/`) reaches it.
 pub const SCHEMA_FILE: &str = "schema.json";
 const SCHEMA_URI: &str = "../schema.json";
 
 /// Tiles of the plan that may get content: those holding items without LOD; every tile with
 /// HLOD or chains (a parent holds its children's simplified content).
-fn content_tiles_at_most(prep: &Prepared, opts: &ConvertOptions) -> usize {
+fn content_tiles_at_most(prep: &Prepared, opts: &Settings) -> usize {
     match opts.lod {
         LodMode::None => prep
             .plan
@@ -87,7 +67,7 @@ fn content_tiles_at_most(prep: &Prepared, opts: &ConvertOptions) -> usize {
 pub(crate) struct TileWriter<'a> {
     scene: &'a Scene,
     plan: &'a TilePlan,
-    opts: &'a ConvertOptions,
+    opts: &'a Settings,
     dir: &'a Path,
     textures: &'a crate::texture::TextureLevels<'a>,
     appearance: &'a AppearanceClasses,
@@ -113,7 +93,7 @@ impl<'a> TileWriter<'a> {
     pub(crate) fn new(
         scene: &'a Scene,
         prep: &'a Prepared,
-        opts: &'a ConvertOptions,
+        opts: &'a Settings,
         dir: &'a Path,
         textures: &'a crate::texture::TextureLevels<'a>,
         progress_len: usize,
@@ -348,7 +328,18 @@ impl<'a> TileWriter<'a> {
         let mut plan = std::borrow::Cow::Borrowed(plan);
         let whole_model = top.roots.into_iter().find(|(i, _)| *i == 0);
         if let Some((_, full)) = whole_model {
-            if let Some((with_root, with_root_records)) = self.coarse_root(&records, full)? {
+            let write_tile = |tile: &PlannedTile, content: &TileContent, record: TileRecord| {
+                self.write_tile(tile, content, record)
+            };
+            let inputs = RootInputs {
+                scene: self.scene,
+                plan: self.plan,
+                opts,
+                dir: tmp,
+                textures: self.textures,
+                write_tile: &write_tile,
+            };
+            if let Some((with_root, with_root_records)) = coarse_root(&inputs, &records, full)? {
                 (plan, records) = (std::borrow::Cow::Owned(with_root), with_root_records);
             }
         }

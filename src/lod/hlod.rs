@@ -12,15 +12,15 @@
 //! is bounded too.
 
 use super::gather;
+use super::hlod_content::{simplify_children, ErrorReference, HlodContent, TileError};
 use crate::encode::glb::{grid_flattens, DEFAULT_MAX_POSITION_ERROR_M};
 use crate::encode::Compression;
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
-use crate::options::{ConvertOptions, ErrorMetric};
+use crate::options::{ErrorMetric, Settings};
 use crate::partition::content::TileContent;
 use crate::partition::TilePlan;
 use crate::scene::{ComponentId, Scene};
-use crate::simplify::hlod::{simplify_children, ErrorReference, HlodContent, TileError};
 use crate::tileset::view::{
     framed_error_m, paper_geometric_error_m, ViewOptions, PAPER_MAX_DELTA_PX,
 };
@@ -49,7 +49,7 @@ pub(crate) type WriteTile<'a> =
 pub(crate) struct HlodBuilder<'a> {
     pub(crate) scene: &'a Scene,
     pub(crate) plan: &'a TilePlan,
-    pub(crate) opts: &'a ConvertOptions,
+    pub(crate) opts: &'a Settings,
     pub(crate) write: &'a WriteTile<'a>,
     pub(crate) slots: &'a [std::sync::Mutex<Option<TileRecord>>],
     /// Tiles not to build: their subtrees were built elsewhere (sharded jobs) and their roots'
@@ -66,7 +66,7 @@ pub(crate) struct HlodBuilder<'a> {
 /// [`LADDER_CHILD_RATIO`] of its parent's allowed error, so that tiles that meet theirs form the
 /// ladder without their parents declaring more than they measured. Top-down, from the plan only:
 /// every job of a sharded build finds the same.
-pub(crate) fn allowed_errors_m(plan: &TilePlan, opts: &ConvertOptions) -> Vec<Option<f64>> {
+pub(crate) fn allowed_errors_m(plan: &TilePlan, opts: &Settings) -> Vec<Option<f64>> {
     let mut allowed = vec![None; plan.tiles.len()];
     if opts.hlod_error_fraction <= 0.0 || plan.tiles.is_empty() {
         return allowed;

@@ -1,14 +1,14 @@
 //! The paper's discrete LOD chains (III.C, Table IV; `--lod-ratios`): every leaf becomes a chain
 //! of tiles with its bounds, coarsest first, full detail last.
 
+use super::chain_levels::chain_levels;
 use super::gather;
 use super::hlod::{continuing, declared_error, with_quantization, WriteTile};
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
-use crate::options::ConvertOptions;
+use crate::options::Settings;
 use crate::partition::TilePlan;
 use crate::scene::Scene;
-use crate::simplify::lod_chain::chain_levels;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
@@ -20,7 +20,7 @@ pub(crate) fn build_chains(
     plan: &TilePlan,
     chain_level: &[Option<usize>],
     ratios: &[f32],
-    opts: &ConvertOptions,
+    opts: &Settings,
     write: &WriteTile<'_>,
 ) -> Result<Vec<(usize, TileRecord)>> {
     let n = ratios.len();

@@ -9,11 +9,11 @@
 //! its error is measured against that full detail by the same code as HLOD tiles ([`ErrorReference`]).
 //! Internal octree tiles carry no content.
 
-use super::hlod::{simplify_children, ErrorReference, TileError};
-use super::{SimplifyError, SimplifyOptions};
+use super::hlod_content::{simplify_children, ErrorReference, TileError};
 use crate::partition::content::TileContent;
 use crate::partition::{PlannedTile, TilePlan};
 use crate::scene::{ComponentId, Scene};
+use crate::simplify::{SimplifyError, SimplifyOptions};
 
 /// Area-weighted samples of a leaf's full detail when measuring a chain level's error (as many as
 /// the independent checker of `tests/hlod.rs` takes; a leaf's own triangle count was found to

@@ -1,10 +1,9 @@
 //! Large meshes are cut across tiles (whole triangles, by centroid): the one-node textured railway
 //! scene, merged-by-material exports, and a million-triangle surface.
 
-mod common;
-use common::height_field::height_field_glb;
-use common::world::WorldMatrix;
-use common::*;
+use crate::common::height_field::height_field_glb;
+use crate::common::world::WorldMatrix;
+use crate::common::*;
 use glam::{DMat4, DVec3};
 use std::collections::HashMap;
 use std::path::Path;

@@ -4,8 +4,7 @@
 //! file otherwise. Read back with the `gltf` and `image` crates, checked by gltf-validator and the
 //! official 3D Tiles JSON schemas.
 
-mod common;
-use common::*;
+use crate::common::*;
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
