@@ -33,6 +33,7 @@ pub mod simplify;
 pub mod texture;
 pub mod tileset;
 pub mod transfer;
+pub mod uri;
 
 pub use error::{Error, Result};
 
@@ -49,6 +50,7 @@ pub const LAYERS: &[&[&str]] = &[
         "output_dir",
         "draco",
         "transfer",
+        "uri",
     ],
     &["scene"],
     &["ingest"],
