@@ -71,7 +71,7 @@ pub fn image(data: &[u8]) {
     if crate::texture::identical::pixel_key(data).is_err() {
         return;
     }
-    let mime = crate::ingest::gltf::sniff_image_mime(data).unwrap_or("image/png");
+    let mime = crate::uri::mime::sniff_image(data).unwrap_or("image/png");
     let image = crate::scene::Image {
         name: None,
         mime_type: mime.into(),

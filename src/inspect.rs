@@ -4,6 +4,7 @@
 //! the paper's Table I (both error metrics, see [`crate::report::LodLevelReport`]).
 
 use crate::error::{Error, Result};
+use crate::uri::confine;
 use serde::Serialize;
 use serde_json::Value;
 use std::path::Path;
@@ -356,7 +357,7 @@ fn alias_ids(value: &str) -> Box<dyn Iterator<Item = String> + '_> {
 /// The bytes of a tile's content `uri` in the tileset at `dir`, and the path errors about them
 /// name: the file (inside the tileset, [`inside_tileset`]), or tileset.json for a data URI.
 fn tile_content(dir: &Path, uri: &str) -> Result<(Vec<u8>, std::path::PathBuf)> {
-    if let Some(decoded) = crate::transfer::data_uri_bytes(uri) {
+    if let Some(decoded) = crate::uri::data::decode(uri) {
         let ts_path = dir.join("tileset.json");
         let bytes = decoded.map_err(|e| Error::input_from(&ts_path, "a tile's content", e))?;
         return Ok((bytes, ts_path));
@@ -368,40 +369,16 @@ fn tile_content(dir: &Path, uri: &str) -> Result<(Vec<u8>, std::path::PathBuf)> 
 }
 
 /// The file a URI of the tileset at `dir` names, relative to `base` (a folder of the tileset),
-/// refused unless it stays inside the tileset's folder, by its text and through symlinks: a
-/// tileset from elsewhere must not make `inspect` read other files.
+/// refused unless it stays inside the tileset's folder, by its text and through symlinks
+/// ([`confine::TILESET`]): a tileset from elsewhere must not make `inspect` read other files.
+/// Every refusal reads the same: the tileset's author needs no more.
 fn inside_tileset(dir: &Path, base: &Path, uri: &str) -> Result<std::path::PathBuf> {
-    use std::path::Component;
-    let refuse = || {
+    confine::reference(dir, base, uri, &confine::TILESET).map_err(|_| {
         Error::input(
             dir.join("tileset.json"),
             format!("URI '{uri}' leads outside the tileset's folder (refused)"),
         )
-    };
-    let decoded = percent_encoding::percent_decode_str(uri)
-        .decode_utf8()
-        .map_err(|_| refuse())?;
-    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
-        return Err(refuse());
-    }
-    let mut path = base.to_path_buf();
-    for c in Path::new(decoded.as_ref()).components() {
-        match c {
-            Component::Normal(n) => path.push(n),
-            Component::CurDir => {}
-            Component::ParentDir if path != dir => {
-                path.pop();
-            }
-            _ => return Err(refuse()),
-        }
-    }
-    if !path.starts_with(dir) {
-        return Err(refuse());
-    }
-    if crate::ingest::leads_outside(&path, dir) {
-        return Err(refuse());
-    }
-    Ok(path)
+    })
 }
 
 /// Finds the element whose `id` property is `id` in every tile of the tileset at `dir`.
@@ -482,7 +459,7 @@ pub fn find_feature(dir: &Path, id: &str) -> Result<Option<FeatureSummary>> {
             tiles: Vec::new(),
         });
         f.tiles
-            .push(crate::transfer::content_label(&uri).to_string());
+            .push(crate::uri::data::content_label(&uri).to_string());
         if is_alias(row) {
             if let Some(kept) = text("id", row) {
                 f.properties.insert("Alias of".into(), kept);

@@ -34,6 +34,7 @@ pub mod texture;
 pub mod tileset;
 pub mod tiling;
 pub mod transfer;
+pub mod uri;
 
 pub use error::{Error, Result};
 
@@ -50,6 +51,7 @@ pub const LAYERS: &[&[&str]] = &[
         "output_dir",
         "draco",
         "transfer",
+        "uri",
     ],
     &["scene"],
     &["ingest"],

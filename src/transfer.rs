@@ -1,7 +1,8 @@
 //! What a client pays to fetch a tileset: the exchange rate between requests and bytes that every
 //! choice between one shared file and copies in the tiles uses (the metadata schema's placement,
 //! texture files, a coarse root above a one-tile model, the root's content inlined in tileset.json;
-//! README, "First view: round trips"), and the data URIs (RFC 2397) inlined content travels in.
+//! README, "First view: round trips"). The data URIs (RFC 2397) inlined content travels in are
+//! [`crate::uri::data`]'s.
 
 /// What a sequential request costs, in bytes that could be sent instead: one round trip on the
 /// link the browser benchmark throttles to (README, "First view"): 20 Mbit/s x 40 ms = 100 KB.
@@ -26,51 +27,6 @@ pub fn inlining_costs_less_than_a_request(bytes: u64) -> bool {
     base64_growth_bytes(bytes) <= SEQUENTIAL_REQUEST_WORTH_BYTES as u64
 }
 
-/// The data URI (RFC 2397) of a GLB: its media type and its bytes in base64.
-pub fn glb_data_uri(glb: &[u8]) -> String {
-    use base64::Engine;
-    let mut uri = String::from(GLB_DATA_URI_PREFIX);
-    base64::engine::general_purpose::STANDARD.encode_string(glb, &mut uri);
-    uri
-}
-
-const GLB_DATA_URI_PREFIX: &str = "data:model/gltf-binary;base64,";
-
-/// How listings name a tile's content `uri`: the URI itself, or `tileset.json (inlined)` for a
-/// data URI (which is the whole GLB).
-pub fn content_label(uri: &str) -> &str {
-    if uri.starts_with("data:") {
-        "tileset.json (inlined)"
-    } else {
-        uri
-    }
-}
-
-/// Why a data URI could not be read.
-#[derive(Debug, thiserror::Error)]
-pub enum DataUriError {
-    #[error("a data URI without a comma")]
-    NoComma,
-    #[error("a data URI that is not base64 (only base64 content is read)")]
-    NotBase64,
-    #[error("invalid base64 in a data URI: {0}")]
-    Base64(#[from] base64::DecodeError),
-}
-
-/// The bytes of a content URI that is a data URI (RFC 2397, base64 form); `None` for any other
-/// URI (a file, relative to the tileset).
-pub fn data_uri_bytes(uri: &str) -> Option<Result<Vec<u8>, DataUriError>> {
-    use base64::Engine;
-    let rest = uri.strip_prefix("data:")?;
-    Some((|| {
-        let (header, payload) = rest.split_once(',').ok_or(DataUriError::NoComma)?;
-        if !header.ends_with(";base64") {
-            return Err(DataUriError::NotBase64);
-        }
-        Ok(base64::engine::general_purpose::STANDARD.decode(payload)?)
-    })())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -84,29 +40,6 @@ mod tests {
         let worth = SEQUENTIAL_REQUEST_WORTH_BYTES as u64;
         assert!(inlining_costs_less_than_a_request(3 * worth));
         assert!(!inlining_costs_less_than_a_request(3 * worth + 3));
-    }
-
-    #[test]
-    fn a_glb_data_uri_reads_back() {
-        let bytes: Vec<u8> = (0..=255).collect();
-        let uri = glb_data_uri(&bytes);
-        assert!(uri.starts_with("data:model/gltf-binary;base64,"));
-        assert_eq!(data_uri_bytes(&uri).unwrap().unwrap(), bytes);
-        assert!(data_uri_bytes("tiles/r.glb").is_none());
-        assert_eq!(content_label(&uri), "tileset.json (inlined)");
-        assert_eq!(content_label("tiles/r.glb"), "tiles/r.glb");
-        assert!(matches!(
-            data_uri_bytes("data:text/plain,hello"),
-            Some(Err(DataUriError::NotBase64))
-        ));
-        assert!(matches!(
-            data_uri_bytes("data:;base64"),
-            Some(Err(DataUriError::NoComma))
-        ));
-        assert!(matches!(
-            data_uri_bytes("data:;base64,@@"),
-            Some(Err(DataUriError::Base64(_)))
-        ));
     }
 
     #[test]

@@ -21,12 +21,12 @@ use super::gltf_index::{
 };
 use crate::error::{Error, Result};
 use crate::scene::*;
-use base64::Engine;
+use crate::uri::{confine, UriError};
 use glam::{DMat4, DQuat, DVec3};
 use gltf::json::validation::Validate;
 use serde_json::Value;
 use std::collections::HashMap;
-use std::path::{Component as PathPart, Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 /// Extensions we read correctly (or can ignore without changing the geometry) when a file
@@ -286,90 +286,13 @@ fn check_references(doc: &gltf::Document) -> std::result::Result<(), GltfIndexEr
     first.map_or(Ok(()), Err)
 }
 
-/// An external or embedded (data URI) buffer or image that cannot be loaded.
-#[derive(Debug, thiserror::Error)]
-pub enum UriError {
-    #[error("URI '{uri}' is not valid percent-encoding")]
-    BadPercentEncoding { uri: String },
-    #[error("URI '{uri}' is absolute or has a scheme (refused)")]
-    Absolute { uri: String },
-    /// `..` (or a root) in the path.
-    #[error("URI '{uri}' escapes the input folder (refused)")]
-    Escapes { uri: String },
-    /// The path stays inside the folder by its text, but a symlink leads out of it.
-    #[error("URI '{uri}' leads outside the input folder (refused)")]
-    LeadsOutside { uri: String },
-    #[error("data URI is not base64")]
-    DataNotBase64,
-    #[error("bad base64 in data URI")]
-    BadBase64 { source: base64::DecodeError },
-    #[error("cannot read '{}'", path.display())]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-}
-
-/// Resolves a relative URI inside `base_dir`, refusing anything that could escape it (absolute
-/// paths, `..`, schemes, and their percent-encoded forms): a tileset service must never be made to
-/// read arbitrary files.
-pub fn resolve_relative_uri(base_dir: &Path, uri: &str) -> std::result::Result<PathBuf, UriError> {
-    let uri_text = || uri.to_string();
-    let decoded =
-        percent_decode(uri).ok_or_else(|| UriError::BadPercentEncoding { uri: uri_text() })?;
-    if decoded.contains(':') || decoded.contains('\\') || decoded.starts_with('/') {
-        return Err(UriError::Absolute { uri: uri_text() });
-    }
-    let rel = Path::new(&decoded);
-    if rel
-        .components()
-        .any(|c| !matches!(c, PathPart::Normal(_) | PathPart::CurDir))
-    {
-        return Err(UriError::Escapes { uri: uri_text() });
-    }
-    let full = base_dir.join(rel);
-    // A symlink inside the folder could still point out of it.
-    if super::leads_outside(&full, base_dir) {
-        return Err(UriError::LeadsOutside { uri: uri_text() });
-    }
-    Ok(full)
-}
-
-fn percent_decode(s: &str) -> Option<String> {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' {
-            let h = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
-            out.push(u8::from_str_radix(h, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8(out).ok()
-}
-
-fn decode_data_uri(uri: &str) -> Option<std::result::Result<Vec<u8>, UriError>> {
-    let rest = uri.strip_prefix("data:")?;
-    let (_, data) = match rest.split_once(";base64,") {
-        Some(x) => x,
-        None => return Some(Err(UriError::DataNotBase64)),
-    };
-    Some(
-        base64::engine::general_purpose::STANDARD
-            .decode(data)
-            .map_err(|source| UriError::BadBase64 { source }),
-    )
-}
-
+/// The bytes of a buffer's or an image's URI: a data URI's, or the file's it names inside the
+/// input folder ([`confine::INPUT`]).
 fn load_uri(base_dir: &Path, uri: &str) -> std::result::Result<Vec<u8>, UriError> {
-    if let Some(data) = decode_data_uri(uri) {
+    if let Some(data) = crate::uri::data::decode(uri) {
         return data;
     }
-    let path = resolve_relative_uri(base_dir, uri)?;
+    let path = confine::inside(base_dir, uri, &confine::INPUT)?;
     super::read_regular(&path).map_err(|source| UriError::Read { path, source })
 }
 
@@ -568,7 +491,7 @@ impl Reader<'_> {
                     )))
                 }
             };
-            let mime = sniff_image_mime(&bytes)
+            let mime = crate::uri::mime::sniff_image(&bytes)
                 .map(str::to_string)
                 .or(declared.map(str::to_string))
                 .ok_or_else(|| {
@@ -1197,50 +1120,9 @@ fn sanitize_normal(n: [f32; 3]) -> [f32; 3] {
     }
 }
 
-/// The MIME type from an image's magic bytes.
-pub fn sniff_image_mime(b: &[u8]) -> Option<&'static str> {
-    if b.starts_with(&[0x89, b'P', b'N', b'G']) {
-        Some("image/png")
-    } else if b.starts_with(&[0xFF, 0xD8, 0xFF]) {
-        Some("image/jpeg")
-    } else if b.len() >= 12 && &b[0..4] == b"RIFF" && &b[8..12] == b"WEBP" {
-        Some("image/webp")
-    } else {
-        None
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn uri_escapes_are_refused() {
-        let base = Path::new("/tmp");
-        for bad in [
-            "../secret.bin",
-            "a/../../x",
-            "%2e%2e/x",
-            "/etc/passwd",
-            "file:///etc/passwd",
-            "http://host/x",
-            "..%2Fx",
-        ] {
-            assert!(
-                resolve_relative_uri(base, bad).is_err(),
-                "{bad} must be refused"
-            );
-        }
-        assert!(resolve_relative_uri(base, "textures/a%20b.png").is_ok());
-        assert!(resolve_relative_uri(base, "./buf.bin").is_ok());
-        // Each refusal says why.
-        let e = |uri| resolve_relative_uri(base, uri).unwrap_err();
-        assert!(matches!(e("a/../../x"), UriError::Escapes { uri } if uri == "a/../../x"));
-        assert!(matches!(e("%2e%2e/x"), UriError::Escapes { .. }));
-        assert!(matches!(e("/etc/passwd"), UriError::Absolute { .. }));
-        assert!(matches!(e("http://host/x"), UriError::Absolute { .. }));
-        assert!(matches!(e("%zz.bin"), UriError::BadPercentEncoding { .. }));
-    }
 
     #[test]
     fn data_uri_and_file_errors_are_typed() {
@@ -1316,15 +1198,5 @@ mod tests {
             .properties
             .iter()
             .any(|p| &*p.name == "fire" && p.value == PropertyValue::Bool(true)));
-    }
-
-    #[test]
-    fn sniff_mime() {
-        assert_eq!(
-            sniff_image_mime(&[0x89, b'P', b'N', b'G', 0]),
-            Some("image/png")
-        );
-        assert_eq!(sniff_image_mime(&[0xff, 0xd8, 0xff, 0]), Some("image/jpeg"));
-        assert_eq!(sniff_image_mime(b"hello"), None);
     }
 }

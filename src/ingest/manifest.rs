@@ -138,7 +138,7 @@ impl Manifest {
             }
             let file = folder.join(rel);
             // Inside by its text, but a symlink could still lead out of the folder.
-            if super::leads_outside(&file, folder) {
+            if crate::uri::confine::leads_outside(&file, folder) {
                 return Err(bad(format!(
                     "{what}: a symlink leads outside the manifest's folder (refused)"
                 )));

@@ -46,20 +46,6 @@ pub fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
     ))
 }
 
-/// Whether `path` (inside `folder` by its text) leads out of it through a symlink. A path or
-/// folder that does not resolve leads nowhere: its read fails on its own.
-pub fn leads_outside(path: &Path, folder: &Path) -> bool {
-    let folder = if folder.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        folder
-    };
-    match (path.canonicalize(), folder.canonicalize()) {
-        (Ok(path), Ok(folder)) => !path.starts_with(folder),
-        _ => false,
-    }
-}
-
 /// Reads a whole input file ([`open_regular`]).
 pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
     use std::io::Read;

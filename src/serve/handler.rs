@@ -1,8 +1,9 @@
 //! Request → reply, independent of the socket layer: routing onto the mounts, conditional
 //! requests (`ETag` / `Last-Modified` → 304), `Range` (206 / 416), gzip and cache headers.
 
-use super::mime::{self, Compress};
-use super::path::{self, Refused};
+use crate::uri::confine::{self, SERVED};
+use crate::uri::mime::{self, Compress};
+use crate::uri::UriError;
 use flate2::write::GzEncoder;
 use std::collections::HashMap;
 use std::fs::File;
@@ -173,15 +174,11 @@ impl Handler {
             return Reply::text(404, "Not Found");
         };
         let rest = &path_part[mount.prefix.len()..];
-        let file_path = match path::resolve(&mount.root, rest) {
+        let file_path = match confine::resolve_request(&mount.root, rest, "index.html", &SERVED) {
             Ok(p) => p,
             Err(e) => {
-                let msg = match e {
-                    Refused::NotFound => "Not Found",
-                    Refused::Hidden | Refused::Escapes => "Forbidden",
-                    _ => "Bad Request",
-                };
-                return Reply::text(e.status(), msg);
+                let (status, msg) = refusal_status(&e);
+                return Reply::text(status, msg);
             }
         };
         match self.serve_file(&file_path, mount.cache_control, head, headers) {
@@ -370,6 +367,16 @@ impl Handler {
         let freed = old.and_then(|o| o.body).map_or(0, |b| b.len());
         cache.bytes = (cache.bytes + add).saturating_sub(freed);
         Ok(body)
+    }
+}
+
+/// The status and text of a refused request path: a malformed or climbing path is the client's
+/// mistake (400), a dot-file or a symlink out of the root is there but not served (403).
+fn refusal_status(e: &UriError) -> (u16, &'static str) {
+    match e {
+        UriError::NotFound { .. } => (404, "Not Found"),
+        UriError::Hidden { .. } | UriError::LeadsOutside { .. } => (403, "Forbidden"),
+        _ => (400, "Bad Request"),
     }
 }
 

@@ -29,8 +29,6 @@
 
 mod handler;
 mod http;
-mod mime;
-mod path;
 
 pub use handler::{Handler, Mount, Reply};
 pub use http::{read_request, HeadError, Request};

@@ -53,7 +53,7 @@ pub fn inline_root_content(dir: &Path, tileset: &mut Value, root: &mut TileRecor
     if !crate::glb_container::external_uris(&json).is_empty() {
         return Ok(false);
     }
-    let data_uri = crate::transfer::glb_data_uri(&glb);
+    let data_uri = crate::uri::data::encode_glb(&glb);
     if cache_key_chars(&json, data_uri.len() as u64) > CACHE_KEY_CHARS_MAX {
         return Ok(false);
     }
@@ -98,7 +98,7 @@ mod tests {
         let glb = std::fs::read(dir.path().join("tiles/r.glb")).unwrap();
         assert!(inline_root_content(dir.path(), &mut ts, &mut root).unwrap());
         let uri = ts["root"]["content"]["uri"].as_str().unwrap();
-        assert_eq!(crate::transfer::data_uri_bytes(uri).unwrap().unwrap(), glb);
+        assert_eq!(crate::uri::data::decode(uri).unwrap().unwrap(), glb);
         assert!(
             !dir.path().join("tiles").exists(),
             "no empty tiles folder left"

@@ -193,7 +193,7 @@ pub enum ViewError {
     #[error("{path}: a tile's content data URI")]
     DataUri {
         path: PathBuf,
-        source: crate::transfer::DataUriError,
+        source: crate::uri::UriError,
     },
 }
 
@@ -299,7 +299,7 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
         let refines = sse > v.max_sse_px && children.is_some();
         if !refines || refine == "ADD" {
             if let Some(uri) = t["content"]["uri"].as_str() {
-                let (path, glb) = match crate::transfer::data_uri_bytes(uri) {
+                let (path, glb) = match crate::uri::data::decode(uri) {
                     Some(decoded) => {
                         let path = dir.join("tileset.json");
                         let glb = decoded.map_err(|source| ViewError::DataUri {
@@ -325,7 +325,7 @@ pub fn first_view(dir: &Path, v: &ViewOptions) -> Result<FirstView, ViewError> {
                 out.images += n;
                 out.triangles += glb_drawn_triangles(&glb).map_err(glb_error)?;
                 out.selected
-                    .push(crate::transfer::content_label(uri).to_string());
+                    .push(crate::uri::data::content_label(uri).to_string());
                 depths.insert(depth);
             }
         }

@@ -4,6 +4,7 @@
 //! ring's texture values `[texture, uv, uv…]` give each polygon corner its UV.
 
 use crate::scene::{Image, ImageId, Sampler, Scene, TextureRef};
+use crate::uri::confine;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -100,9 +101,9 @@ impl ImageFiles {
 
     fn image(&mut self, name: &str, base_dir: &Path, scene: &mut Scene) -> Option<ImageId> {
         let read = || -> Option<(PathBuf, Vec<u8>, &'static str)> {
-            let path = super::super::gltf::resolve_relative_uri(base_dir, name).ok()?;
+            let path = confine::inside(base_dir, name, &confine::INPUT).ok()?;
             let bytes = super::super::read_regular(&path).ok()?;
-            let mime = super::super::gltf::sniff_image_mime(&bytes)?;
+            let mime = crate::uri::mime::sniff_image(&bytes)?;
             Some((path, bytes, mime))
         };
         let key = base_dir.join(name);

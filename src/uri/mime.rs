@@ -1,4 +1,6 @@
-//! Content types by file extension, and which of them are worth gzip.
+//! Media types (RFC 6838): a file's `Content-Type` by its extension, with how each type takes
+//! gzip, for `serve`; and an image's type by its magic bytes (the PNG signature, JPEG's SOI
+//! marker, the RIFF `WEBP` header), since a glTF's declared `mimeType` may be wrong or missing.
 
 use std::path::Path;
 
@@ -8,7 +10,7 @@ pub enum Compress {
     /// Text-like: always compresses well.
     Always,
     /// Binary that may or may not shrink (GLB, .bin, wasm...): compress once, keep the result only
-    /// if it saves enough (see `handler::GZIP_MIN_SAVING`).
+    /// if it saves enough (`serve`'s `GZIP_MIN_SAVING`).
     IfSmaller,
     /// Already compressed (images, fonts, archives): never.
     Never,
@@ -57,6 +59,20 @@ pub fn for_path(path: &Path) -> (&'static str, Compress) {
     }
 }
 
+/// The media type of an image by its magic bytes: PNG, JPEG or WebP, the formats the readers
+/// take; `None` for anything else.
+pub fn sniff_image(b: &[u8]) -> Option<&'static str> {
+    if b.starts_with(&[0x89, b'P', b'N', b'G']) {
+        Some("image/png")
+    } else if b.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        Some("image/jpeg")
+    } else if b.len() >= 12 && &b[0..4] == b"RIFF" && &b[8..12] == b"WEBP" {
+        Some("image/webp")
+    } else {
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -86,5 +102,14 @@ mod tests {
         assert_eq!(for_path(Path::new("a.glb")).1, Compress::IfSmaller);
         assert_eq!(for_path(Path::new("a.png")).1, Compress::Never);
         assert_eq!(for_path(Path::new("a.ktx2")).1, Compress::Never);
+    }
+
+    #[test]
+    fn sniff_mime() {
+        assert_eq!(sniff_image(&[0x89, b'P', b'N', b'G', 0]), Some("image/png"));
+        assert_eq!(sniff_image(&[0xff, 0xd8, 0xff, 0]), Some("image/jpeg"));
+        assert_eq!(sniff_image(b"RIFF\0\0\0\0WEBPVP8 "), Some("image/webp"));
+        assert_eq!(sniff_image(b"RIFF\0\0\0\0WEB"), None);
+        assert_eq!(sniff_image(b"hello"), None);
     }
 }
