@@ -180,6 +180,8 @@ pub enum LodMode {
 }
 
 impl LodMode {
+    /// The one spelling of this mode (the report's `lod`; the ratios themselves are reported
+    /// apart).
     pub fn name(&self) -> &'static str {
         match self {
             LodMode::Hlod => "hlod",
@@ -190,9 +192,9 @@ impl LodMode {
 }
 
 /// Which error simplified tiles declare as `geometricError`. The report shows both per level
-/// (`lod_levels`, as the paper's Table I).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
-#[serde(rename_all = "kebab-case")]
+/// (`lod_levels`, as the paper's Table I). Its name, as the CLI spells it, comes from
+/// [`ErrorMetric::name`] alone: serializing writes that name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ErrorMetric {
     /// The measured distance between a tile's content and the full detail it stands for (honest:
     /// checked by an independent measurement in the tests).
@@ -206,6 +208,7 @@ pub enum ErrorMetric {
 }
 
 impl ErrorMetric {
+    /// The one spelling of this metric: the CLI's value, the report's and the serialized form.
     pub fn name(&self) -> &'static str {
         match self {
             ErrorMetric::Measured => "measured",
@@ -214,7 +217,26 @@ impl ErrorMetric {
     }
 }
 
+impl Serialize for ErrorMetric {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
+}
+
 /// Default of [`ConvertOptions::hlod_error_fraction`]. A client measures the distance to the
 /// bounding box, which from a corner is nearer than the sphere `framed_error_m` assumes (0.91 of
 /// it on Mini_Project's root); 0.8 keeps a first view of the whole model on the root alone.
 pub const DEFAULT_HLOD_ERROR_FRACTION: f64 = 0.8;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Serializing an error metric writes its one name.
+    #[test]
+    fn error_metric_serializes_as_its_name() {
+        for m in [ErrorMetric::Measured, ErrorMetric::PaperSse] {
+            assert_eq!(serde_json::to_value(m).unwrap(), m.name());
+        }
+    }
+}

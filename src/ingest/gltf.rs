@@ -98,25 +98,42 @@ impl FileBytes {
     }
 }
 
+/// Why a GLB header is refused (glTF 2.0, 4.4.2).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+enum GlbHeaderError {
+    /// Fewer than the header's 12 bytes.
+    #[error("truncated GLB: no complete 12-byte header")]
+    Truncated,
+    /// A version other than 2.
+    #[error("GLB version {0}: only version 2 exists")]
+    Version(u32),
+    /// The header's length is not the file's.
+    #[error("the GLB header says the file has {declared_bytes} bytes, but it has {actual_bytes}")]
+    Length {
+        declared_bytes: u32,
+        actual_bytes: usize,
+    },
+}
+
 /// The GLB header's version and length (glTF 2.0, 4.4.2): version 2, and the length of the whole
 /// file (the `gltf` crate checks only the magic): a file cut short or with bytes appended is
 /// refused rather than read as far as it goes.
-fn check_glb_header(bytes: &[u8]) -> std::result::Result<(), String> {
+fn check_glb_header(bytes: &[u8]) -> std::result::Result<(), GlbHeaderError> {
     let word = |at: usize| {
         let b = bytes.get(at..at + 4)?;
         Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     };
     let (Some(version), Some(length_bytes)) = (word(4), word(8)) else {
-        return Err("truncated GLB: no complete 12-byte header".into());
+        return Err(GlbHeaderError::Truncated);
     };
     if version != 2 {
-        return Err(format!("GLB version {version}: only version 2 exists"));
+        return Err(GlbHeaderError::Version(version));
     }
     if length_bytes as usize != bytes.len() {
-        return Err(format!(
-            "the GLB header says the file has {length_bytes} bytes, but it has {}",
-            bytes.len()
-        ));
+        return Err(GlbHeaderError::Length {
+            declared_bytes: length_bytes,
+            actual_bytes: bytes.len(),
+        });
     }
     Ok(())
 }
@@ -136,7 +153,7 @@ fn read_gltf_from(path: &Path, file: &FileBytes) -> Result<Scene> {
     }
     // (JSON text, BIN chunk's byte range inside `bytes`).
     let (json_text, bin_range): (&[u8], Option<std::ops::Range<usize>>) = if is_glb {
-        check_glb_header(bytes).map_err(err)?;
+        check_glb_header(bytes).map_err(|e| err(e.to_string()))?;
         let glb = gltf::binary::Glb::from_slice(bytes)
             .map_err(|e| Error::input_from(path, "invalid or truncated GLB", e))?;
         let json: &[u8] = match glb.json {

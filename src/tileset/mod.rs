@@ -42,25 +42,45 @@ pub enum Refine {
 /// drawn once it spans about 16/4 = 4 pixels at CesiumJS's default maximumScreenSpaceError of 16.
 pub const TOP_ERROR_PER_DIAGONAL: f64 = 4.0;
 
+/// A number in a tileset that no viewer can use: where it sits and what it holds.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NumbersError {
+    /// The tileset has no `root` tile.
+    #[error("the tileset has no root")]
+    NoRoot,
+    /// A field is missing, of the wrong shape, or not made of numbers (`found`: its JSON).
+    #[error("{what} is {found}")]
+    NotNumbers { what: String, found: String },
+    /// A field holds `null` (NaN or an infinity, as `serde_json` writes them) or an implausible
+    /// value (`value`: `null` or the number in exponent notation).
+    #[error("{what} holds {value}")]
+    Implausible { what: String, value: String },
+}
+
 /// The last check before a tileset is written (README, "Safety"): every bounding box, transform
 /// and geometric error of `tileset` is a number (`serde_json` writes NaN and infinities as
 /// `null`) and plausible (`geodesy::plausible_m`). `Err`: where the first one that is not sits,
 /// and its value; a tileset that fails this must not be written.
-pub fn check_numbers(tileset: &Value) -> Result<(), String> {
-    let plausible = |what: &str, v: Option<&Value>, n: usize| -> Result<(), String> {
+pub fn check_numbers(tileset: &Value) -> Result<(), NumbersError> {
+    let plausible = |what: &str, v: Option<&Value>, n: usize| -> Result<(), NumbersError> {
         let numbers: Vec<Option<f64>> = match v {
             Some(Value::Array(a)) if a.len() == n => a.iter().map(Value::as_f64).collect(),
             Some(Value::Number(x)) if n == 1 => vec![x.as_f64()],
-            other => return Err(format!("{what} is {}", other.unwrap_or(&Value::Null))),
+            other => {
+                return Err(NumbersError::NotNumbers {
+                    what: what.to_string(),
+                    found: other.unwrap_or(&Value::Null).to_string(),
+                })
+            }
         };
         match numbers
             .iter()
             .find(|x| !x.is_some_and(crate::geodesy::plausible_m))
         {
-            Some(x) => Err(format!(
-                "{what} holds {}",
-                x.map_or("null".into(), |x| format!("{x:e}"))
-            )),
+            Some(x) => Err(NumbersError::Implausible {
+                what: what.to_string(),
+                value: x.map_or("null".into(), |x| format!("{x:e}")),
+            }),
             None => Ok(()),
         }
     };
@@ -69,7 +89,7 @@ pub fn check_numbers(tileset: &Value) -> Result<(), String> {
         tileset.get("geometricError"),
         1,
     )?;
-    let root = tileset.get("root").ok_or("the tileset has no root")?;
+    let root = tileset.get("root").ok_or(NumbersError::NoRoot)?;
     plausible("the root transform", root.get("transform"), 16)?;
     let mut stack = vec![(root, "root".to_string())];
     while let Some((tile, name)) = stack.pop() {
@@ -167,17 +187,17 @@ mod tests {
             min: b.min,
             max: DVec3::new(1e30, 2.0, 3.0),
         };
-        let err = check_numbers(&tileset(&b, &far)).unwrap_err();
+        let err = check_numbers(&tileset(&b, &far)).unwrap_err().to_string();
         assert!(err.contains("tile root/0") && err.contains("e29"), "{err}");
         let nan = Aabb {
             min: DVec3::NAN,
             max: b.max,
         };
-        let err = check_numbers(&tileset(&nan, &b)).unwrap_err();
+        let err = check_numbers(&tileset(&nan, &b)).unwrap_err().to_string();
         assert!(err.contains("tile root") && err.contains("null"), "{err}");
         let mut t = tileset(&b, &b);
         t["root"]["transform"][12] = json!(1e300);
-        let err = check_numbers(&t).unwrap_err();
+        let err = check_numbers(&t).unwrap_err().to_string();
         assert!(
             err.contains("root transform") && err.contains("1e300"),
             "{err}"

@@ -370,9 +370,9 @@ impl<'a> TileWriter<'a> {
         // fetches a tileset's `schemaUri` before the tileset is ready, then drops it (the tiles
         // fetch theirs again): a round trip before the first tile, for nothing.
         let mut ts = tileset_json(&plan, &records, refine, &origin.enu_to_ecef(), extras);
-        crate::tileset::check_numbers(&ts).map_err(|message| Error::Internal {
+        crate::tileset::check_numbers(&ts).map_err(|e| Error::Internal {
             path: (self.scene.sources.first()).map_or_else(Default::default, |s| s.path.clone()),
-            message,
+            message: e.to_string(),
         })?;
         if opts.inline_root {
             crate::tileset::inline::inline_root_content(tmp, &mut ts, &mut records[0])?;
