@@ -24,8 +24,8 @@
 //! (the tile budget of the first-view conversions; default 3000, as `tests/textures.rs`: at the
 //! tool's default budget these small models fit one tile and a first view loads everything).
 
+use bimtiles::inspect::first_view as view;
 use bimtiles::texture::{self, external, haar, TextureFormat, TextureOptions};
-use bimtiles::tileset::view;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;

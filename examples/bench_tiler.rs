@@ -8,7 +8,7 @@
 //! none --no-dedup`; issue 2's throughput and peak memory against the input), then a dedup/instancing table (issue 5) from the same reports, then the first
 //! view (issue 4): tiles, levels, bytes and triangles a 3D Tiles client selects to draw the whole
 //! model framed at 1920x1080 with a screen-space error limit of 16 px
-//! ([`bimtiles::tileset::view::first_view`]) against the full model (every leaf), and the same
+//! ([`bimtiles::inspect::first_view`]) against the full model (every leaf), and the same
 //! for `--lod hlod`, `--lod-ratios 0.85,0.7,0.5` and `--lod none` on Mini_Project. Also writes
 //! `target/bench/tiler.json`.
 //!
@@ -370,9 +370,9 @@ fn main() {
 
 /// The first view and the full model of the tileset in `dir` (see the module docs), as JSON.
 fn first_view(dir: &Path) -> Value {
-    use bimtiles::tileset::view;
+    use bimtiles::inspect::first_view as view;
     match (
-        view::first_view(dir, &view::ViewOptions::default()),
+        view::first_view(dir, &bimtiles::tileset::view::ViewOptions::default()),
         view::full_view(dir),
     ) {
         (Ok(first), Ok(full)) => json!({

@@ -316,7 +316,7 @@ fn check_model(model: &Path, name: &str, max_tris: &str) {
     assert_eq!(written.len(), 1, "{name}: one level without texture LOD");
     assert_eq!(written[0]["level"], 0);
     let view = |dir: &Path| {
-        bimtiles::tileset::view::first_view_shared(dir, &Default::default())
+        bimtiles::inspect::first_view::first_view_shared(dir, &Default::default())
             .unwrap()
             .0
     };

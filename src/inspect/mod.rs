@@ -1,7 +1,10 @@
 //! Reads a written tileset back and summarises it per level: tiles, triangles, bytes and geometric
 //! error. It reads only what is on disk (tileset.json and the GLB headers), so it also describes
 //! tilesets made by other tools; a bimtiles `report.json` beside them adds the levels of detail as
-//! the paper's Table I (both error metrics, see [`crate::report::LodLevelReport`]).
+//! the paper's Table I (both error metrics, see [`crate::report::LodLevelReport`]). [`first_view`]
+//! measures what a client loads for a whole-model view of it.
+
+pub mod first_view;
 
 use crate::error::{Error, Result};
 use crate::uri::confine;
