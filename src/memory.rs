@@ -3,7 +3,7 @@
 //!
 //! glibc's allocator keeps freed small blocks resident, per thread arena. A stage that frees a
 //! large tree of small allocations on one thread (the glTF JSON tree, ~1 GB on 100M-triangle
-//! campuses) leaves that memory resident while the next stage allocates afresh on rayon's
+//! sites) leaves that memory resident while the next stage allocates afresh on rayon's
 //! threads, so both count towards the peak. `malloc_trim` returns every whole free page.
 
 /// Peak resident memory of this process so far (Linux `VmHWM`), 0 where unknown.

@@ -128,12 +128,12 @@ impl std::ops::Deref for Settings {
 }
 
 /// Default of [`ConvertOptions::min_instanced_triangles_saved`], chosen by measurement on the
-/// sample and the shared models (README, dedup section). Draco already compresses a repeated
+/// sample and the shared models (docs/benchmarks.md). Draco already compresses a repeated
 /// shape to a few bytes per triangle, so an instanced shape's own node, mesh, accessors and
 /// instance attributes (about 1 KB) only pay off for larger savings; plain geometry costs tens of
 /// bytes per triangle. With meshopt, what decides is the first view: CesiumJS sets up every mesh
-/// and instanced node of a tile (in the browser benchmark, small models with their repeated
-/// shapes instanced at 100 loaded slower than a one-primitive Draco GLB), so it follows Draco.
+/// and instanced node of a tile (small models with many instanced shapes load slower than one
+/// primitive), so it follows Draco.
 pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize {
     match compression {
         Compression::Draco | Compression::Meshopt => 1000,
@@ -141,11 +141,11 @@ pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize 
     }
 }
 
-/// Default of [`ConvertOptions::merge_plain_materials`], by measurement (README): with Draco,
-/// merging cuts primitives 2.6–5x and bytes 7–12% on the shared BIM models (one Draco stream per
+/// Default of [`ConvertOptions::merge_plain_materials`], chosen by measurement
+/// (docs/benchmarks.md): with Draco, merging cuts primitives and bytes (one Draco stream per
 /// class instead of per material, 8-bit colours); meshopt stores 8-bit colours too, which its
 /// codec shrinks to almost nothing along a run of one colour; plain float `COLOR_0` costs 16
-/// bytes a vertex, +20–26% bytes, so without compression materials stay apart.
+/// bytes a vertex, more than merging saves, so without compression materials stay apart.
 pub fn default_merge_plain_materials(compression: Compression) -> bool {
     matches!(compression, Compression::Draco | Compression::Meshopt)
 }
@@ -224,8 +224,9 @@ impl Serialize for ErrorMetric {
 }
 
 /// Default of [`ConvertOptions::hlod_error_fraction`]. A client measures the distance to the
-/// bounding box, which from a corner is nearer than the sphere `framed_error_m` assumes (0.91 of
-/// it on Mini_Project's root); 0.8 keeps a first view of the whole model on the root alone.
+/// bounding box, which from a corner is nearer than the sphere `framed_error_m` assumes; 0.8
+/// leaves room for that, so a first view of the whole model keeps to the root alone (chosen by
+/// measurement: docs/benchmarks.md).
 pub const DEFAULT_HLOD_ERROR_FRACTION: f64 = 0.8;
 
 #[cfg(test)]

@@ -260,7 +260,7 @@ pub struct Node {
     /// The source's `extras` as written (JSON text), for nodes without a mesh: kept compact,
     /// since a parsed map costs ~0.8 KB a node. A node with a mesh has its extras parsed into its
     /// element's [`ElementInfo`] at ingest, and the text is dropped then (a million elements on
-    /// a 100M-triangle campus). [`Node::extras_value`] parses it.
+    /// a 100M-triangle site). [`Node::extras_value`] parses it.
     pub extras: Option<Box<RawValue>>,
 }
 
@@ -326,8 +326,8 @@ pub struct Property {
 }
 
 /// Text that repeats across elements (IFC classes, storeys, materials, property-set and property
-/// names), stored once and shared: a campus of a million elements has a few hundred distinct
-/// values, and a `String` each cost about 50 bytes per element per field (issue 12: per-element
+/// names), stored once and shared: a site of a million elements has a few hundred distinct
+/// values, and a `String` each would cost about 50 bytes per element per field (per-element
 /// metadata is what `--memory-budget` does not bound).
 pub type SharedText = Arc<str>;
 

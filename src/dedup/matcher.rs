@@ -440,9 +440,8 @@ pub(crate) enum SameOrder {
 /// rounding of a coarser exporter). The frame search is skipped for such a candidate: with the
 /// correspondence known, the least-squares motion is the one ICP would converge to, and another
 /// motion would need a vertex permutation that maps the mesh's triangles onto themselves and
-/// also undoes the noise. On the jittered campuses (every vertex ±2 mm, δ = 1 mm) the search
-/// took 30 ICP runs per component and found nothing; on the shared models no match is lost
-/// (tests/dedup.rs prints the table).
+/// also undoes the noise. On noisy copies the search spends its ICP runs and finds nothing; on
+/// the shared models no match is lost (tests/dedup.rs prints the table; docs/benchmarks.md).
 const NEAR_TWIN_FACTOR: f64 = 8.0;
 
 /// The motion (scene frame) that carries prototype `p` onto candidate `c` with vertex i on
@@ -604,11 +603,10 @@ fn icp(tree: &KdTree, ppts: &[DVec3], t0: Similarity, tol: &Tol) -> Option<Simil
 /// Proposals refined by ICP for one candidate component, over all the prototypes it is searched
 /// against: a bound on the work when nothing fits. A near-twin (a noisy copy, every vertex 2 mm
 /// off) passes the proposals' bounds and converges just outside the tolerance from every one of
-/// up to `MAX_FEATURE_PROPOSALS` per prototype, which dominated the dedup of a noisy
-/// 1.9M-triangle campus. (Stopping at the first run that settles within a few tolerances was
-/// tried: on dense meshes a wrong motion settles there too, and duplex.ifc lost a match.) On the
-/// shared models, the matches found are the same as without a bound; Mini_Project.ifc has one at
-/// the 17th run.
+/// up to `MAX_FEATURE_PROPOSALS` per prototype, which can dominate the dedup of noisy copies.
+/// (Stopping at the first run that settles within a few tolerances fails: on dense meshes a
+/// wrong motion settles there too, and matches are lost.) On the shared models, the matches
+/// found are the same as without a bound, with a margin (docs/benchmarks.md).
 pub(crate) const ICP_RUNS_PER_CANDIDATE: usize = 32;
 
 /// Vertices used while a proposal converges.

@@ -424,8 +424,7 @@ fn moment_cell(inv: &Invariants, tol: &Tol) -> [i64; 3] {
 /// are spent). A true copy is within the tolerance, so its invariants are about as close as they
 /// can be; on the shared models, one search try loses matches, two find all that an unbounded
 /// search finds (four are allowed, for margin). Without a bound, a bucket of n near-twins that
-/// never match (noisy copies of one part) costs n²/2 comparisons: 1,456 such parts of a
-/// 1.9M-triangle campus took 53 s.
+/// never match (noisy copies of one part) costs n²/2 comparisons (docs/benchmarks.md).
 const SAME_ORDER_TRIES: usize = 8;
 const SEARCH_TRIES: usize = 4;
 
@@ -488,8 +487,8 @@ fn cluster(
             .filter(|&(d, _)| d <= 1.0)
             .collect();
         // Nearest first, then input order (deterministic). Only the first few are tried: those
-        // are selected, then sorted (sorting every compatible prototype took half of the dedup
-        // of a 32M-triangle campus of noisy copies, whose buckets hold 133 near-twins each).
+        // are selected, then sorted (sorting every compatible prototype dominates the dedup of
+        // noisy copies, whose buckets hold many near-twins).
         let order = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
         let tried = SAME_ORDER_TRIES.max(SEARCH_TRIES);
         if cands.len() > tried {

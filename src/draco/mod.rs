@@ -240,13 +240,10 @@ pub struct EncodeOptions {
 }
 
 impl EncodeOptions {
-    /// Default speed (encoder and decoder), chosen by measurement on this machine
-    /// (`cargo bench --bench draco`; positions 14 bits, normals 10, uvs 12): against Draco's
-    /// own default 5, speed 7 is within 0.2-1.1 % of the size (1M-triangle grid and five
-    /// real models) while encoding 1.4-1.6x faster (2.3 Mtri/s on the grid) and decoding
-    /// 1.4-1.7x faster. Speed 10 is barely faster than 7 but up to 46 % larger (grid) and
-    /// 14 % larger (LoD3_Railway). Speed 0 is 3-4x slower; it shrinks the smooth grid by a
-    /// third but makes the real building models 50-70 % *larger*.
+    /// Default speed (encoder and decoder): nearly the size of Draco's own default 5, and
+    /// faster to encode and decode; faster speeds cost much size, slower ones time (and, on
+    /// building models, size too). Chosen by measurement (`cargo bench --bench draco`):
+    /// docs/benchmarks.md.
     pub const DEFAULT_SPEED: u8 = 7;
 }
 
@@ -398,8 +395,7 @@ impl DecodedMesh {
 
 /// Largest quantization accepted here. Draco itself allows 30, but an f32 has a 24-bit
 /// significand, so more bits cannot add precision over the attribute's range, and Draco's
-/// encoder cost grows as 2^bits (measured here on a 9-vertex mesh: 24 bits 0.14 s,
-/// 27 bits 0.7 s and 0.5 GB, 30 bits 10 s and 4 GB).
+/// encoder's time and memory grow as 2^bits (docs/benchmarks.md).
 pub const MAX_QUANTIZATION_BITS: u8 = 24;
 
 /// Smallest Draco quantization (1..=[`MAX_QUANTIZATION_BITS`] bits) for positions whose largest bounding-box side

@@ -2,7 +2,7 @@
 //! Tiles 1.1): one row per feature, one column per property, in the binary layout the extension
 //! defines (strings as UTF-8 bytes plus offsets, FLOAT64, and enum codes, each aligned to its
 //! size). String offsets take the smallest type that holds the column's byte length (UINT8, UINT16
-//! or UINT32: 2 of the 4 bytes a row on every coarse tile of Mini_Project), enum codes the width
+//! or UINT32: coarse tiles' columns are short, so most take 1 or 2 bytes a row), enum codes the width
 //! their schema enum declares. The schema itself is built by `tileset::metadata`; this module only
 //! lays out bytes.
 
@@ -43,8 +43,8 @@ pub struct PropertyTable {
 ///
 /// Columns with the same data share their bufferViews (the extension points a property at
 /// bufferViews by index; nothing asks for one per property): in glTF exports whose node names
-/// are the element ids, `id`, `name` and `path` are the same strings, a third of a tile's
-/// metadata on ISSUE_021_Mini_Project.
+/// are the element ids, `id`, `name` and `path` are the same strings, a large share of a tile's
+/// metadata (docs/benchmarks.md).
 pub fn write_property_table(
     table: &PropertyTable,
     view: &mut dyn FnMut(&[u8], usize) -> usize,

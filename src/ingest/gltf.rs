@@ -423,7 +423,7 @@ fn element_info(extras: Option<&Value>, texts: &mut TextInterner) -> ElementInfo
         }
     }
     // One vector per element, kept for the whole run: no spare capacity (a million elements on
-    // a 100M-triangle campus).
+    // a 100M-triangle site).
     info.properties.shrink_to_fit();
     info
 }
@@ -565,7 +565,7 @@ impl Reader<'_> {
     /// Reads the node hierarchy into components, from `roots` (the scene's; every parentless
     /// node when there is no scene); returns the glTF meshes they use, in order of first use,
     /// for [`Reader::read_meshes`]. Names and extras move into the scene's nodes (not copied:
-    /// a million nodes on a 100M-triangle campus).
+    /// a million nodes on a 100M-triangle site).
     fn read_nodes(
         &mut self,
         nodes: &mut [IndexNode],
@@ -649,7 +649,7 @@ impl Reader<'_> {
                     MeshId(mesh_order.len() as u32 - 1)
                 });
                 // Parsed into the element's info and properties, then dropped: nothing reads a mesh
-                // node's raw extras after this (about 90 bytes an element on a campus).
+                // node's raw extras after this (tens of bytes an element).
                 let extras = self.scene.nodes[idx].extras_value();
                 self.scene.nodes[idx].extras = None;
                 let name = &self.scene.nodes[idx].name;

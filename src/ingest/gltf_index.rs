@@ -2,9 +2,9 @@
 //! `gltf_json::Root`.
 //!
 //! A BIM export's JSON is mostly four arrays that grow with the model: nodes, meshes, accessors
-//! and bufferViews. `gltf_json` holds them as a tree about 4x the JSON text (213 MB for the 55 MB
-//! of a campus of 8M triangles, with every accessor's min/max as a `serde_json::Value`), which
-//! set the reader's peak memory. Here each element of those arrays is parsed through its
+//! and bufferViews. `gltf_json` holds them as a tree several times the JSON text (every
+//! accessor's min/max as a `serde_json::Value`; docs/benchmarks.md), which set the reader's peak
+//! memory. Here each element of those arrays is parsed through its
 //! `gltf_json` type (same field rules and enum checks) and at once reduced to what the reader
 //! uses. Everything else (asset, materials, textures, images, samplers, buffers, extensions) stays
 //! a small `gltf_json::Root`, for the `gltf` crate's document API and its reference checks; the
@@ -69,8 +69,8 @@ pub struct GltfIndex {
 
 /// A node: hierarchy, mesh, name, extras as written, and its transform in f64 (`gltf_json` keeps
 /// f32, which loses millimetres on projected coordinates). The transform is boxed and absent when
-/// the node has none (exports of many elements rarely give one): 80 bytes a node instead of 312,
-/// on a campus of a million nodes.
+/// the node has none (exports of many elements rarely give one): a quarter of the bytes a node,
+/// on a site of a million nodes.
 #[derive(Deserialize)]
 #[serde(from = "NodeJson")]
 pub struct IndexNode {

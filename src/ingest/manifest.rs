@@ -1,5 +1,5 @@
-//! Campus manifests: many building models placed in one scene (issue 12, "many buildings in one
-//! tileset"), so that one octree and one tileset cover all of them.
+//! Manifests: many building models placed in one scene ("many buildings in one tileset"), so that
+//! one octree and one tileset cover all of them.
 //!
 //! A manifest is a JSON file (`schemas/manifest.schema.json`, README "Many buildings"): an optional
 //! geographic `origin` (the tileset's east-north-up frame; default [`GeoOrigin::DEFAULT`]) and a list
@@ -248,7 +248,7 @@ impl Manifest {
 
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
-/// origin, no turn), so `convert` places the campus there unless `--origin` moves it.
+/// origin, no turn), so `convert` places the site there unless `--origin` moves it.
 pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());

@@ -245,7 +245,7 @@ pub fn read_inputs(paths: &[impl AsRef<Path>]) -> Result<Scene> {
 /// Like [`read_inputs`], every file read with `opts` ([`read_input_with`]).
 pub fn read_inputs_with(paths: &[impl AsRef<Path>], opts: ReadOptions<'_>) -> Result<Scene> {
     // The first scene is taken as it is: appending it to an empty one would copy every vector
-    // (briefly twice the metadata of a whole campus).
+    // (briefly twice the metadata of a whole site).
     let mut scene: Option<Scene> = None;
     for p in paths {
         let next = read_input_with(p.as_ref(), opts)?;
@@ -269,7 +269,7 @@ pub(crate) fn keep_ids_unique(scene: &mut Scene) {
     scene.renamed_ids += renamed;
 }
 
-/// What a conversion reads: the embedded sample, model files, or a campus manifest.
+/// What a conversion reads: the embedded sample, model files, or a manifest of many models.
 #[derive(Debug, Clone, PartialEq)]
 pub enum InputSet {
     Sample,

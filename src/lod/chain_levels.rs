@@ -16,8 +16,8 @@ use crate::scene::{ComponentId, Scene};
 use crate::simplify::{SimplifyError, SimplifyOptions};
 
 /// Area-weighted samples of a leaf's full detail when measuring a chain level's error (as many as
-/// the independent checker of `tests/hlod.rs` takes; a leaf's own triangle count was found to
-/// miss up to 3 % of the largest distance on the sample).
+/// the independent checker of `tests/hlod.rs` takes; a leaf's own triangle count can be too few
+/// samples to find the largest distance: docs/benchmarks.md).
 pub const CHAIN_LEAF_SAMPLES: usize = 20_000;
 
 /// Unusable LOD-chain ratios (an options error: the user's `--lod-ratios`).

@@ -1,4 +1,4 @@
-//! A coarse root for compact models (issue 28; the paper's HLOD, III.C(3), for a model the tile
+//! A coarse root for compact models (the paper's HLOD, III.C(3), for a model the tile
 //! budgets keep to one tile). Such a model is one tile at full detail, drawn whole at any
 //! distance: a textured building sends every texel of its photographs before its first frame,
 //! while a viewer that frames it accepts far less. When that tile is heavy, the HLOD builder

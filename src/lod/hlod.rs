@@ -132,9 +132,8 @@ impl HlodBuilder<'_> {
     }
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
-    /// coarse grid flattens some thin triangles, and a flat triangle draws nothing (LoD3_Railway at
-    /// 1,000 triangles a tile lost 51 of a tile's 253 triangles, 0.67 m from full detail where
-    /// 0.43 m was declared). The ones the compression's grid flattens are dropped and the rest
+    /// coarse grid flattens some thin triangles, and a flat triangle draws nothing: the tile is
+    /// then farther from full detail than it declares (docs/benchmarks.md). The ones the compression's grid flattens are dropped and the rest
     /// measured again, kept if that costs no more than the grid's share; otherwise a grid
     /// [`GRID_FALLBACK_STEP`] times finer is tried, a few times, before the grid stays finer than
     /// the thinnest triangle.
@@ -232,8 +231,7 @@ impl HlodBuilder<'_> {
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             if let Some(allowed) = allowed_m {
                 // The tile declares at least twice its children's error (the ladder), so content
-                // finer than that buys nothing: the campus root declared 7.9 m for 3.0 m content,
-                // twice the bytes it needed in the first view.
+                // finer than that buys nothing but bytes in the first view.
                 let aim_m = allowed.max(children_max / LADDER_CHILD_RATIO);
                 let most = self.opts.octree.max_tile_triangles.min(input_triangles);
                 tried = refine(&build_at, &contents, most, aim_m, tried)?;
@@ -316,13 +314,11 @@ type Tried = (HlodContent, TileError, usize);
 /// times between a first try (a quarter of the children's) and all of them. Doubling, not the
 /// 1/triangles prediction [`coarsen`] uses: a building's error falls much faster than that as its
 /// small elements come back, and the prediction jumped past the count that met the error to every
-/// triangle, a root no coarser than its child (README, "The ladder of levels", has the IFC
-/// duplex's figures). Each try starts again from the children, and is
+/// triangle, a root no coarser than its child. Each try starts again from the children, and is
 /// kept when it meets the allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]):
 /// halving buys the parent a rung (it declares at least twice its children's error), while a
-/// finer tile that gains less costs its bytes in every view for nothing (Mini_Project's root grew
-/// by a quarter from such tiles). On the 1.9M campus a BIM cell went from 5.2 m to 1.4 m at the
-/// budget, and its parent, the root, from 12.3 m declared to 3.3 m.
+/// finer tile that gains less costs its bytes in every view for nothing. The tries' effect on
+/// measured models: docs/benchmarks.md.
 fn refine(
     build_at: &BuildAt,
     contents: &[&TileContent],
@@ -350,8 +346,8 @@ fn refine(
 /// against all full detail below, so the count is predicted (the error of a simplified surface
 /// grows about as 1/triangles; aim at 0.7 of the allowed error) and the tries are few. A try
 /// simplifies the last accepted content, a quarter or less of the children's (it is measured
-/// against full detail all the same): on a 1.9M-triangle campus the tries took as long as the
-/// first simplifications. A rejected try is followed by one between it and the last accepted
+/// against full detail all the same): simplifying the children again each time costs as much as
+/// the first simplifications. A rejected try is followed by one between it and the last accepted
 /// count (their geometric mean), once: the halving steps otherwise leave a tile up to twice the
 /// triangles its error allows, and a finer tile below can move the steps.
 fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut target): Tried) -> Result<Tried> {
@@ -443,22 +439,23 @@ pub const HLOD_REFINE_TRIES: usize = 2;
 pub const HLOD_MIN_TRIANGLES: usize = 500;
 
 /// At most this many coarser tries per HLOD tile: each simplifies the tile again and measures it
-/// against all the full detail below it (Mini_Project.glb converts in 2.6 s with the tries, 1.5 s
-/// without).
+/// against all the full detail below it, so the tries can take most of a conversion's time
+/// (docs/benchmarks.md).
 pub const HLOD_COARSEN_TRIES: usize = 2;
 
 /// Share of a simplified tile's measured error that position quantization may add on top of it:
 /// a tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices then
-/// cost fewer bits (Mini_Project's root, 37 m across: Draco's 15 -> 11 bits per coordinate, fewer
-/// distinct values for meshopt's codec); the declared error includes the quantization, so it
+/// cost fewer bits (fewer bits per coordinate for Draco, fewer distinct values for meshopt's
+/// codec); the declared error includes the quantization, so it
 /// stays honest and grows by at most this share.
 pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
 
 /// Grids a simplified tile tries, each [`GRID_FALLBACK_STEP`] times finer than the last, before
-/// its grid is kept finer than its thinnest triangle: the airport's root flattens triangles that
-/// matter on the grid of its error's share, not on one 16 times finer. Five reach the finest grid
-/// from the share of an error of metres (256 times finer): one sliver of a whole element would
-/// otherwise put a campus root on the finest grid when a grid of a few millimetres keeps it.
+/// its grid is kept finer than its thinnest triangle: a sparse model's root can flatten
+/// triangles that matter on the grid of its error's share and not on one 16 times finer. Five
+/// reach the finest grid from the share of an error of metres (256 times finer): one sliver of a
+/// whole element would otherwise put a large root on the finest grid when a grid of a few
+/// millimetres keeps it.
 const GRID_TRIES: usize = 5;
 const GRID_FALLBACK_STEP: f64 = 4.0;
 
@@ -552,8 +549,8 @@ fn thinnest_triangle_m(content: &TileContent) -> f64 {
 mod tests {
     use super::*;
 
-    /// A try at `target` triangles with the duplex's measured error curve (steep: small elements
-    /// come back), over `limit_m` given up as the real measurement does.
+    /// A try at `target` triangles with a steep error curve, as a BIM model's (small elements come
+    /// back), over `limit_m` given up as the real measurement does.
     fn steep(
         _: &[&TileContent],
         target: usize,

@@ -18,8 +18,8 @@
 //!   C_k lies within `b_k` of their own full detail (their own P → F bound, 0 at the leaves;
 //!   triangle inequality).
 //!
-//! Adding the children's errors to the whole tile's simplification error instead was measured to
-//! be up to 3.4x loose on Mini_Project (errors add only where they coincide).
+//! Adding the children's errors to the whole tile's simplification error instead is loose: errors
+//! add only where they coincide (docs/benchmarks.md).
 
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
@@ -185,12 +185,12 @@ impl<'a> ErrorReference<'a> {
         }
         // P -> F: through the children, `min over children (distance + its bound)` per sample, a
         // running maximum again: a child nearer than the maximum (less its bound) settles that the
-        // sample cannot raise it. Same result as exact queries against every child, which took
-        // HLOD + writing from 18 to 25 s on a 1.9M-triangle campus (campus-8.2M: 116 vs 148 s).
+        // sample cannot raise it. Same result as exact queries against every child, which cost
+        // much of the HLOD stage's time on large scenes (docs/benchmarks.md).
         // Children go nearest first by a lower bound of their term (box distance + bound), and a
         // child is only searched below the best term so far: most samples lie in one child, and
-        // an exact query on a far one descends much of its tree (it was 5 of every 6 full
-        // queries here, and 3/4 of the measurement's time on a 1.9M-triangle campus).
+        // an exact query on a far one descends much of its tree (most of the full queries here,
+        // and most of the measurement's time).
         let samples = (pi.len() / 3).clamp(20_000, 250_000);
         let run = AtomicU64::new(0.0f64.to_bits());
         sample_surface_dense(TriMesh::new(&pp, &pi), samples)
@@ -250,8 +250,7 @@ impl ErrorReference<'_> {
     /// bound is over [`FULL_TO_COARSE_SAFETY`] times `sampled_m` is split in four at its edge
     /// midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times), so
     /// the declared error covers every face, edge and open border. Samples alone missed peaks
-    /// between corners (a tile of LoD3_Railway at 1,000 triangles a tile declared 0.43 m for
-    /// 0.67 m). Exact distances and a threshold fixed before the pass: the same result whatever
+    /// between corners, declaring less than the real distance. Exact distances and a threshold fixed before the pass: the same result whatever
     /// the threads do.
     fn faces_within(&self, coarse: &MeshBvh, sampled_m: f64, floor_m: f64) -> f64 {
         type Corner = (DVec3, f64, u32);
@@ -474,7 +473,7 @@ pub fn simplify_children(
 }
 
 /// The budget's last resort, when collapses stall above it (many small closed parts, locked
-/// borders; LoD3_Railway's root kept 2,170 triangles for 2,000): whole parts (one feature of one
+/// borders can keep a root above its budget): whole parts (one feature of one
 /// material: a vertex group) are dropped, smallest box diagonal first, until the tile fits. Parts
 /// with a locked vertex stay (their neighbours rely on their borders). The error measured
 /// afterwards ([`ErrorReference`]) accounts for what was dropped.

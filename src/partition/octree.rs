@@ -20,8 +20,8 @@
 //! whole is cut like an over-budget mesh. The HLOD tiles above then form a ladder: each level's
 //! cells are half its parent's, and so is the error a viewer accepts of them (their framed error,
 //! which caps their simplification); the leaf level's rung is absolute, so that full detail is only
-//! fetched near it. A wide, sparse scene (an airport of 7 km in 73k triangles, which the budgets
-//! alone made a root over five kilometre-wide leaves) gets the levels between; compact models,
+//! fetched near it. A wide, sparse scene (kilometres across in few triangles, which the budgets
+//! alone would make a root over a few kilometre-wide leaves) gets the levels between; compact models,
 //! smaller than a leaf, keep the tree their budgets give.
 //!
 //! The plan is computed from bounds and counts only, and is a pure function of the scene and the
@@ -57,8 +57,8 @@ pub struct OctreeOptions {
 
 /// Default [`OctreeOptions::max_leaf_extent_m`]. A leaf's parent spans at most about twice this,
 /// so its error is capped at about 0.8 of its framed error (`lod::hlod`), some 4 m: full detail
-/// is fetched within about 300 m of it. City blocks and airport aprons are tiled; a building (or a
-/// campus of them) is not split for its extent.
+/// is fetched within about 300 m of it. City blocks and airfield aprons are tiled; a building (or a
+/// site of them) is not split for its extent.
 pub const MAX_LEAF_EXTENT_M: f64 = 128.0;
 
 impl Default for OctreeOptions {

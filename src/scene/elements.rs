@@ -1,9 +1,9 @@
 //! Per-element metadata (identity, BIM semantics, property sets) kept as compact records, in memory
 //! or spilled to a temporary file: how `--memory-budget` bounds the metadata a conversion holds
-//! (issue 12, "bounded memory"; the geometry's counterpart is [`super::store`]).
+//! ("bounded memory"; the geometry's counterpart is [`super::store`]).
 //!
 //! As Rust values an element cost about 1 KB (its `ElementInfo`, key, name and GlobalId strings,
-//! property vectors), a million elements on a 100M-triangle campus about 2 GB with the allocator's
+//! property vectors), a million elements of a 100M-triangle site about 2 GB with the allocator's
 //! fragmentation, at any budget. Here each element is one byte record: strings as length and
 //! bytes, repeated texts (classes, storeys, property names) as indices into one table of distinct
 //! values, numbers as varints. Records fill fixed-size chunks; past the store's metadata share of

@@ -1,7 +1,7 @@
 //! Placement: which point of a model's own coordinates goes to its place on Earth, and the
 //! transform that brings the model there (anchor at the origin, turned to true north; for map
 //! coordinates, also scaled from grid to ground). One rule for `convert` and for every entry of a
-//! campus manifest.
+//! manifest of many models.
 
 use super::{Aabb, Scene, SourceGeoreference};
 use crate::geodesy::crs::{place_map_point, with_map_to_enu, CrsError, CrsUse, MapPlace};

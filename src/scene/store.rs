@@ -1,5 +1,5 @@
 //! Mesh geometry kept in memory or spilled to a temporary file: how `--memory-budget` bounds the
-//! geometry a conversion holds (issue 12, "bounded memory").
+//! geometry a conversion holds ("bounded memory": a scene larger than the machine's memory).
 //!
 //! Every mesh of a [`Scene`](super::Scene) lives in one slot of a [`MeshStore`]. While the
 //! geometry held in memory stays under the store's resident limit, a pushed mesh stays there; past
@@ -268,7 +268,7 @@ impl MeshStore {
     }
 
     /// Empties a mesh (name included) that nothing references any more: its slot then shares one
-    /// empty mesh with every other such slot (dedup releases most meshes of a campus of copies).
+    /// empty mesh with every other such slot (dedup releases most meshes of a site of copies).
     pub fn release(&mut self, id: MeshId) {
         static EMPTY: std::sync::OnceLock<Arc<Mesh>> = std::sync::OnceLock::new();
         let empty = EMPTY.get_or_init(|| {

@@ -337,8 +337,8 @@ impl Handler {
         }
         let mut raw = Vec::new();
         file.read_to_end(&mut raw)?;
-        // Binaries (GLB...) at level 1: measured on real tiles 0.432 of the size vs 0.425 at
-        // level 6, for 60% of the time. Text (compressed once, then cached) at the default level.
+        // Binaries (GLB...) at level 1: on real tiles nearly the size of the default level, for
+        // less time (docs/benchmarks.md). Text (compressed once, then cached) at the default level.
         let level = match policy {
             Compress::Always => flate2::Compression::default(),
             _ => flate2::Compression::fast(),

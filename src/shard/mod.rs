@@ -1,4 +1,4 @@
-//! Sharded builds (issue 12): `plan` → `build-job` × N (any order, any machine that sees DIR and
+//! Sharded builds (scenes too large for one machine's time or memory): `plan` → `build-job` × N (any order, any machine that sees DIR and
 //! the inputs) → `merge`, giving the tileset `convert` gives, byte for byte.
 //!
 //! `plan` reads the inputs, runs everything before the tiles (placement, dedup, texture

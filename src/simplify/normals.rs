@@ -1,12 +1,11 @@
 //! Shading normals of a simplified mesh, taken from its own faces.
 //!
 //! The collapses interpolate the input's normals (`qem.rs`), but the faces around a vertex turn as
-//! the surface coarsens, and a wedge kept from a box's side can end up on its top: on
-//! Mini_Project's HLOD root the interpolated normals were a median 41° (p90 96°) off the faces
-//! that use them. Coarse tiles were shaded wrongly, and changed shade when refined (popping).
+//! the surface coarsens, and a wedge kept from a box's side can end up on its top, its normal far
+//! off the faces that use it (docs/benchmarks.md). Coarse tiles were shaded wrongly, and changed
+//! shade when refined (popping).
 //! Draco also predicts normals from the faces (geometric normal prediction), so normals that
-//! disagree with them cost nearly as much as the positions: 14.6 of that root's 39.1 KB of
-//! geometry, 3.4 KB once taken from the faces.
+//! disagree with them cost nearly as much as the positions; taken from the faces they cost little.
 //!
 //! Each vertex (wedge) gets the area-weighted mean of the normals of the triangles that use it, in
 //! their winding's direction (what the glTF front face is). Attribute seams split wedges, so hard
@@ -28,9 +27,9 @@ use crate::geometry::{face_vectors, set_normals, vertex_sums};
 
 /// A vertex is split when its faces' area-weighted mean normal is shorter than this share of
 /// their total area: its faces face opposite ways nearly as much as not (two sides of a sheet),
-/// so the mean's direction is arbitrary. Measured on Mini_Project's HLOD root (53.0 KB
-/// unsplit): 55.0 KB at 0.1, 59.9 KB at 0.2, 84.5 KB splitting every opposite face (QEM leaves
-/// many flattened parts whose two sides share vertices).
+/// so the mean's direction is arbitrary. Each split costs bytes (QEM leaves many flattened parts
+/// whose two sides share vertices), so only the most ambiguous vertices split (chosen by
+/// measurement: docs/benchmarks.md).
 const SPLIT_BELOW_MEAN_SHARE: f64 = 0.1;
 
 /// Gives `m` normals from its faces: splits the vertices whose faces face opposite ways about

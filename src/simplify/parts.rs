@@ -1,5 +1,5 @@
 //! Parallel simplification of one large mesh (rayon): "parallel over
-//! independent meshes" (issue 3) inside one mesh.
+//! independent meshes" inside one mesh.
 //!
 //! * **Many connected parts** (a BIM model: thousands of separate members):
 //!   the parts are dealt by size into a few groups of about equal size, each
@@ -8,8 +8,8 @@
 //!   Collapses never cross parts, so a group depends on its own parts only.
 //!   The goal is shared in proportion to each group's triangles instead of by
 //!   one global cost order; with many parts dealt by size every group is a
-//!   similar mix of the model (BIM models repeat their members), and on
-//!   ISSUE_021_Mini_Project the measured error is the same as one run's.
+//!   similar mix of the model (BIM models repeat their members), so the
+//!   error matches one run's (docs/benchmarks.md).
 //! * **One large surface** (a terrain, a scanned building), or parts too
 //!   unequal to deal: the surface is cut into cells (median cuts). The
 //!   quadrics of the whole are computed first (a cell alone would take its
@@ -49,8 +49,9 @@ pub(crate) fn run(input: QemInput, params: &QemParams) -> QemOutput {
 
 /// Cells of one surface stop this far from the goal (a fraction of the
 /// triangles to remove); one run over the whole surface does the rest.
-/// Measured: 0.1 left 4-9 % more Hausdorff error than one run on the
-/// synthetic surfaces, 0.25 the same error, in about 70 % of the time.
+/// Too close to the goal and the cells' borders cost error that one run
+/// would not; this leaves the whole-surface run enough collapses to match
+/// one run's error, faster (chosen by measurement: docs/benchmarks.md).
 const CELL_SLACK: f64 = 0.25;
 /// A vertex in no piece.
 const NO_PIECE: u32 = u32::MAX;

@@ -55,8 +55,7 @@
 //!   endpoint positions to the new star and of the new position to the old
 //!   star. Plane distances alone let a thin plate or bar be squashed flat and
 //!   then lose its last triangles for a few millimetres of plane error (whole
-//!   parts vanished: duplex part 206, a 5.8 x 4.4 m plate; a 8.3 m bar of
-//!   Mini_Project). When nothing survives around the edge the coverage error
+//!   plates and bars of metres vanished). When nothing survives around the edge the coverage error
 //!   is the radius of the connected part;
 //! * at apply time also the distance of the new triangles' edge midpoints and
 //!   centroids to the old star (`State::interior2`; catches triangles cutting
@@ -1167,11 +1166,10 @@ pub(crate) fn components(
 
 /// Squared cost of removing each component whole: its radius plus its gap, the distance from its
 /// box to the nearest other component's box (a lower bound of how far the rest of the mesh is
-/// from its points), the gap counted up to the radius. The radius alone let small parts standing
-/// apart go first: a tile of the 1.9M campus dropped 12-triangle parts 3.5 m from anything kept
-/// and measured 3.5 m at 65 % of its triangles. Counting the whole gap kept the airport's
-/// scattered parts so long that its coarse levels got worse (a cell 19 -> 27 m). With no other
-/// component the mesh's diagonal stands for the gap.
+/// from its points), the gap counted up to the radius. The radius alone lets small parts standing
+/// apart go first, leaving an error as large as their gap; counting the whole gap keeps widely
+/// scattered parts so long that coarse levels get worse (both measured: docs/benchmarks.md).
+/// With no other component the mesh's diagonal stands for the gap.
 fn removal_costs2(pos: &[DVec3], comp: &[u32], ncomp: usize) -> Vec<f64> {
     let mut lo = vec![DVec3::splat(f64::INFINITY); ncomp];
     let mut hi = vec![DVec3::splat(f64::NEG_INFINITY); ncomp];

@@ -1,4 +1,4 @@
-//! Per-tile texture atlas (paper III.D, issue 6): the small, non-repeating images one tile samples
+//! Per-tile texture atlas (paper III.D): the small, non-repeating images one tile samples
 //! are packed into one image, so the tile costs one texture request (or one embedded image)
 //! instead of one per image, and the encoded bytes lose the per-file overhead (PNG/JPEG headers,
 //! compression restarting at each file).
@@ -45,11 +45,10 @@ pub const ATLAS_BORDER_PX: u32 = 4;
 /// Slots start and end at multiples of this, so the 2x2 and 4x4 blocks of mip levels 1 and 2
 /// never straddle two images.
 pub const ATLAS_ALIGN_PX: u32 = 4;
-/// Longest side (texels, at the tile's level) of an image that may be packed. By measurement
-/// (`make bench`, README Textures: walls of 16 posters, one tile): 128 packs the 48-128 texel
-/// posters (first view 40.1 -> 35.0 KB, 12 -> 2 requests); 512 also packs 192-512 texel ones
-/// (215 -> 201 KB, 17 -> 2 requests), but a larger image's file is more often shared by several
-/// tiles, which an atlas per tile would copy into each; 256 is the conservative middle.
+/// Longest side (texels, at the tile's level) of an image that may be packed. Packing small
+/// images saves requests and bytes; larger ones save too, but a larger image's file is more
+/// often shared by several tiles, which an atlas per tile would copy into each; 256 is the
+/// conservative middle (measured: docs/benchmarks.md).
 pub const ATLAS_MAX_IMAGE_SIDE_PX: u32 = 256;
 /// Largest atlas side: WebGL 2 guarantees textures of 2048 texels (`MAX_TEXTURE_SIZE`).
 pub const ATLAS_MAX_SIDE_PX: u32 = 2048;

@@ -1,4 +1,4 @@
-//! Texture files shared by the tiles of a tileset (issue 6, paper III.F's loading claim): each
+//! Texture files shared by the tiles of a tileset (paper III.F's loading claim): each
 //! distinct image level (after identical images are merged and unused areas cropped) is written
 //! once under `<tileset>/textures/` and tiles reference it by a relative `uri` (glTF 2.0 §3.3.3:
 //! relative URIs resolve against the GLB's own location; CesiumJS derives them from the tile's

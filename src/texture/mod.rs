@@ -77,13 +77,12 @@ pub struct TextureOptions {
     pub atlas: bool,
 }
 
-/// Default of [`TextureOptions::embed_below_bytes`], by measurement (`make bench`, first view of
-/// LoD3_Railway at 3000 triangles per tile): 1 KiB embeds the coarse levels (a few hundred bytes
-/// each) and cuts the requests from 57 to 36 for 1 % more texture bytes; 4 KiB saves 5 more
-/// requests for 15 % more bytes.
+/// Default of [`TextureOptions::embed_below_bytes`]: large enough to embed the coarse levels (a
+/// few hundred bytes each), saving requests for few more texture bytes; larger thresholds save
+/// few more requests for many more bytes (chosen by measurement: docs/benchmarks.md).
 pub const DEFAULT_EMBED_BELOW_BYTES: usize = 1024;
 
-/// Default of [`TextureOptions::atlas`], by measurement (README, Textures).
+/// Default of [`TextureOptions::atlas`], chosen by measurement (docs/benchmarks.md).
 pub const DEFAULT_ATLAS: bool = false;
 
 impl Default for TextureOptions {

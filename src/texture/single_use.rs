@@ -1,5 +1,5 @@
 //! Shared texture files whose copies cost less than a request, moved into the tiles that reference
-//! them (issue 28): once every tile is written, each file under `textures/` ([`super::external`])
+//! them: once every tile is written, each file under `textures/` ([`super::external`])
 //! whose copies pass [`copies_cost_less_than_a_request`] (`n` tiles reference it, `(n - 1) x its
 //! bytes` is at most a request's worth) becomes a `bufferView` image of each of those tiles' GLBs
 //! (glTF 2.0 §3.6.1.1, "images" with `bufferView` and `mimeType`) and the file is removed. A

@@ -101,10 +101,9 @@ pub enum TableScope {
     /// Every property (full-detail tiles).
     All,
     /// What names an element: simplified tiles, which a first view loads for the whole model at
-    /// once. Left out: property sets (Mini_Project's IFC root: 585 of 850 KB), the hierarchy path
-    /// (28 % of that root once the sets were out; storey, building and site already place the
-    /// element), and the name where the id is the glTF node path, which ends with it (a glTF
-    /// campus root: 24 %). Clicking an element there names it; its full-detail tile has the rest.
+    /// once. Left out, as the largest shares of such a table (docs/benchmarks.md): property sets,
+    /// the hierarchy path (storey, building and site already place the element), and the name
+    /// where the id is the glTF node path, which ends with it. Clicking an element there names it; its full-detail tile has the rest.
     Identity,
 }
 

@@ -69,7 +69,7 @@ pub struct TileEncoding {
     /// Shading normals from the faces as Draco's quantization leaves them (simplified content,
     /// whose normals come from its faces anyway: `simplify::normals`). Coarse quantization turns
     /// small faces; normals that follow them shade what is drawn, and Draco predicts them from
-    /// those faces (Mini_Project's root: 61.9 -> 55.9 KB).
+    /// those faces, so they cost fewer bytes too (docs/benchmarks.md).
     pub normals_from_drawn_faces: bool,
     pub generator: String,
 }
