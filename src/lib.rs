@@ -196,7 +196,8 @@ mod layering {
     }
 }
 
-/// Functions short enough to read at once: none longer than [`function_length::MAX_FUNCTION_LINES`] lines.
+/// Functions short enough to read at once: none longer than [`function_length::MAX_FUNCTION_LINES`]
+/// lines.
 ///
 /// A function's length counts its lines from `fn` to its closing brace (signature and body; a
 /// nested function counts in its own length and in the enclosing one's). Exempt: test code, i.e.

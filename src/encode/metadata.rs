@@ -2,9 +2,9 @@
 //! Tiles 1.1): one row per feature, one column per property, in the binary layout the extension
 //! defines (strings as UTF-8 bytes plus offsets, FLOAT64, and enum codes, each aligned to its
 //! size). String offsets take the smallest type that holds the column's byte length (UINT8, UINT16
-//! or UINT32: coarse tiles' columns are short, so most take 1 or 2 bytes a row), enum codes the width
-//! their schema enum declares. The schema itself is built by `tileset::metadata`; this module only
-//! lays out bytes.
+//! or UINT32: coarse tiles' columns are short, so most take 1 or 2 bytes a row), enum codes the
+//! width their schema enum declares. The schema itself is built by `tileset::metadata`; this module
+//! only lays out bytes.
 
 use serde_json::{json, Map, Value};
 

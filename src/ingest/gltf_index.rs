@@ -1,14 +1,14 @@
 //! A glTF JSON read in one streaming pass into compact tables, without a whole
 //! `gltf_json::Root`.
 //!
-//! A BIM export's JSON is mostly four arrays that grow with the model: nodes, meshes, accessors
-//! and bufferViews. `gltf_json` holds them as a tree several times the JSON text (every
-//! accessor's min/max as a `serde_json::Value`; docs/benchmarks.md), which set the reader's peak
-//! memory. Here each element of those arrays is parsed through its
-//! `gltf_json` type (same field rules and enum checks) and at once reduced to what the reader
-//! uses. Everything else (asset, materials, textures, images, samplers, buffers, extensions) stays
-//! a small `gltf_json::Root`, for the `gltf` crate's document API and its reference checks; the
-//! reduced tables get the same checks here ([`GltfIndex::check_references`]).
+//! A BIM export's JSON is mostly four arrays that grow with the model: nodes, meshes, accessors and
+//! bufferViews. `gltf_json` holds them as a tree several times the JSON text (every accessor's
+//! min/max as a `serde_json::Value`; docs/benchmarks.md), which set the reader's peak memory. Here
+//! each element of those arrays is parsed through its `gltf_json` type (same field rules and enum
+//! checks) and at once reduced to what the reader uses. Everything else (asset, materials,
+//! textures, images, samplers, buffers, extensions) stays a small `gltf_json::Root`, for the `gltf`
+//! crate's document API and its reference checks; the reduced tables get the same checks here
+//! ([`GltfIndex::check_references`]).
 
 use gltf::accessor::{DataType, Dimensions};
 use gltf::json::validation::Checked;

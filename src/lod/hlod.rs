@@ -133,10 +133,10 @@ impl HlodBuilder<'_> {
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
     /// coarse grid flattens some thin triangles, and a flat triangle draws nothing: the tile is
-    /// then farther from full detail than it declares (docs/benchmarks.md). The ones the compression's grid flattens are dropped and the rest
-    /// measured again, kept if that costs no more than the grid's share; otherwise a grid
-    /// [`GRID_FALLBACK_STEP`] times finer is tried, a few times, before the grid stays finer than
-    /// the thinnest triangle.
+    /// then farther from full detail than it declares (docs/benchmarks.md). The ones the
+    /// compression's grid flattens are dropped and the rest measured again, kept if that costs no
+    /// more than the grid's share; otherwise a grid [`GRID_FALLBACK_STEP`] times finer is tried, a
+    /// few times, before the grid stays finer than the thinnest triangle.
     fn fit_grid(
         &self,
         reference: &ErrorReference,
@@ -346,10 +346,10 @@ fn refine(
 /// against all full detail below, so the count is predicted (the error of a simplified surface
 /// grows about as 1/triangles; aim at 0.7 of the allowed error) and the tries are few. A try
 /// simplifies the last accepted content, a quarter or less of the children's (it is measured
-/// against full detail all the same): simplifying the children again each time costs as much as
-/// the first simplifications. A rejected try is followed by one between it and the last accepted
-/// count (their geometric mean), once: the halving steps otherwise leave a tile up to twice the
-/// triangles its error allows, and a finer tile below can move the steps.
+/// against full detail all the same): simplifying the children again each time costs as much as the
+/// first simplifications. A rejected try is followed by one between it and the last accepted count
+/// (their geometric mean), once: the halving steps otherwise leave a tile up to twice the triangles
+/// its error allows, and a finer tile below can move the steps.
 fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut target): Tried) -> Result<Tried> {
     let mut tries = 0;
     let mut too_coarse: Option<usize> = None;
@@ -443,11 +443,10 @@ pub const HLOD_MIN_TRIANGLES: usize = 500;
 /// (docs/benchmarks.md).
 pub const HLOD_COARSEN_TRIES: usize = 2;
 
-/// Share of a simplified tile's measured error that position quantization may add on top of it:
-/// a tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices then
-/// cost fewer bits (fewer bits per coordinate for Draco, fewer distinct values for meshopt's
-/// codec); the declared error includes the quantization, so it
-/// stays honest and grows by at most this share.
+/// Share of a simplified tile's measured error that position quantization may add on top of it: a
+/// tile that stands for full detail within 0.2 m needs no millimetre grid. Its vertices then cost
+/// fewer bits (fewer bits per coordinate for Draco, fewer distinct values for meshopt's codec); the
+/// declared error includes the quantization, so it stays honest and grows by at most this share.
 pub const COARSE_QUANTIZATION_SHARE: f64 = 0.1;
 
 /// Grids a simplified tile tries, each [`GRID_FALLBACK_STEP`] times finer than the last, before

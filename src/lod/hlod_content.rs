@@ -250,8 +250,8 @@ impl ErrorReference<'_> {
     /// bound is over [`FULL_TO_COARSE_SAFETY`] times `sampled_m` is split in four at its edge
     /// midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times), so
     /// the declared error covers every face, edge and open border. Samples alone missed peaks
-    /// between corners, declaring less than the real distance. Exact distances and a threshold fixed before the pass: the same result whatever
-    /// the threads do.
+    /// between corners, declaring less than the real distance. Exact distances and a threshold
+    /// fixed before the pass: the same result whatever the threads do.
     fn faces_within(&self, coarse: &MeshBvh, sampled_m: f64, floor_m: f64) -> f64 {
         type Corner = (DVec3, f64, u32);
         let certified_m = (FULL_TO_COARSE_SAFETY * sampled_m).max(floor_m);

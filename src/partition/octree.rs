@@ -16,13 +16,13 @@
 //! per-element models keep their elements whole: only what overflows a tile is cut.
 //!
 //! Extent (the bottom rung of the error ladder): a cell whose content spans more than
-//! `max_leaf_extent_m` also splits, even within the budgets, and what is that wide and cannot descend
-//! whole is cut like an over-budget mesh. The HLOD tiles above then form a ladder: each level's
-//! cells are half its parent's, and so is the error a viewer accepts of them (their framed error,
-//! which caps their simplification); the leaf level's rung is absolute, so that full detail is only
-//! fetched near it. A wide, sparse scene (kilometres across in few triangles, which the budgets
-//! alone would make a root over a few kilometre-wide leaves) gets the levels between; compact models,
-//! smaller than a leaf, keep the tree their budgets give.
+//! `max_leaf_extent_m` also splits, even within the budgets, and what is that wide and cannot
+//! descend whole is cut like an over-budget mesh. The HLOD tiles above then form a ladder: each
+//! level's cells are half its parent's, and so is the error a viewer accepts of them (their framed
+//! error, which caps their simplification); the leaf level's rung is absolute, so that full detail
+//! is only fetched near it. A wide, sparse scene (kilometres across in few triangles, which the
+//! budgets alone would make a root over a few kilometre-wide leaves) gets the levels between;
+//! compact models, smaller than a leaf, keep the tree their budgets give.
 //!
 //! The plan is computed from bounds and counts only, and is a pure function of the scene and the
 //! options (input order, no hashing, no threads): the output is the same on every run.

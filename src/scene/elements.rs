@@ -2,14 +2,15 @@
 //! or spilled to a temporary file: how `--memory-budget` bounds the metadata a conversion holds
 //! ("bounded memory"; the geometry's counterpart is [`super::store`]).
 //!
-//! As Rust values an element cost about 1 KB (its `ElementInfo`, key, name and GlobalId strings,
-//! property vectors), a million elements of a 100M-triangle site about 2 GB with the allocator's
-//! fragmentation, at any budget. Here each element is one byte record: strings as length and
-//! bytes, repeated texts (classes, storeys, property names) as indices into one table of distinct
-//! values, numbers as varints. Records fill fixed-size chunks; past the store's metadata share of
-//! the budget, a full chunk goes to an unnamed temporary file and records are read back from it
-//! with positioned reads (as geometry is). Stages ask for an element's [`ElementInfo`] when they
-//! need it (the metadata encoder, per tile) or walk all of them in order (the schema).
+//! As Rust values an element costs about a kilobyte (its `ElementInfo`, key, name and GlobalId
+//! strings, property vectors), gigabytes for a site of a million elements once the allocator's
+//! fragmentation is counted, at any budget (docs/benchmarks.md). Here each element is one byte
+//! record: strings as length and bytes, repeated texts (classes, storeys, property names) as
+//! indices into one table of distinct values, numbers as varints. Records fill fixed-size chunks;
+//! past the store's metadata share of the budget, a full chunk goes to an unnamed temporary file
+//! and records are read back from it with positioned reads (as geometry is). Stages ask for an
+//! element's [`ElementInfo`] when they need it (the metadata encoder, per tile) or walk all of them
+//! in order (the schema).
 //!
 //! Records hold exactly what was pushed, so a spilled table gives the same tiles as one that did
 //! not spill.

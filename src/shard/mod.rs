@@ -1,5 +1,6 @@
-//! Sharded builds (scenes too large for one machine's time or memory): `plan` → `build-job` × N (any order, any machine that sees DIR and
-//! the inputs) → `merge`, giving the tileset `convert` gives, byte for byte.
+//! Sharded builds (scenes too large for one machine's time or memory): `plan` → `build-job` × N
+//! (any order, any machine that sees DIR and the inputs) → `merge`, giving the tileset `convert`
+//! gives, byte for byte.
 //!
 //! `plan` reads the inputs, runs everything before the tiles (placement, dedup, texture
 //! preparation, the octree of `partition::plan_octree`) and splits the tree: from the root, the

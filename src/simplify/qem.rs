@@ -55,8 +55,8 @@
 //!   endpoint positions to the new star and of the new position to the old
 //!   star. Plane distances alone let a thin plate or bar be squashed flat and
 //!   then lose its last triangles for a few millimetres of plane error (whole
-//!   plates and bars of metres vanished). When nothing survives around the edge the coverage error
-//!   is the radius of the connected part;
+//!   plates and bars of metres vanished). When nothing survives around the
+//!   edge the coverage error is the radius of the connected part;
 //! * at apply time also the distance of the new triangles' edge midpoints and
 //!   centroids to the old star (`State::interior2`; catches triangles cutting
 //!   across a concave corner, which vertex checks miss).

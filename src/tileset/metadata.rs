@@ -102,8 +102,9 @@ pub enum TableScope {
     All,
     /// What names an element: simplified tiles, which a first view loads for the whole model at
     /// once. Left out, as the largest shares of such a table (docs/benchmarks.md): property sets,
-    /// the hierarchy path (storey, building and site already place the element), and the name
-    /// where the id is the glTF node path, which ends with it. Clicking an element there names it; its full-detail tile has the rest.
+    /// the hierarchy path (storey, building and site already place the element), and the name where
+    /// the id is the glTF node path, which ends with it. Clicking an element there names it; its
+    /// full-detail tile has the rest.
     Identity,
 }
 
