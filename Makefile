@@ -11,11 +11,15 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 BIN     := target/release/bimtiles
 SAMPLE  := samples/sample_building.glb
-APT_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data nodejs npm python3 python3-venv chromium fonts-dejavu-core
+# What building and running the converter needs (make run), and what only the tests and benches
+# need on top (make test).
+APT_BUILD_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data
+APT_TEST_PKGS  := nodejs npm python3 python3-venv chromium fonts-dejavu-core
+APT_PKGS := $(APT_BUILD_PKGS) $(APT_TEST_PKGS)
 
-.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-system deps-node deps-python build bench clean
+.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python build bench clean
 
-run: deps build
+run: deps-build build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
 	$(BIN) inspect out/sample
 
@@ -25,7 +29,10 @@ build:
 
 deps: deps-system deps-node deps-python
 
-# Debian packages: only those not installed yet.
+# Debian packages: only those not installed yet (deps-build: the converter's alone).
+deps-build:
+	@$(MAKE) --no-print-directory deps-system APT_PKGS="$(APT_BUILD_PKGS)"
+
 deps-system:
 	@missing=""; for p in $(APT_PKGS); do \
 	  case $$p in nodejs) command -v node >/dev/null && continue;; npm) command -v npm >/dev/null && continue;; \
@@ -71,7 +78,7 @@ fuzz: deps-system deps-fuzz
 	    -print_final_stats=1); done
 
 # Formatting and lints, as CI runs them before the tests (the build script needs libdraco-dev).
-lint: deps-system
+lint: deps-build
 	$(CARGO) fmt --check
 	$(CARGO) clippy --all-targets --features charts -- -D warnings
 

@@ -7,6 +7,7 @@
 //!   `src/geodesy/proj.rs` declares the few C functions used.
 //! - `basisu()`: our C shim over the Basis Universal encoder that the crate basis-universal-sys
 //!   compiles and links (KTX2 output, which that crate's API does not offer).
+//! - `commit()`: the commit the binary is built from, for `--version` (`BIMTILES_COMMIT`).
 
 use std::env;
 use std::path::PathBuf;
@@ -17,6 +18,34 @@ fn main() {
     draco(&manifest_dir);
     proj();
     basisu(&manifest_dir);
+    commit();
+}
+
+/// Sets `BIMTILES_COMMIT` to the short hash of the checked-out commit ("unknown" outside a git
+/// checkout, e.g. a crate tarball), and reruns when the checkout moves to another commit.
+fn commit() {
+    let git = |args: &[&str]| -> Option<String> {
+        let out = std::process::Command::new("git").args(args).output().ok()?;
+        let text = String::from_utf8(out.stdout).ok()?;
+        (out.status.success() && !text.trim().is_empty()).then(|| text.trim().to_string())
+    };
+    let hash = git(&["rev-parse", "--short=12", "HEAD"]).unwrap_or_else(|| "unknown".into());
+    println!("cargo:rustc-env=BIMTILES_COMMIT={hash}");
+    // HEAD names the branch; the branch's ref (loose or packed) names the commit.
+    for dir in [
+        git(&["rev-parse", "--git-dir"]),
+        git(&["rev-parse", "--git-common-dir"]),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        let dir = PathBuf::from(dir);
+        for file in ["HEAD", "packed-refs", "refs/heads"] {
+            if dir.join(file).exists() {
+                println!("cargo:rerun-if-changed={}", dir.join(file).display());
+            }
+        }
+    }
 }
 
 /// Compiles `shim/basisu_shim.cc` (needs no headers: it declares the three encoder functions it

@@ -12,13 +12,21 @@ use bimtiles::inspect::{human_bytes, inspect};
 use bimtiles::partition::OctreeOptions;
 use bimtiles::simplify::SimplifyOptions;
 use bimtiles::texture::{TextureFormat, TextureOptions};
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 use std::path::PathBuf;
+
+/// The version `--version` prints: the crate's, and the commit it was built from (build.rs).
+const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (",
+    env!("BIMTILES_COMMIT"),
+    ")"
+);
 
 #[derive(Parser)]
 #[command(
     name = "bimtiles",
-    version,
+    version = VERSION,
     about = "Building models (glTF/GLB, IFC) to OGC 3D Tiles 1.1"
 )]
 struct Cli {
@@ -29,12 +37,22 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Convert models into a 3D Tiles 1.1 tileset.
+    #[command(after_help = "Examples:
+  bimtiles convert duplex.ifc --out tiles/duplex
+  bimtiles convert --manifest campus.json --out tiles/campus --force
+  bimtiles convert site.city.json --crs EPSG:7415 --out tiles/site --quiet")]
     Convert(ConvertArgs),
     /// Sharded build, step 1: plan the octree and split it into N subtree jobs (DIR/plan.json).
     /// Takes the options of `convert`; `--out` is the build folder DIR.
+    #[command(after_help = "Examples:
+  bimtiles plan --manifest campus.json --out build --jobs 8
+  bimtiles plan a.ifc b.glb --out build --jobs 2 --max-tile-triangles 20000")]
     Plan(PlanArgs),
     /// Sharded build, step 2: build one job's subtrees into DIR (any order, any machine that sees
     /// DIR and the inputs).
+    #[command(after_help = "Examples:
+  bimtiles build-job build --job 0
+  for j in 0 1 2; do bimtiles build-job build --job $j --quiet; done")]
     BuildJob {
         /// The build folder written by `bimtiles plan`.
         dir: PathBuf,
@@ -50,6 +68,9 @@ enum Command {
     },
     /// Sharded build, step 3: check every job's result, build the top levels and write
     /// tileset.json, schema.json and report.json (byte-identical to `convert`'s tileset).
+    #[command(after_help = "Examples:
+  bimtiles merge build
+  bimtiles merge build --threads 4 --quiet")]
     Merge {
         /// The build folder written by `bimtiles plan`.
         dir: PathBuf,
@@ -61,6 +82,9 @@ enum Command {
         quiet: bool,
     },
     /// Simplify a model with our QEM and write it as one GLB (to compare simplifiers).
+    #[command(after_help = "Examples:
+  bimtiles simplify duplex.glb --out duplex-half.glb
+  bimtiles simplify duplex.ifc --out coarse.glb --ratio 0.1 --max-error 0.05 --json")]
     Simplify {
         /// Input model (.glb, .gltf, .ifc).
         input: PathBuf,
@@ -78,6 +102,9 @@ enum Command {
         json: bool,
     },
     /// Serve a tileset and the CesiumJS viewer over HTTP (loopback by default).
+    #[command(after_help = "Examples:
+  bimtiles serve tiles/duplex            # then open http://127.0.0.1:8080/
+  bimtiles serve tiles/campus --port 9000 --log")]
     Serve {
         /// The tileset folder (holding tileset.json).
         dir: PathBuf,
@@ -96,6 +123,10 @@ enum Command {
         log: bool,
     },
     /// Summarise a tileset per level (tiles, triangles, bytes, geometric error).
+    #[command(after_help = "Examples:
+  bimtiles inspect tiles/duplex
+  bimtiles inspect tiles/duplex --json > levels.json
+  bimtiles inspect tiles/duplex --feature GLOBAL_ID")]
     Inspect {
         /// The tileset folder (holding tileset.json).
         dir: PathBuf,
@@ -106,6 +137,23 @@ enum Command {
         /// or node path).
         #[arg(long)]
         feature: Option<String>,
+    },
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell) on stdout.
+    #[command(after_help = "Examples:
+  bimtiles completions bash > /etc/bash_completion.d/bimtiles
+  bimtiles completions zsh > ~/.zfunc/_bimtiles")]
+    Completions {
+        /// The shell to complete for.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff) on stdout, or write one page per subcommand into a folder.
+    #[command(after_help = "Examples:
+  bimtiles man > bimtiles.1 && man ./bimtiles.1
+  bimtiles man --out-dir /usr/local/share/man/man1")]
+    Man {
+        /// Write bimtiles.1 and bimtiles-SUBCOMMAND.1 here instead.
+        #[arg(long)]
+        out_dir: Option<PathBuf>,
     },
 }
 
@@ -309,6 +357,32 @@ enum CompressionArg {
 }
 
 /// Prints to stdout; a closed pipe (`| head`) ends the output quietly instead of failing.
+/// The manual: the top page on stdout, or every page (the top one and one per subcommand) in
+/// `out_dir`.
+fn write_man_pages(out_dir: Option<&std::path::Path>) -> Result<()> {
+    let top = Cli::command();
+    let render = |cmd: clap::Command| -> Result<Vec<u8>> {
+        let mut out = Vec::new();
+        clap_mangen::Man::new(cmd).render(&mut out)?;
+        Ok(out)
+    };
+    let Some(dir) = out_dir else {
+        return emit(&String::from_utf8_lossy(&render(top)?));
+    };
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let mut pages = vec![("bimtiles".to_string(), top.clone())];
+    for sub in top.get_subcommands().filter(|c| c.get_name() != "help") {
+        let name = format!("bimtiles-{}", sub.get_name());
+        pages.push((name.clone(), sub.clone().name(name)));
+    }
+    for (name, cmd) in pages {
+        let path = dir.join(format!("{name}.1"));
+        std::fs::write(&path, render(cmd)?)
+            .with_context(|| format!("{}: cannot write", path.display()))?;
+    }
+    Ok(())
+}
+
 fn emit(text: &str) -> Result<()> {
     use std::io::Write;
     match std::io::stdout().lock().write_all(text.as_bytes()) {
@@ -321,6 +395,12 @@ pub fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Convert(a) => run_convert(a),
+        Command::Completions { shell } => {
+            let mut out = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "bimtiles", &mut out);
+            emit(&String::from_utf8_lossy(&out))
+        }
+        Command::Man { out_dir } => write_man_pages(out_dir.as_deref()),
         Command::Plan(a) => run_plan(a),
         Command::BuildJob {
             dir,
