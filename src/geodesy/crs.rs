@@ -530,4 +530,35 @@ mod tests {
         assert!(matches!(e, CrsError::OutsideAreaOfUse { .. }), "{e}");
         assert!(!e.to_string().contains('\n'));
     }
+
+    #[test]
+    fn epsg_codes_in_every_form() {
+        for t in [
+            "EPSG:28992",
+            " epsg:28992 ",
+            "28992",
+            "urn:ogc:def:crs:EPSG::28992",
+            "urn:ogc:def:crs:EPSG:9.9:28992",
+            "http://www.opengis.net/def/crs/EPSG/0/28992",
+            "https://www.opengis.net/def/crs/EPSG/0/28992",
+        ] {
+            assert_eq!(epsg_code_of(t), Some(28992), "{t}");
+            assert_eq!(normalize_crs_text(t), "EPSG:28992", "{t}");
+        }
+        for t in ["", "NC83", "EPSG:", "Amersfoort / RD New", "EPSG:28992x"] {
+            assert_eq!(epsg_code_of(t), None, "{t}");
+        }
+    }
+
+    /// ETRS89 longitude/latitude: placed as given (a sub-metre datum difference to WGS 84), with
+    /// no grid turn or scale.
+    #[test]
+    fn geographic_points_are_placed() {
+        let p = place_geographic_point("EPSG:4258", 14.0902217, 46.3623297, 475.0).unwrap();
+        assert!((p.place.longitude_deg - 14.0902217).abs() < 1e-5, "{p:?}");
+        assert!((p.place.latitude_deg - 46.3623297).abs() < 1e-5, "{p:?}");
+        assert_eq!(p.grid_to_enu, DMat2::IDENTITY);
+        let e = place_geographic_point("EPSG:28992", 5.0, 52.0, 0.0).unwrap_err();
+        assert!(e.to_string().contains("not a geographic CRS"), "{e}");
+    }
 }

@@ -16,7 +16,8 @@
 //! 5. `MapProjection` UTM with `MapZone` and `GeodeticDatum` (WGS 84, ETRS89, NAD83, GDA94,
 //!    GDA2020);
 //! 6. `MapProjection` Gauss-Krüger with a 3° `MapZone`: DHDN's zones 2 to 5;
-//! 7. `--crs`.
+//! 7. `Description` as a name PROJ knows;
+//! 8. `--crs`.
 //!
 //! A code with a `VerticalDatum` code that PROJ accepts as a compound CRS is reported as that
 //! compound; heights are still taken as ellipsoidal, so the vertical part never fails a file.
@@ -52,6 +53,8 @@ pub enum CrsField {
     Name,
     /// A WKT: in `Description` (with `Name` 'WKT' or on its own).
     DescriptionWkt,
+    /// `Description` as a name PROJ knows.
+    Description,
     /// `MapProjection` 'EPSG' + the code in `MapZone`.
     MapZoneCode,
     /// An explicit EPSG code written in a field not meant for it (`GeodeticDatum`...).
@@ -74,6 +77,8 @@ impl CrsField {
             (CrsField::Name, true) => "epset-name",
             (CrsField::DescriptionWkt, false) => "ifc-description-wkt",
             (CrsField::DescriptionWkt, true) => "epset-description-wkt",
+            (CrsField::Description, false) => "ifc-description",
+            (CrsField::Description, true) => "epset-description",
             (CrsField::MapZoneCode, false) => "ifc-map-zone-code",
             (CrsField::MapZoneCode, true) => "epset-map-zone-code",
             (CrsField::CodeInOtherField, false) => "ifc-code-in-other-field",
@@ -257,6 +262,9 @@ fn crs_candidates(m: &IfcMapConversion, crs_option: Option<&str>) -> Vec<(String
     if let Some(code) = gauss_krueger_crs(m) {
         push(code, CrsField::GaussKruegerZone);
     }
+    if let Some(d) = description.filter(|d| !looks_like_wkt(d)) {
+        push(d.to_string(), CrsField::Description);
+    }
     if let Some(c) = crs_option {
         push(c.to_string(), CrsField::Option);
     }
@@ -374,10 +382,19 @@ fn read_in_unit(
     } else {
         1.0
     };
-    // Scene metres → project units → (Scale, factors) map units → grid metres, per axis.
+    // Scene metres → project units → (Scale, factors) map units → grid metres, per axis. Scale
+    // converts project units to map units (IFC4); when that makes a grid that is not the size of
+    // the ground while Scale alone does, the units were converted already (IFC4.3 reading).
+    let units = map_unit_m / project_unit_m(m);
+    let ground_sized = |k: f64| (0.5..=2.0).contains(&k);
+    let units = if !ground_sized(scale * units) && ground_sized(scale) {
+        1.0
+    } else {
+        units
+    };
     let per_axis = |f: f64| {
         let f = if f.is_finite() && f != 0.0 { f } else { 1.0 };
-        scale * f * map_unit_m / project_unit_m(m)
+        scale * f * units
     };
     let (sx, sy, sz) = (
         per_axis(m.factors[0]),
@@ -699,5 +716,165 @@ mod tests {
         assert_eq!(g.crs.unwrap().source, "option");
         let w = place(&conversion(None), None).unwrap_err().to_string();
         assert!(w.contains("--crs"), "{w}");
+    }
+
+    /// Each way exporters name the CRS, in the documented order: a field that names nothing PROJ
+    /// can use gives way to the next one.
+    #[test]
+    fn every_field_that_names_a_crs_is_read() {
+        let field_of = |edit: &dyn Fn(&mut IfcMapConversion)| {
+            let mut m = conversion(None);
+            m.factors = [1.0; 3];
+            edit(&mut m);
+            let g = place(&m, None).unwrap();
+            (g.crs.clone().unwrap().crs, g.crs_field.unwrap())
+        };
+        let rd = "EPSG:28992".to_string();
+        for name in [
+            "28992",
+            "urn:ogc:def:crs:EPSG::28992",
+            "http://www.opengis.net/def/crs/EPSG/0/28992",
+            "Amersfoort / RD New",
+        ] {
+            let got = field_of(&|m| m.crs_name = Some(name.into()));
+            assert_eq!(got, (rd.clone(), CrsField::Name), "{name}");
+        }
+        // A short name PROJ does not know; the code in MapZone.
+        let got = field_of(&|m| {
+            m.crs_name = Some("RDNEW".into());
+            m.map_projection = Some("EPSG".into());
+            m.map_zone = Some("28992".into());
+        });
+        assert_eq!(got, (rd.clone(), CrsField::MapZoneCode));
+        // The projected code in GeodeticDatum wins over building a Gauss-Krüger zone.
+        let gk = |m: &mut IfcMapConversion| {
+            m.eastings = 3_513_038.0;
+            m.northings = 5_516_199.0;
+            m.map_projection = Some("Gauss-Krueger".into());
+            m.map_zone = Some("3".into());
+        };
+        let got = field_of(&|m| {
+            gk(m);
+            m.geodetic_datum = Some("EPSG:31467".into());
+        });
+        assert_eq!(got, ("EPSG:31467".into(), CrsField::CodeInOtherField));
+        let got = field_of(&|m| gk(m));
+        assert_eq!(got, ("EPSG:31467".into(), CrsField::GaussKruegerZone));
+        // MGA 2020 by UTM zone and datum code; the vertical code makes it a compound.
+        let got = field_of(&|m| {
+            m.eastings = 256_400.0;
+            m.northings = 7_011_600.0;
+            m.map_projection = Some("UTM".into());
+            m.map_zone = Some("56".into());
+            m.geodetic_datum = Some("EPSG:7844".into());
+            m.vertical_datum = Some("EPSG:5711".into());
+        });
+        assert_eq!(got, ("EPSG:7856+5711".into(), CrsField::UtmZone));
+        // Name 'WKT' with the WKT in Description.
+        let got = field_of(&|m| {
+            m.eastings = 458_000.0;
+            m.northings = 5_438_000.0;
+            m.crs_name = Some("WKT".into());
+            m.crs_description = Some(UTM32_WKT.into());
+        });
+        assert_eq!(got.1, CrsField::DescriptionWkt);
+        // The property-set labels say so.
+        assert_eq!(
+            CrsField::Name.label(MapOperation::PropertySets),
+            "epset-name"
+        );
+    }
+
+    const UTM32_WKT: &str = r#"PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER["false_northing",0],UNIT["metre",1]]"#;
+
+    /// The WKT places a point where its EPSG twin does.
+    #[test]
+    fn a_wkt_places_like_its_code() {
+        let a = place_map_point(UTM32_WKT, 458_000.0, 5_438_000.0, 0.0).unwrap();
+        let b = place_map_point("EPSG:32632", 458_000.0, 5_438_000.0, 0.0).unwrap();
+        assert!((a.place.to_ecef() - b.place.to_ecef()).length() < 1e-3);
+    }
+
+    /// Model in map coordinates with E/N 0: placed at its footprint (the anchor), not at (0, 0),
+    /// which lies outside the CRS's area of use.
+    #[test]
+    fn map_coordinates_with_a_zero_offset_are_placed_at_the_model() {
+        let mut m = conversion(Some("EPSG:28992"));
+        (m.eastings, m.northings, m.orthogonal_height) = (0.0, 0.0, 0.0);
+        m.factors = [1.0; 3];
+        m.x_axis_ordinate = 0.0;
+        m.x_axis_abscissa = 1.0;
+        let anchor = DVec3::new(155_000.0, 463_000.0, 2.0);
+        let (g, slip) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None).unwrap();
+        assert!(slip.is_none());
+        assert!((g.longitude_deg - 5.3872).abs() < 1e-3, "{g:?}");
+        assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
+        assert_eq!(g.anchor, anchor);
+        assert!((g.height_m - 2.0).abs() < 1e-9);
+    }
+
+    /// State Plane in US survey feet (no MapUnit: the CRS's unit) under a project in the same
+    /// feet: one scene metre stays one ground metre (up to the grid's scale factor).
+    #[test]
+    fn us_survey_feet_map_and_project() {
+        let mut m = conversion(Some("EPSG:2263"));
+        (m.eastings, m.northings) = (988_000.0, 200_000.0);
+        m.factors = [1.0; 3];
+        m.project_unit_m = 1200.0 / 3937.0;
+        let g = place(&m, None).unwrap();
+        // Manhattan.
+        assert!((g.longitude_deg + 73.98).abs() < 0.05, "{g:?}");
+        assert!((g.latitude_deg - 40.75).abs() < 0.05, "{g:?}");
+        let l = g.map_linear.unwrap();
+        let k = g.crs.unwrap().scale_factor;
+        assert!(((l * DVec3::X).length() - 1.0 / k).abs() < 1e-6);
+    }
+
+    /// Revit's slip: E/N in project millimetres under a foot-sized MapUnit are read in project
+    /// units, near the site reference, with a warning naming both readings.
+    #[test]
+    fn eastings_in_project_units_are_read_around() {
+        let mut m = conversion(Some("EPSG:28992"));
+        (m.eastings, m.northings, m.orthogonal_height) = (155_000_000.0, 463_000_000.0, 0.0);
+        m.factors = [1.0; 3];
+        m.map_unit_m = Some(0.3048);
+        m.project_unit_m = 0.001;
+        assert_eq!(implausible_map_number(&m), None);
+        let site = Some((5.387, 52.155));
+        let (g, slip) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, DVec3::ZERO, site, None)
+                .unwrap();
+        let slip = slip.expect("a warning");
+        assert!(slip.contains("MapUnit (0.3048 m)") && slip.contains("project unit (0.001 m)"));
+        assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
+        // One scene metre is one grid metre: the project-unit reading has no unit change.
+        let x = g.map_linear.unwrap() * DVec3::X;
+        assert!((x.length() - 1.0).abs() < 1e-3, "{x}");
+        // Far from the site reference, the slip is not taken.
+        let far = Some((-87.6, 41.9));
+        assert!(
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, DVec3::ZERO, far, None)
+                .is_err()
+        );
+    }
+
+    /// A millimetre project under a metre map: Scale 0.001 converts the units (IFC4); with Scale
+    /// omitted the units are converted all the same, not read as a grid a thousand times the
+    /// ground; a Scale near 1 that is not the unit conversion stays as written.
+    #[test]
+    fn millimetre_projects_under_a_metre_map() {
+        let x_length = |scale: f64| {
+            let mut m = conversion(Some("EPSG:28992"));
+            m.factors = [1.0; 3];
+            m.project_unit_m = 0.001;
+            m.scale = scale;
+            let g = place(&m, None).unwrap();
+            let k = g.crs.unwrap().scale_factor;
+            (g.map_linear.unwrap() * DVec3::X).length() * k
+        };
+        assert!((x_length(0.001) - 1.0).abs() < 1e-5);
+        assert!((x_length(1.0) - 1.0).abs() < 1e-5);
+        assert!((x_length(0.0015) - 1.5).abs() < 1e-5);
     }
 }
