@@ -270,6 +270,20 @@ pub fn proj_knows(definition: &str) -> bool {
     Context::new().is_some_and(|ctx| ctx.create(definition).is_ok())
 }
 
+/// The id and name of `definition` when PROJ makes a compound CRS of it (a projected CRS with a
+/// height, such as "EPSG:9897"): points are placed by its horizontal part, the report names the
+/// whole.
+pub fn compound_crs(definition: &str) -> Option<(String, String)> {
+    let ctx = Context::new()?;
+    let crs = ctx.create(&normalize_crs_text(definition)).ok()?;
+    (crs.kind() == proj::PJ_TYPE_COMPOUND_CRS).then(|| {
+        (
+            crs.id().unwrap_or_else(|| definition.trim().to_string()),
+            crs.name(),
+        )
+    })
+}
+
 /// Refuses a place (`at`: longitude, latitude) farther than [`AREA_OF_USE_MARGIN_DEG`] outside
 /// the area of use of `crs`; (`easting`, `northing`) name the point in the error.
 fn check_area_of_use(

@@ -33,8 +33,8 @@
 
 use super::*;
 use crate::geodesy::crs::{
-    epsg_code_of, place_geographic_point, place_map_point, proj_knows, projected_unit_m, CrsError,
-    CrsUse, MapPlace,
+    compound_crs, epsg_code_of, place_geographic_point, place_map_point, proj_knows,
+    projected_unit_m, CrsError, CrsUse, MapPlace,
 };
 use crate::geodesy::projection::UtmZone;
 use crate::scene::placement::choose_anchor;
@@ -555,9 +555,15 @@ fn georef_geographic(
     })
 }
 
-/// Reports `EPSG:h` with a `VerticalDatum` code `v` as the compound `EPSG:h+v` when PROJ knows
-/// it (heights stay ellipsoidal: the vertical part only names the file's intent).
+/// Reports a compound CRS the file names as that compound, and `EPSG:h` with a `VerticalDatum`
+/// code `v` as the compound `EPSG:h+v` when PROJ knows it (heights stay ellipsoidal: the vertical
+/// part only names the file's intent).
 fn with_vertical_part(u: &mut CrsUse, crs: &str, vertical: Option<&str>) {
+    if let Some((id, name)) = compound_crs(crs) {
+        u.crs = id;
+        u.crs_name = format!("{name} (vertical part not applied)");
+        return;
+    }
     let (Some(h), Some(v)) = (epsg_code_of(crs), vertical.and_then(epsg_code_of)) else {
         return;
     };
@@ -778,6 +784,13 @@ mod tests {
             m.crs_description = Some(UTM32_WKT.into());
         });
         assert_eq!(got.1, CrsField::DescriptionWkt);
+        // A compound code is reported as such, placed by its horizontal part.
+        let got = field_of(&|m| {
+            m.eastings = 76_670.0;
+            m.northings = 77_179.0;
+            m.crs_name = Some("EPSG:9897".into());
+        });
+        assert_eq!(got, ("EPSG:9897".into(), CrsField::Name));
         // The property-set labels say so.
         assert_eq!(
             CrsField::Name.label(MapOperation::PropertySets),
