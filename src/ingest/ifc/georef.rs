@@ -38,7 +38,7 @@ use crate::geodesy::crs::{
 };
 use crate::geodesy::projection::UtmZone;
 use crate::scene::placement::choose_anchor;
-use glam::{DMat2, DMat3, DVec2};
+use glam::{DMat2, DMat3, DMat4, DVec2};
 
 /// A map placement farther than this from the site's RefLatitude/RefLongitude is reported; so are
 /// coordinates this far from the origin in a file that names no CRS (national-grid sized).
@@ -120,7 +120,16 @@ pub(super) fn georef_from_raw(
     let site = site_lon_lat(&raw);
     let mut out = GeorefOutcome::default();
     if let Some(m) = &raw.map_conversion {
-        match georef_from_map_conversion(m, path, crs_option, anchor, site, raw.true_north) {
+        let per_vertex = needs_per_vertex(bounds, anchor);
+        match georef_from_map_conversion(
+            m,
+            path,
+            crs_option,
+            anchor,
+            site,
+            raw.true_north,
+            per_vertex,
+        ) {
             Ok((g, slip)) => {
                 out.notes.extend(slip);
                 if let Some((lon, lat)) = site {
@@ -197,6 +206,7 @@ fn georef_from_site(raw: engine::RawGeoref) -> Option<IfcGeoref> {
         map_linear: None,
         crs: None,
         crs_field: None,
+        per_vertex_map: None,
     })
 }
 
@@ -357,6 +367,8 @@ fn project_unit_m(m: &IfcMapConversion) -> f64 {
 struct Reading {
     place: MapPlace,
     linear: DMat3,
+    /// Scene metres → map coordinates (easting, northing in the CRS's units; height in metres).
+    to_map: DMat4,
     easting: f64,
     northing: f64,
     theta_deg: f64,
@@ -419,14 +431,48 @@ fn read_in_unit(
         horizontal.y_axis.extend(0.0),
         DVec3::new(0.0, 0.0, sz),
     );
+    let grid = rotation * DMat2::from_diagonal(DVec2::new(sx, sy)) / crs_unit_m;
+    let grid = DMat3::from_cols(
+        grid.x_axis.extend(0.0),
+        grid.y_axis.extend(0.0),
+        DVec3::new(0.0, 0.0, sz),
+    );
+    let at_anchor = DVec3::new(easting, northing, height_m);
+    let to_map = DMat4::from_translation(at_anchor)
+        * DMat4::from_mat3(grid)
+        * DMat4::from_translation(-anchor);
     Ok(Reading {
         place,
         linear,
+        to_map,
         easting,
         northing,
         theta_deg: b.atan2(a).to_degrees(),
     })
 }
+
+/// Farthest any corner of `bounds` lies from `anchor`, horizontally (metres).
+fn reach_m(bounds: &Aabb, anchor: DVec3) -> f64 {
+    if !(bounds.min.is_finite() && bounds.max.is_finite()) {
+        return 0.0;
+    }
+    let (lo, hi) = (bounds.min.truncate(), bounds.max.truncate());
+    [lo, hi, DVec2::new(lo.x, hi.y), DVec2::new(hi.x, lo.y)]
+        .iter()
+        .map(|c| (*c - anchor.truncate()).length())
+        .fold(0.0, f64::max)
+}
+
+/// Whether one linear map at the anchor would be off by more than [`PER_VERTEX_ABOVE_M`]
+/// somewhere in the model: the Earth's curvature lowers a point `r` from the anchor by about
+/// r² / 2R below the anchor's tangent plane, which the linear map keeps it on.
+fn needs_per_vertex(bounds: &Aabb, anchor: DVec3) -> bool {
+    reach_m(bounds, anchor).powi(2) / (2.0 * MEAN_EARTH_RADIUS_M) > PER_VERTEX_ABOVE_M
+}
+
+/// The error of one linear map above which every vertex goes through PROJ.
+pub const PER_VERTEX_ABOVE_M: f64 = 0.001;
+const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
 
 /// Places a projected map conversion in `crs`: as declared, else (a unit slip) with
 /// Eastings/Northings in project units, which must then land near the site reference if there
@@ -479,6 +525,7 @@ fn georef_from_map_conversion(
     anchor: DVec3,
     site: Option<(f64, f64)>,
     true_north: Option<[f64; 2]>,
+    per_vertex: bool,
 ) -> std::result::Result<(IfcGeoref, Option<String>), MapConversionProblem> {
     let candidates = crs_candidates(m, crs_option);
     if candidates.is_empty() {
@@ -506,6 +553,7 @@ fn georef_from_map_conversion(
                     map_linear: Some(r.linear),
                     crs: Some(CrsUse::new("", "", &r.place, r.easting, r.northing)),
                     crs_field: None,
+                    per_vertex_map: per_vertex.then_some(r.to_map),
                 };
                 (g, slip)
             })
@@ -552,6 +600,7 @@ fn georef_geographic(
         map_linear: Some(DMat3::from_rotation_z((-north.unwrap_or(0.0)).to_radians())),
         crs: Some(CrsUse::new("", "", &p, m.eastings, m.northings)),
         crs_field: None,
+        per_vertex_map: None,
     })
 }
 
@@ -657,8 +706,16 @@ mod tests {
         m: &IfcMapConversion,
         crs_option: Option<&str>,
     ) -> std::result::Result<IfcGeoref, MapConversionProblem> {
-        georef_from_map_conversion(m, Path::new("t.ifc"), crs_option, DVec3::ZERO, None, None)
-            .map(|(g, _)| g)
+        georef_from_map_conversion(
+            m,
+            Path::new("t.ifc"),
+            crs_option,
+            DVec3::ZERO,
+            None,
+            None,
+            false,
+        )
+        .map(|(g, _)| g)
     }
 
     /// Scales and factors of zero, below 1e-6 or above 1e6, and places beyond 4e7 m (in the map
@@ -819,7 +876,8 @@ mod tests {
         m.x_axis_abscissa = 1.0;
         let anchor = DVec3::new(155_000.0, 463_000.0, 2.0);
         let (g, slip) =
-            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None).unwrap();
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, false)
+                .unwrap();
         assert!(slip.is_none());
         assert!((g.longitude_deg - 5.3872).abs() < 1e-3, "{g:?}");
         assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
@@ -855,9 +913,16 @@ mod tests {
         m.project_unit_m = 0.001;
         assert_eq!(implausible_map_number(&m), None);
         let site = Some((5.387, 52.155));
-        let (g, slip) =
-            georef_from_map_conversion(&m, Path::new("t.ifc"), None, DVec3::ZERO, site, None)
-                .unwrap();
+        let (g, slip) = georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            DVec3::ZERO,
+            site,
+            None,
+            false,
+        )
+        .unwrap();
         let slip = slip.expect("a warning");
         assert!(slip.contains("MapUnit (0.3048 m)") && slip.contains("project unit (0.001 m)"));
         assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
@@ -866,10 +931,16 @@ mod tests {
         assert!((x.length() - 1.0).abs() < 1e-3, "{x}");
         // Far from the site reference, the slip is not taken.
         let far = Some((-87.6, 41.9));
-        assert!(
-            georef_from_map_conversion(&m, Path::new("t.ifc"), None, DVec3::ZERO, far, None)
-                .is_err()
-        );
+        assert!(georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            DVec3::ZERO,
+            far,
+            None,
+            false
+        )
+        .is_err());
     }
 
     /// A millimetre project under a metre map: Scale 0.001 converts the units (IFC4); with Scale
@@ -889,5 +960,29 @@ mod tests {
         assert!((x_length(0.001) - 1.0).abs() < 1e-5);
         assert!((x_length(1.0) - 1.0).abs() < 1e-5);
         assert!((x_length(0.0015) - 1.5).abs() < 1e-5);
+    }
+
+    /// One linear map is kept while the Earth's curvature across the model stays within a
+    /// millimetre of the anchor's tangent plane; past that, every vertex goes through PROJ.
+    #[test]
+    fn wide_models_go_vertex_by_vertex() {
+        let box_of = |half_m: f64| Aabb {
+            min: DVec3::new(-half_m, -half_m, 0.0),
+            max: DVec3::new(half_m, half_m, 10.0),
+        };
+        assert!(!needs_per_vertex(&box_of(50.0), DVec3::ZERO));
+        assert!(needs_per_vertex(&box_of(200.0), DVec3::ZERO));
+        assert!(!needs_per_vertex(&Aabb::EMPTY, DVec3::ZERO));
+        // The map of a wide model takes the anchor to its map point.
+        let mut m = conversion(Some("EPSG:28992"));
+        m.factors = [1.0; 3];
+        let anchor = DVec3::new(300.0, -200.0, 5.0);
+        let (g, _) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, true)
+                .unwrap();
+        let to_map = g.per_vertex_map.unwrap();
+        let u = g.crs.unwrap();
+        let at = to_map.transform_point3(anchor);
+        assert!((at - DVec3::new(u.easting, u.northing, g.height_m)).length() < 1e-6);
     }
 }

@@ -177,6 +177,10 @@ pub struct IfcGeoref {
     pub crs: Option<crate::geodesy::crs::CrsUse>,
     /// The field that named that CRS.
     pub crs_field: Option<CrsField>,
+    /// Scene metres → map coordinates of `crs` (easting, northing in its units, height in
+    /// metres), when one linear map at the anchor would be off by more than a millimetre
+    /// somewhere in the model: then every vertex goes through PROJ instead.
+    pub per_vertex_map: Option<DMat4>,
 }
 
 /// Read timings, seconds.
