@@ -139,6 +139,17 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &Settings) -> Result<Prepared> {
         ),
         (None, None) => (GeoOrigin::DEFAULT, "default"),
     };
+    if opts.strict_georef && origin_source == "default" {
+        let file = scene
+            .sources
+            .first()
+            .map(|s| s.path.clone())
+            .unwrap_or_default();
+        return Err(Error::input(
+            file,
+            "no georeference places the model: it would go to the default origin (--strict-georef); give --crs EPSG:CODE or --origin LON,LAT",
+        ));
+    }
     let (anchor, anchor_rule) = (placed.anchor, placed.rule);
 
     let t_dedup_start = Instant::now();

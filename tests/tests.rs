@@ -30,6 +30,9 @@ mod compressed_gltf;
 mod ifc_crosscheck;
 /// Campus manifests: models placed on Earth, one tileset, element identity kept.
 mod manifest;
+/// Real georeferenced IFC exports land where their georeferencing says.
+#[cfg(feature = "ifc")]
+mod georef_ifc;
 
 // The pipeline's stages, checked from the outside.
 /// Repeated shapes and exact duplicates found on real models.

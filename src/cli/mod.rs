@@ -787,6 +787,27 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
             r.timings_s.encode_write,
             human_bytes(r.peak_memory_bytes),
         ))?;
+        emit(&format!("\n  place : {}\n", place_line(&r.georeference)))?;
     }
     Ok(())
+}
+
+/// Where the tileset landed: longitude, latitude, height, the CRS and the field that named it.
+fn place_line(g: &bimtiles::report::GeoReport) -> String {
+    let o = g.origin;
+    let by = match (g.origin_source.as_str(), g.crs.first()) {
+        ("option", _) => "--origin".to_string(),
+        ("input-crs", Some(c)) => format!("{} ({}), from {}", c.crs, c.crs_name, c.source),
+        ("input-site", _) => "the input's site reference (WGS 84)".to_string(),
+        ("default", _) => "the default origin: the input names no place".to_string(),
+        (other, _) => other.to_string(),
+    };
+    format!(
+        "{:.6}° {}, {:.6}° {}, height {:.2} m, by {by}",
+        o.longitude_deg.abs(),
+        if o.longitude_deg < 0.0 { 'W' } else { 'E' },
+        o.latitude_deg.abs(),
+        if o.latitude_deg < 0.0 { 'S' } else { 'N' },
+        o.height_m
+    )
 }

@@ -123,14 +123,45 @@ impl CrsUse {
     }
 }
 
-/// The PROJ definition for a CRS text: a bare number is an EPSG code.
+/// The PROJ definition for a CRS text: an EPSG code written as `EPSG:n`, a bare number, an OGC
+/// URN (`urn:ogc:def:crs:EPSG::n`) or an OGC URL (`http://www.opengis.net/def/crs/EPSG/0/n`)
+/// becomes `EPSG:n`; anything else (a name, a WKT) is passed on as written.
 pub fn normalize_crs_text(text: &str) -> String {
-    let t = text.trim();
-    if !t.is_empty() && t.chars().all(|c| c.is_ascii_digit()) {
-        format!("EPSG:{t}")
-    } else {
-        t.to_string()
+    match epsg_code_of(text) {
+        Some(code) => format!("EPSG:{code}"),
+        None => text.trim().to_string(),
     }
+}
+
+/// The EPSG code a text writes, in any of the forms [`normalize_crs_text`] reads.
+pub fn epsg_code_of(text: &str) -> Option<u32> {
+    let t = text.trim();
+    let lower = t.to_ascii_lowercase();
+    let digits = |s: &str| -> Option<u32> {
+        let s = s.trim();
+        (!s.is_empty() && s.len() <= 9 && s.chars().all(|c| c.is_ascii_digit()))
+            .then(|| s.parse().ok())
+            .flatten()
+    };
+    if let Some(code) = digits(t) {
+        return Some(code);
+    }
+    if let Some(rest) = lower.strip_prefix("epsg:") {
+        return digits(rest);
+    }
+    // The URN may carry a version between the two colons ("EPSG:9.9:28992").
+    if let Some(rest) = lower.strip_prefix("urn:ogc:def:crs:epsg:") {
+        return digits(rest.rsplit(':').next()?);
+    }
+    for prefix in ["http://", "https://"] {
+        if let Some(rest) = lower
+            .strip_prefix(prefix)
+            .and_then(|r| r.strip_prefix("www.opengis.net/def/crs/epsg/"))
+        {
+            return digits(rest.rsplit('/').next()?);
+        }
+    }
+    None
 }
 
 /// The CRS of a PROJ definition; of a compound CRS (e.g. RD New + NAP height), its horizontal
@@ -188,25 +219,14 @@ pub fn with_map_to_enu<R>(
     Ok(convert(&mut to_enu))
 }
 
-/// Places the map point (`easting`, `northing`, in the CRS's units) of CRS `crs_text`, with
-/// `height_m` taken as the ellipsoidal height.
-pub fn place_map_point(
-    crs_text: &str,
-    easting: f64,
-    northing: f64,
-    height_m: f64,
-) -> Result<MapPlace, CrsError> {
-    let definition = normalize_crs_text(crs_text);
-    let fail = |why: String| CrsError::Transform {
-        crs: definition.clone(),
-        why,
-    };
-    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
-        crs: definition.clone(),
-        why: "PROJ could not start".into(),
-    })?;
-    let crs = horizontal_crs(&ctx, &definition)?;
-    let id = crs.id().unwrap_or_else(|| definition.clone());
+/// A projected CRS as PROJ makes it from `definition`: the object, its id ("EPSG:28992", or the
+/// text given when it has none), its name and metres per unit of its axes.
+fn projected<'c>(
+    ctx: &'c Context,
+    definition: &str,
+) -> Result<(proj::Object<'c>, String, String, f64), CrsError> {
+    let crs = horizontal_crs(ctx, definition)?;
+    let id = crs.id().unwrap_or_else(|| definition.to_string());
     let name = crs.name();
     let axes = crs.axes().unwrap_or_default();
     match crs.kind() {
@@ -230,6 +250,154 @@ pub fn place_map_point(
             unit: axes.first().map_or("?".into(), |a| a.unit_name.clone()),
         });
     }
+    Ok((crs, id, name, unit_m))
+}
+
+/// Metres per unit of the axes of the projected CRS `crs_text` (1 for metres, 0.3048006 for US
+/// survey feet), without placing any point: to read map coordinates before knowing where they
+/// land.
+pub fn projected_unit_m(crs_text: &str) -> Result<f64, CrsError> {
+    let definition = normalize_crs_text(crs_text);
+    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
+        crs: definition.clone(),
+        why: "PROJ could not start".into(),
+    })?;
+    projected(&ctx, &definition).map(|(_, _, _, unit_m)| unit_m)
+}
+
+/// Whether PROJ makes a CRS of `definition` (a compound "EPSG:7856+5711", a WKT).
+pub fn proj_knows(definition: &str) -> bool {
+    Context::new().is_some_and(|ctx| ctx.create(definition).is_ok())
+}
+
+/// The id and name of `definition` when PROJ makes a compound CRS of it (a projected CRS with a
+/// height, such as "EPSG:9897"): points are placed by its horizontal part, the report names the
+/// whole.
+pub fn compound_crs(definition: &str) -> Option<(String, String)> {
+    let ctx = Context::new()?;
+    let crs = ctx.create(&normalize_crs_text(definition)).ok()?;
+    (crs.kind() == proj::PJ_TYPE_COMPOUND_CRS).then(|| {
+        (
+            crs.id().unwrap_or_else(|| definition.trim().to_string()),
+            crs.name(),
+        )
+    })
+}
+
+/// Refuses a place (`at`: longitude, latitude) farther than [`AREA_OF_USE_MARGIN_DEG`] outside
+/// the area of use of `crs`; (`easting`, `northing`) name the point in the error.
+fn check_area_of_use(
+    crs: &proj::Object<'_>,
+    (id, name): (&str, &str),
+    (easting, northing): (f64, f64),
+    at: DVec2,
+) -> Result<(), CrsError> {
+    let Some(area) = crs.area_of_use() else {
+        return Ok(());
+    };
+    let m = AREA_OF_USE_MARGIN_DEG;
+    let lon_inside = if area.west_deg <= area.east_deg {
+        (area.west_deg - m..=area.east_deg + m).contains(&at.x)
+    } else {
+        // Across the antimeridian.
+        at.x >= area.west_deg - m || at.x <= area.east_deg + m
+    };
+    let lat_inside = (area.south_deg - m..=area.north_deg + m).contains(&at.y);
+    if lon_inside && lat_inside {
+        return Ok(());
+    }
+    Err(CrsError::OutsideAreaOfUse {
+        crs: id.to_string(),
+        name: name.to_string(),
+        easting,
+        northing,
+        longitude_deg: at.x,
+        latitude_deg: at.y,
+        area: format!(
+            "{}: {:.2}°..{:.2}° E, {:.2}°..{:.2}° N",
+            area.name, area.west_deg, area.east_deg, area.south_deg, area.north_deg
+        ),
+    })
+}
+
+/// Places a point given in a geographic CRS (`longitude_deg`, `latitude_deg` in degrees on its
+/// datum, `height_m` taken as ellipsoidal): IFC4.3 IfcRigidOperation into an IfcGeographicCRS.
+/// The model's own axes are then east, north, up at the point: no convergence, scale 1.
+pub fn place_geographic_point(
+    crs_text: &str,
+    longitude_deg: f64,
+    latitude_deg: f64,
+    height_m: f64,
+) -> Result<MapPlace, CrsError> {
+    let definition = normalize_crs_text(crs_text);
+    let fail = |why: String| CrsError::Transform {
+        crs: definition.clone(),
+        why,
+    };
+    let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
+    let crs = horizontal_crs(&ctx, &definition)?;
+    let id = crs.id().unwrap_or_else(|| definition.clone());
+    let name = crs.name();
+    if !matches!(
+        crs.kind(),
+        proj::PJ_TYPE_GEOGRAPHIC_2D_CRS | proj::PJ_TYPE_GEOGRAPHIC_3D_CRS
+    ) {
+        return Err(fail(format!(
+            "{name} is not a geographic CRS, so (longitude, latitude) in degrees cannot be placed in it"
+        )));
+    }
+    if !((-180.0..=360.0).contains(&longitude_deg) && (-90.0..=90.0).contains(&latitude_deg)) {
+        return Err(fail(format!(
+            "longitude {longitude_deg}° and latitude {latitude_deg}° are not a place on Earth"
+        )));
+    }
+    let op = ctx
+        .operation_to_wgs84(&crs)
+        .map_err(|e: ProjError| fail(e.message))?;
+    let ll = op
+        .forward(longitude_deg, latitude_deg, 0.0)
+        .map_err(|e| fail(e.message))?;
+    let at = DVec2::new(ll[0], ll[1]);
+    check_area_of_use(&crs, (&id, &name), (longitude_deg, latitude_deg), at)?;
+    let (operation, accuracy_m) = op
+        .last_used()
+        .unwrap_or_else(|| ("unknown operation".into(), None));
+    Ok(MapPlace {
+        crs: id,
+        crs_name: name,
+        place: GeoOrigin {
+            longitude_deg: at.x,
+            latitude_deg: at.y,
+            height_m,
+        },
+        grid_to_enu: DMat2::IDENTITY,
+        convergence_deg: 0.0,
+        scale_factor: 1.0,
+        // Degrees have no length; nothing is measured in them past this point.
+        unit_m: 1.0,
+        operation,
+        accuracy_m,
+    })
+}
+
+/// Places the map point (`easting`, `northing`, in the CRS's units) of CRS `crs_text`, with
+/// `height_m` taken as the ellipsoidal height.
+pub fn place_map_point(
+    crs_text: &str,
+    easting: f64,
+    northing: f64,
+    height_m: f64,
+) -> Result<MapPlace, CrsError> {
+    let definition = normalize_crs_text(crs_text);
+    let fail = |why: String| CrsError::Transform {
+        crs: definition.clone(),
+        why,
+    };
+    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
+        crs: definition.clone(),
+        why: "PROJ could not start".into(),
+    })?;
+    let (crs, id, name, unit_m) = projected(&ctx, &definition)?;
     if let Some(v) = crate::geodesy::first_implausible_m([easting, northing, height_m]) {
         return Err(fail(format!(
             "the map point ({easting}, {northing}, {height_m}) holds {v:e}, not a plausible number of metres"
@@ -249,30 +417,7 @@ pub fn place_map_point(
     let (operation, accuracy_m) = op
         .last_used()
         .unwrap_or_else(|| ("unknown operation".into(), None));
-    if let Some(area) = crs.area_of_use() {
-        let m = AREA_OF_USE_MARGIN_DEG;
-        let lon_inside = if area.west_deg <= area.east_deg {
-            (area.west_deg - m..=area.east_deg + m).contains(&centre.x)
-        } else {
-            // Across the antimeridian.
-            centre.x >= area.west_deg - m || centre.x <= area.east_deg + m
-        };
-        let lat_inside = (area.south_deg - m..=area.north_deg + m).contains(&centre.y);
-        if !(lon_inside && lat_inside) {
-            return Err(CrsError::OutsideAreaOfUse {
-                crs: id,
-                name,
-                easting,
-                northing,
-                longitude_deg: centre.x,
-                latitude_deg: centre.y,
-                area: format!(
-                    "{}: {:.2}°..{:.2}° E, {:.2}°..{:.2}° N",
-                    area.name, area.west_deg, area.east_deg, area.south_deg, area.north_deg
-                ),
-            });
-        }
-    }
+    check_area_of_use(&crs, (&id, &name), (easting, northing), centre)?;
     if !(-90.0..=90.0).contains(&centre.y) {
         return Err(fail(format!("latitude {} out of range", centre.y)));
     }
@@ -398,5 +543,36 @@ mod tests {
         let e = place_map_point("EPSG:2056", 155_000.0, 463_000.0, 0.0).unwrap_err();
         assert!(matches!(e, CrsError::OutsideAreaOfUse { .. }), "{e}");
         assert!(!e.to_string().contains('\n'));
+    }
+
+    #[test]
+    fn epsg_codes_in_every_form() {
+        for t in [
+            "EPSG:28992",
+            " epsg:28992 ",
+            "28992",
+            "urn:ogc:def:crs:EPSG::28992",
+            "urn:ogc:def:crs:EPSG:9.9:28992",
+            "http://www.opengis.net/def/crs/EPSG/0/28992",
+            "https://www.opengis.net/def/crs/EPSG/0/28992",
+        ] {
+            assert_eq!(epsg_code_of(t), Some(28992), "{t}");
+            assert_eq!(normalize_crs_text(t), "EPSG:28992", "{t}");
+        }
+        for t in ["", "NC83", "EPSG:", "Amersfoort / RD New", "EPSG:28992x"] {
+            assert_eq!(epsg_code_of(t), None, "{t}");
+        }
+    }
+
+    /// ETRS89 longitude/latitude: placed as given (a sub-metre datum difference to WGS 84), with
+    /// no grid turn or scale.
+    #[test]
+    fn geographic_points_are_placed() {
+        let p = place_geographic_point("EPSG:4258", 14.0902217, 46.3623297, 475.0).unwrap();
+        assert!((p.place.longitude_deg - 14.0902217).abs() < 1e-5, "{p:?}");
+        assert!((p.place.latitude_deg - 46.3623297).abs() < 1e-5, "{p:?}");
+        assert_eq!(p.grid_to_enu, DMat2::IDENTITY);
+        let e = place_geographic_point("EPSG:28992", 5.0, 52.0, 0.0).unwrap_err();
+        assert!(e.to_string().contains("not a geographic CRS"), "{e}");
     }
 }

@@ -211,11 +211,45 @@ fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
             anchor: g.anchor,
             map_linear: g.map_linear,
         });
-    scene.crs_used.extend(report.georef.and_then(|g| g.crs));
     if let Some(w) = report.georef_warning {
         warn_georef(&mut scene, path, w);
     }
+    let Some(georef) = report.georef else {
+        return Ok(scene);
+    };
+    match (georef.per_vertex_map, georef.crs) {
+        (Some(to_map), Some(crs)) => place_ifc_per_vertex(&mut scene, to_map, crs),
+        (_, crs) => scene.crs_used.extend(crs),
+    }
     Ok(scene)
+}
+
+/// A map placement too wide for one linear map: the scene goes to map coordinates, then every
+/// vertex through PROJ, as CityJSON; the report keeps the CRS as the IFC reader named it. PROJ
+/// refusing the anchor there leaves the scene as it was and the linear map stays (the IFC reader
+/// placed that anchor already, so the vertices around it are within the CRS's reach).
+#[cfg(feature = "ifc")]
+fn place_ifc_per_vertex(scene: &mut Scene, to_map: glam::DMat4, crs: crate::geodesy::crs::CrsUse) {
+    let linear = scene.georeference;
+    scene.apply_transform(&to_map);
+    let placed = crate::scene::placement::georeference_map_coordinates_per_vertex(
+        scene,
+        &crs.crs,
+        &crs.source,
+    );
+    match placed {
+        Ok(()) => {
+            if let Some(u) = scene.crs_used.last_mut() {
+                u.crs = crs.crs;
+                u.crs_name = crs.crs_name;
+            }
+        }
+        Err(_) => {
+            scene.apply_transform(&to_map.inverse());
+            scene.georeference = linear;
+            scene.crs_used.push(crs);
+        }
+    }
 }
 
 #[cfg(not(feature = "ifc"))]

@@ -420,6 +420,15 @@ impl IfcEngine for IfcLite {
         if let Some(g) = lite::extract_georeferencing(content)
             .filter(|g| g.source.as_deref().is_some_and(|s| s != "siteLocation"))
         {
+            let operation = match g.source.as_deref() {
+                Some("rigidOperation") => super::MapOperation::RigidOperation,
+                Some("ePSetMapConversion") => super::MapOperation::PropertySets,
+                _ => super::MapOperation::MapConversion,
+            };
+            // ifc-lite marks an IfcGeographicCRS target by the unit 'DEGREE'; a rigid operation
+            // in plane angles is only read against one.
+            let geographic = operation == super::MapOperation::RigidOperation
+                && g.map_unit.as_deref() == Some("DEGREE");
             out.map_conversion = Some(IfcMapConversion {
                 eastings: g.eastings,
                 northings: g.northings,
@@ -432,8 +441,12 @@ impl IfcEngine for IfcLite {
                 map_projection: g.map_projection,
                 map_zone: g.map_zone,
                 factors: [g.factor_x, g.factor_y, g.factor_z],
-                map_unit_m: g.map_unit_scale,
+                map_unit_m: g.map_unit_scale.filter(|_| !geographic),
                 project_unit_m: scale,
+                crs_description: g.crs_description,
+                vertical_datum: g.vertical_datum,
+                operation,
+                geographic,
             });
         }
         // ifc-lite reads a Scale or Factor of 0 (or not finite) as 1: the file's own values, so

@@ -1,77 +1,303 @@
-//! Georeferencing of an IFC file: an `IfcMapConversion` in a projected CRS that PROJ knows, else
-//! its site's longitude/latitude, turned into the place, true-north turn and (for a map
-//! conversion) scales of the model.
+//! Georeferencing of an IFC file: the CRS and map placement it writes (IFC4.3 IfcMapConversion
+//! and IfcMapConversionScaled, IfcRigidOperation, IfcProjectedCRS, IfcGeographicCRS; IFC2X3
+//! property sets ePSet_MapConversion and ePSet_ProjectedCRS), else its site's longitude/latitude
+//! (IfcSite RefLatitude/RefLongitude), turned into the place, true-north turn and scales of the
+//! model.
 //!
-//! The CRS of a map conversion is chosen in this order: the IfcProjectedCRS `Name` ("EPSG:28992"
-//! or a bare code, or a name PROJ knows such as "ETRS89 / UTM zone 32N"), else its
-//! `MapProjection` + `MapZone` + `GeodeticDatum` (UTM), else `--crs`. A conversion that names a CRS
-//! that cannot be used gives one warning, and the file falls back to its site reference or the
-//! default placement.
+//! # Which field names the CRS
+//! Tried in this order; a field that names no CRS PROJ can use for the placement moves on to the
+//! next one, and the report says which one placed the model ([`CrsField`]):
+//! 1. an IfcGeographicCRS target of an IfcRigidOperation: the operation's coordinates are
+//!    longitude and latitude (degrees, already read through the plane-angle unit);
+//! 2. `Name`: `EPSG:n`, a bare code, an OGC URN or URL, or any name PROJ knows; `Name` 'WKT'
+//!    with the WKT in `Description` (a WKT in `Description` is tried after the name);
+//! 3. `MapProjection` 'EPSG' with the code in `MapZone`;
+//! 4. an explicit code (`EPSG:n`, URN, URL) in another field (`GeodeticDatum`, `Description`...);
+//! 5. `MapProjection` UTM with `MapZone` and `GeodeticDatum` (WGS 84, ETRS89, NAD83, GDA94,
+//!    GDA2020);
+//! 6. `MapProjection` Gauss-Krüger with a 3° `MapZone`: DHDN's zones 2 to 5;
+//! 7. `Description` as a name PROJ knows;
+//! 8. `--crs`.
+//!
+//! A code with a `VerticalDatum` code that PROJ accepts as a compound CRS is reported as that
+//! compound; heights are still taken as ellipsoidal, so the vertical part never fails a file.
+//!
+//! # Where the model goes
+//! The anchor is the model's own origin, or its footprint centre when it lies far from it (map
+//! coordinates: [`choose_anchor`]); the anchor's map point is what PROJ places, and where the
+//! CRS's area of use is checked. Eastings, Northings and OrthogonalHeight are in the MapUnit (the
+//! CRS's own unit when none is given); Scale (IFC4: converting project units to map units) and
+//! the IFC4.3 factors scale the project axes. When Eastings/Northings read so fall outside the
+//! CRS's area of use but read in project units land inside it (and near the site reference, if
+//! any), that reading is taken with a warning: some exporters write them in project units.
 
 use super::*;
-use crate::geodesy::crs::{place_map_point, CrsError, CrsUse, MapPlace};
+use crate::geodesy::crs::{
+    compound_crs, epsg_code_of, place_geographic_point, place_map_point, proj_knows,
+    projected_unit_m, CrsError, CrsUse, MapPlace,
+};
 use crate::geodesy::projection::UtmZone;
-use glam::{DMat2, DMat3};
+use crate::scene::placement::choose_anchor;
+use glam::{DMat2, DMat3, DMat4, DVec2};
 
-/// The georeference of a file's raw data and, when its map conversion could not be used, why.
+/// A map placement farther than this from the site's RefLatitude/RefLongitude is reported; so are
+/// coordinates this far from the origin in a file that names no CRS (national-grid sized).
+pub const FAR_M: f64 = 100_000.0;
+
+/// The field of the file (or the option) that named the CRS that placed the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CrsField {
+    /// IfcGeographicCRS, the target of an IfcRigidOperation in plane angles.
+    GeographicCrs,
+    /// IfcProjectedCRS `Name` (a code, URN, URL or a name PROJ knows).
+    Name,
+    /// A WKT: in `Description` (with `Name` 'WKT' or on its own).
+    DescriptionWkt,
+    /// `Description` as a name PROJ knows.
+    Description,
+    /// `MapProjection` 'EPSG' + the code in `MapZone`.
+    MapZoneCode,
+    /// An explicit EPSG code written in a field not meant for it (`GeodeticDatum`...).
+    CodeInOtherField,
+    /// `MapProjection` UTM + `MapZone` + `GeodeticDatum`.
+    UtmZone,
+    /// `MapProjection` Gauss-Krüger + a 3° `MapZone`.
+    GaussKruegerZone,
+    /// `--crs` (or a manifest entry's "crs").
+    Option,
+}
+
+impl CrsField {
+    /// The report's label (`georeference.crs[].source`); property-set fields start `epset-`.
+    pub fn label(self, operation: MapOperation) -> &'static str {
+        let pset = operation == MapOperation::PropertySets;
+        match (self, pset) {
+            (CrsField::GeographicCrs, _) => "ifc-geographic-crs",
+            (CrsField::Name, false) => "ifc-name",
+            (CrsField::Name, true) => "epset-name",
+            (CrsField::DescriptionWkt, false) => "ifc-description-wkt",
+            (CrsField::DescriptionWkt, true) => "epset-description-wkt",
+            (CrsField::Description, false) => "ifc-description",
+            (CrsField::Description, true) => "epset-description",
+            (CrsField::MapZoneCode, false) => "ifc-map-zone-code",
+            (CrsField::MapZoneCode, true) => "epset-map-zone-code",
+            (CrsField::CodeInOtherField, false) => "ifc-code-in-other-field",
+            (CrsField::CodeInOtherField, true) => "epset-code-in-other-field",
+            (CrsField::UtmZone, false) => "ifc-map-projection",
+            (CrsField::UtmZone, true) => "epset-map-projection",
+            (CrsField::GaussKruegerZone, false) => "ifc-gauss-krueger-zone",
+            (CrsField::GaussKruegerZone, true) => "epset-gauss-krueger-zone",
+            (CrsField::Option, _) => "option",
+        }
+    }
+}
+
+/// What the georeference of a file came to.
+#[derive(Debug, Default)]
+pub(super) struct GeorefOutcome {
+    pub georef: Option<IfcGeoref>,
+    /// Why the file's map placement could not be used (the model falls back).
+    pub warning: Option<String>,
+    /// Placed, but with something to say (a unit slip read around, a far site reference, map
+    /// coordinates without a CRS), one line each naming the file.
+    pub notes: Vec<String>,
+}
+
+/// The georeference of a file's raw data; `bounds`: the model's box in the scene frame (metres;
+/// empty when unknown, then the anchor is the origin).
 pub(super) fn georef_from_raw(
     raw: engine::RawGeoref,
     path: &Path,
     crs_option: Option<&str>,
-) -> (Option<IfcGeoref>, Option<String>) {
-    let mut warning = None;
+    bounds: &Aabb,
+) -> GeorefOutcome {
+    let file = path.display();
+    let anchor = if bounds.min.is_finite() && bounds.max.is_finite() {
+        choose_anchor(bounds).0
+    } else {
+        DVec3::ZERO
+    };
+    let site = site_lon_lat(&raw);
+    let mut out = GeorefOutcome::default();
     if let Some(m) = &raw.map_conversion {
-        match georef_from_map_conversion(m, path, crs_option) {
-            Ok(Some(g)) => return (Some(g), None),
-            Ok(None) => {}
-            Err(e) => warning = Some(e.to_string()),
+        let per_vertex = needs_per_vertex(bounds, anchor);
+        match georef_from_map_conversion(
+            m,
+            path,
+            crs_option,
+            anchor,
+            site,
+            raw.true_north,
+            per_vertex,
+        ) {
+            Ok((g, slip)) => {
+                out.notes.extend(slip);
+                if let Some((lon, lat)) = site {
+                    let d = distance_m(lon, lat, g.longitude_deg, g.latitude_deg);
+                    if d > FAR_M {
+                        out.notes.push(format!(
+                            "{file}: the map conversion places the model at {}, {:.0} km from where IfcSite RefLatitude/RefLongitude put it ({}); the map conversion is used",
+                            lon_lat_text(g.longitude_deg, g.latitude_deg),
+                            d / 1000.0,
+                            lon_lat_text(lon, lat)
+                        ));
+                    }
+                }
+                out.georef = Some(g);
+                return out;
+            }
+            Err(e) => out.warning = Some(e.to_string()),
         }
     }
-    (georef_from_site(raw), warning)
-}
-
-fn georef_from_site(raw: engine::RawGeoref) -> Option<IfcGeoref> {
-    let (lat, lon, h) = raw.site_reference?;
-    if !(lat.is_finite()
-        && lon.is_finite()
-        && (-90.0..=90.0).contains(&lat)
-        && (-180.0..=360.0).contains(&lon))
-    {
-        return None;
-    }
-    let lon = if lon > 180.0 { lon - 360.0 } else { lon };
-    Some(IfcGeoref {
-        longitude_deg: lon,
-        latitude_deg: lat,
-        height_m: if h.is_finite() { h } else { 0.0 },
-        true_north_deg: raw
-            .true_north
-            .filter(|n| n[0].is_finite() && n[1].is_finite() && (n[0] != 0.0 || n[1] != 0.0))
-            .map(|n| (-n[0]).atan2(n[1]).to_degrees()),
-        map_conversion: raw.map_conversion,
-        anchor: raw.site_origin,
-        map_linear: None,
-        crs: None,
-    })
-}
-
-/// The CRSs a map conversion names, in the order they are tried, with where each came from.
-fn crs_candidates(m: &IfcMapConversion, crs_option: Option<&str>) -> Vec<(String, &'static str)> {
-    let mut out = Vec::new();
-    if let Some(name) = m.crs_name.as_deref().filter(|n| !n.trim().is_empty()) {
-        out.push((name.trim().to_string(), "ifc-name"));
-    }
-    if let Some(code) = crs_of_map_projection(m) {
-        out.push((code, "ifc-map-projection"));
-    }
-    if let Some(c) = crs_option {
-        out.push((c.to_string(), "option"));
+    out.georef = georef_from_site(raw);
+    let centre = bounds.center();
+    if crs_option.is_none() && centre.is_finite() && centre.truncate().length() > FAR_M {
+        let grid = format!(
+            "its coordinates lie {:.0} km from the origin (national-grid sized) but no CRS places them: give --crs EPSG:CODE",
+            centre.truncate().length() / 1000.0
+        );
+        match &mut out.warning {
+            Some(w) => *w = format!("{w}; {grid}"),
+            None => out.notes.push(format!("{file}: {grid}")),
+        }
     }
     out
 }
 
-/// MapProjection + MapZone + GeodeticDatum → an EPSG code: UTM ("UTM", "32N") on WGS 84, ETRS89 or
-/// NAD83.
+/// IfcSite RefLongitude, RefLatitude (degrees), when both are there and a place on Earth.
+fn site_lon_lat(raw: &engine::RawGeoref) -> Option<(f64, f64)> {
+    let (lat, lon, _) = raw.site_reference?;
+    let ok = lat.is_finite()
+        && lon.is_finite()
+        && (-90.0..=90.0).contains(&lat)
+        && (-180.0..=360.0).contains(&lon);
+    ok.then_some((if lon > 180.0 { lon - 360.0 } else { lon }, lat))
+}
+
+fn lon_lat_text(lon: f64, lat: f64) -> String {
+    format!(
+        "{:.5}° {}, {:.5}° {}",
+        lon.abs(),
+        if lon < 0.0 { 'W' } else { 'E' },
+        lat.abs(),
+        if lat < 0.0 { 'S' } else { 'N' }
+    )
+}
+
+/// Great-circle distance (metres, mean Earth radius): enough to tell 100 km.
+fn distance_m(lon1: f64, lat1: f64, lon2: f64, lat2: f64) -> f64 {
+    let (p1, p2) = (lat1.to_radians(), lat2.to_radians());
+    let dp = p2 - p1;
+    let dl = (lon2 - lon1).to_radians();
+    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
+    2.0 * 6_371_008.8 * h.sqrt().min(1.0).asin()
+}
+
+fn georef_from_site(raw: engine::RawGeoref) -> Option<IfcGeoref> {
+    let (lon, lat) = site_lon_lat(&raw)?;
+    let h = raw.site_reference.map_or(0.0, |s| s.2);
+    Some(IfcGeoref {
+        longitude_deg: lon,
+        latitude_deg: lat,
+        height_m: if h.is_finite() { h } else { 0.0 },
+        true_north_deg: true_north_deg(raw.true_north),
+        map_conversion: raw.map_conversion,
+        anchor: raw.site_origin,
+        map_linear: None,
+        crs: None,
+        crs_field: None,
+        per_vertex_map: None,
+    })
+}
+
+/// The model context's TrueNorth (x, y) as degrees counter-clockwise from the project +y axis.
+fn true_north_deg(true_north: Option<[f64; 2]>) -> Option<f64> {
+    true_north
+        .filter(|n| n[0].is_finite() && n[1].is_finite() && (n[0] != 0.0 || n[1] != 0.0))
+        .map(|n| (-n[0]).atan2(n[1]).to_degrees())
+}
+
+/// The CRSs a map placement names, in the order of the module doc, each once, with the field.
+fn crs_candidates(m: &IfcMapConversion, crs_option: Option<&str>) -> Vec<(String, CrsField)> {
+    fn text(t: &Option<String>) -> Option<&str> {
+        t.as_deref().map(str::trim).filter(|t| !t.is_empty())
+    }
+    let mut out: Vec<(String, CrsField)> = Vec::new();
+    let mut push = |def: String, field: CrsField| {
+        let def = crate::geodesy::crs::normalize_crs_text(&def);
+        if !out.iter().any(|(d, _)| *d == def) {
+            out.push((def, field));
+        }
+    };
+    let name = text(&m.crs_name);
+    let description = text(&m.crs_description);
+    if m.geographic {
+        if let Some(n) = name {
+            push(n.to_string(), CrsField::GeographicCrs);
+        }
+        return out;
+    }
+    let wkt = description.filter(|d| looks_like_wkt(d));
+    match name {
+        Some(n) if n.eq_ignore_ascii_case("WKT") => {}
+        Some(n) => push(n.to_string(), CrsField::Name),
+        None => {}
+    }
+    if let Some(w) = wkt {
+        push(w.to_string(), CrsField::DescriptionWkt);
+    }
+    let projection = text(&m.map_projection).unwrap_or("");
+    if projection.to_ascii_uppercase().contains("EPSG") {
+        if let Some(code) = text(&m.map_zone).and_then(epsg_code_of) {
+            push(format!("EPSG:{code}"), CrsField::MapZoneCode);
+        }
+    }
+    // Only explicit codes here: a bare number in these fields is a zone or a datum's name.
+    for field in [
+        &m.geodetic_datum,
+        &m.crs_description,
+        &m.map_zone,
+        &m.map_projection,
+    ] {
+        if let Some(code) = text(field)
+            .filter(|t| !t.chars().all(|c| c.is_ascii_digit()))
+            .and_then(epsg_code_of)
+        {
+            push(format!("EPSG:{code}"), CrsField::CodeInOtherField);
+        }
+    }
+    if let Some(code) = crs_of_map_projection(m) {
+        push(code, CrsField::UtmZone);
+    }
+    if let Some(code) = gauss_krueger_crs(m) {
+        push(code, CrsField::GaussKruegerZone);
+    }
+    if let Some(d) = description.filter(|d| !looks_like_wkt(d)) {
+        push(d.to_string(), CrsField::Description);
+    }
+    if let Some(c) = crs_option {
+        push(c.to_string(), CrsField::Option);
+    }
+    out
+}
+
+/// A WKT CRS definition (WKT1 or WKT2), not a description in words.
+fn looks_like_wkt(text: &str) -> bool {
+    let upper = text.trim_start().to_ascii_uppercase();
+    [
+        "PROJCS[",
+        "PROJCRS[",
+        "PROJECTEDCRS[",
+        "COMPD_CS[",
+        "COMPOUNDCRS[",
+        "BOUNDCRS[",
+    ]
+    .iter()
+    .any(|k| upper.starts_with(k))
+}
+
+/// MapProjection + MapZone + GeodeticDatum → an EPSG code: UTM ("UTM", "32N") on WGS 84, ETRS89,
+/// NAD83, GDA94 or GDA2020.
 fn crs_of_map_projection(m: &IfcMapConversion) -> Option<String> {
     let projection = m.map_projection.as_deref()?.trim().to_ascii_uppercase();
     if !projection.contains("UTM") && !projection.contains("TRANSVERSE MERCATOR") {
@@ -82,20 +308,225 @@ fn crs_of_map_projection(m: &IfcMapConversion) -> Option<String> {
         Some(z) => UtmZone::from_crs_name(&format!("UTM zone {}", z.trim())),
         None => UtmZone::from_crs_name(&projection),
     }?;
-    zone.epsg_code(m.geodetic_datum.as_deref())
+    // Southern-hemisphere grids name the zone without its letter.
+    let datum = m.geodetic_datum.as_deref();
+    let southern = utm_southern_code(zone.zone, datum);
+    southern
+        .or_else(|| zone.epsg_code(datum))
         .map(|c| format!("EPSG:{c}"))
 }
 
-/// A map conversion placed through its CRS: the project origin is at (Eastings, Northings,
-/// OrthogonalHeight); project metres go to grid metres by Scale (and IFC4X3 FactorX/Y/Z, and the
-/// map and project units) and the x axis's direction (XAxisAbscissa, XAxisOrdinate), then to
-/// ground east-north metres by the grid's convergence and scale factor there. `Ok(None)`: no CRS
-/// is named at all; `Err`: the one-line warning for a CRS that cannot be used.
+/// Australia's MGA zones (GDA94: EPSG:283zz, GDA2020: EPSG:78zz), by datum name or code.
+fn utm_southern_code(zone: u8, datum: Option<&str>) -> Option<u32> {
+    let d: String = datum?
+        .chars()
+        .filter(char::is_ascii_alphanumeric)
+        .collect::<String>()
+        .to_ascii_uppercase();
+    let z = u32::from(zone);
+    if !(46..=59).contains(&z) {
+        return None;
+    }
+    match d.as_str() {
+        "GDA2020" | "EPSG7844" | "GEOCENTRICDATUMOFAUSTRALIA2020" => Some(7800 + z),
+        "GDA94" | "EPSG4283" | "GEOCENTRICDATUMOFAUSTRALIA1994" => Some(28300 + z),
+        _ => None,
+    }
+}
+
+/// MapProjection Gauss-Krüger + MapZone 2..5 → DHDN / 3-degree Gauss-Krüger zone (EPSG:31466 to
+/// 31469), the grid that bare name stands for in German files.
+fn gauss_krueger_crs(m: &IfcMapConversion) -> Option<String> {
+    let projection: String = m
+        .map_projection
+        .as_deref()?
+        .to_ascii_uppercase()
+        .chars()
+        .filter(char::is_ascii_alphabetic)
+        .collect();
+    if !(projection.contains("GAUSS") && projection.contains("KR")) {
+        return None;
+    }
+    let zone: u32 = m.map_zone.as_deref()?.trim().parse().ok()?;
+    (2..=5)
+        .contains(&zone)
+        .then(|| format!("EPSG:{}", 31464 + zone))
+}
+
+/// Metres per project length unit (1 when the file's is unusable).
+fn project_unit_m(m: &IfcMapConversion) -> f64 {
+    if m.project_unit_m.is_finite() && m.project_unit_m > 0.0 {
+        m.project_unit_m
+    } else {
+        1.0
+    }
+}
+
+/// One reading of a map conversion in a CRS: the anchor's map point placed, the linear map of
+/// project metres to east-north-up metres there, and the map point (CRS units).
+struct Reading {
+    place: MapPlace,
+    linear: DMat3,
+    /// Scene metres → map coordinates (easting, northing in the CRS's units; height in metres).
+    to_map: DMat4,
+    easting: f64,
+    northing: f64,
+    theta_deg: f64,
+}
+
+/// Reads the conversion with Eastings/Northings/OrthogonalHeight in `map_unit_m` metres per unit,
+/// and places the `anchor`'s map point (scene metres) in `crs` (`crs_unit_m` metres per unit).
+fn read_in_unit(
+    m: &IfcMapConversion,
+    crs: &str,
+    crs_unit_m: f64,
+    map_unit_m: f64,
+    anchor: DVec3,
+) -> Result<Reading, CrsError> {
+    let (a, b) = if m.x_axis_abscissa == 0.0 && m.x_axis_ordinate == 0.0 {
+        (1.0, 0.0)
+    } else {
+        let l = m.x_axis_abscissa.hypot(m.x_axis_ordinate);
+        (m.x_axis_abscissa / l, m.x_axis_ordinate / l)
+    };
+    let scale = if m.scale.is_finite() && m.scale != 0.0 {
+        m.scale
+    } else {
+        1.0
+    };
+    // Scene metres → project units → (Scale, factors) map units → grid metres, per axis. Scale
+    // converts project units to map units (IFC4); when that makes a grid that is not the size of
+    // the ground while Scale alone does, the units were converted already (IFC4.3 reading).
+    let units = map_unit_m / project_unit_m(m);
+    let ground_sized = |k: f64| (0.5..=2.0).contains(&k);
+    let units = if !ground_sized(scale * units) && ground_sized(scale) {
+        1.0
+    } else {
+        units
+    };
+    let per_axis = |f: f64| {
+        let f = if f.is_finite() && f != 0.0 { f } else { 1.0 };
+        scale * f * units
+    };
+    let (sx, sy, sz) = (
+        per_axis(m.factors[0]),
+        per_axis(m.factors[1]),
+        per_axis(m.factors[2]),
+    );
+    let rotation = DMat2::from_cols(DVec2::new(a, b), DVec2::new(-b, a));
+    let offset_m = rotation * DVec2::new(sx * anchor.x, sy * anchor.y);
+    let ratio = map_unit_m / crs_unit_m;
+    let easting = m.eastings * ratio + offset_m.x / crs_unit_m;
+    let northing = m.northings * ratio + offset_m.y / crs_unit_m;
+    let height = if m.orthogonal_height.is_finite() {
+        m.orthogonal_height
+    } else {
+        0.0
+    };
+    let height_m = height * map_unit_m + sz * anchor.z;
+    let place = place_map_point(crs, easting, northing, height_m)?;
+    let horizontal = place.grid_to_enu * rotation * DMat2::from_diagonal(DVec2::new(sx, sy));
+    let linear = DMat3::from_cols(
+        horizontal.x_axis.extend(0.0),
+        horizontal.y_axis.extend(0.0),
+        DVec3::new(0.0, 0.0, sz),
+    );
+    let grid = rotation * DMat2::from_diagonal(DVec2::new(sx, sy)) / crs_unit_m;
+    let grid = DMat3::from_cols(
+        grid.x_axis.extend(0.0),
+        grid.y_axis.extend(0.0),
+        DVec3::new(0.0, 0.0, sz),
+    );
+    let at_anchor = DVec3::new(easting, northing, height_m);
+    let to_map = DMat4::from_translation(at_anchor)
+        * DMat4::from_mat3(grid)
+        * DMat4::from_translation(-anchor);
+    Ok(Reading {
+        place,
+        linear,
+        to_map,
+        easting,
+        northing,
+        theta_deg: b.atan2(a).to_degrees(),
+    })
+}
+
+/// Farthest any corner of `bounds` lies from `anchor`, horizontally (metres).
+fn reach_m(bounds: &Aabb, anchor: DVec3) -> f64 {
+    if !(bounds.min.is_finite() && bounds.max.is_finite()) {
+        return 0.0;
+    }
+    let (lo, hi) = (bounds.min.truncate(), bounds.max.truncate());
+    [lo, hi, DVec2::new(lo.x, hi.y), DVec2::new(hi.x, lo.y)]
+        .iter()
+        .map(|c| (*c - anchor.truncate()).length())
+        .fold(0.0, f64::max)
+}
+
+/// Whether one linear map at the anchor would be off by more than [`PER_VERTEX_ABOVE_M`]
+/// somewhere in the model: the Earth's curvature lowers a point `r` from the anchor by about
+/// r² / 2R below the anchor's tangent plane, which the linear map keeps it on.
+fn needs_per_vertex(bounds: &Aabb, anchor: DVec3) -> bool {
+    reach_m(bounds, anchor).powi(2) / (2.0 * MEAN_EARTH_RADIUS_M) > PER_VERTEX_ABOVE_M
+}
+
+/// The error of one linear map above which every vertex goes through PROJ.
+pub const PER_VERTEX_ABOVE_M: f64 = 0.001;
+const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// Places a projected map conversion in `crs`: as declared, else (a unit slip) with
+/// Eastings/Northings in project units, which must then land near the site reference if there
+/// is one. The second value is the warning for a slip.
+fn read_projected(
+    m: &IfcMapConversion,
+    path: &Path,
+    crs: &str,
+    anchor: DVec3,
+    site: Option<(f64, f64)>,
+) -> Result<(Reading, Option<String>), CrsError> {
+    let crs_unit_m = projected_unit_m(crs)?;
+    let declared_m = m
+        .map_unit_m
+        .filter(|u| u.is_finite() && *u > 0.0)
+        .unwrap_or(crs_unit_m);
+    let first = match read_in_unit(m, crs, crs_unit_m, declared_m, anchor) {
+        Ok(r) => return Ok((r, None)),
+        Err(e) => e,
+    };
+    let project_m = project_unit_m(m);
+    if (project_m / declared_m - 1.0).abs() < 1e-9 {
+        return Err(first);
+    }
+    let Ok(r) = read_in_unit(m, crs, crs_unit_m, project_m, anchor) else {
+        return Err(first);
+    };
+    let (lon, lat) = (r.place.place.longitude_deg, r.place.place.latitude_deg);
+    if site.is_some_and(|(slon, slat)| distance_m(slon, slat, lon, lat) > FAR_M) {
+        return Err(first);
+    }
+    let warning = format!(
+        "{}: IfcMapConversion Eastings {} Northings {} read in the MapUnit ({declared_m} m) give no place in {} ({first}); read in the project unit ({project_m} m) they land at {}{}: that reading is used",
+        path.display(),
+        m.eastings,
+        m.northings,
+        r.place.crs,
+        lon_lat_text(lon, lat),
+        if site.is_some() { ", near the IfcSite reference" } else { "" },
+    );
+    Ok((r, Some(warning)))
+}
+
+/// A map placement (IfcMapConversion, IfcRigidOperation, ePSet_MapConversion) placed through the
+/// first of its CRSs that can place it. `Err`: the one-line warning when none can.
 fn georef_from_map_conversion(
     m: &IfcMapConversion,
     path: &Path,
     crs_option: Option<&str>,
-) -> std::result::Result<Option<IfcGeoref>, MapConversionProblem> {
+    anchor: DVec3,
+    site: Option<(f64, f64)>,
+    true_north: Option<[f64; 2]>,
+    per_vertex: bool,
+) -> std::result::Result<(IfcGeoref, Option<String>), MapConversionProblem> {
     let candidates = crs_candidates(m, crs_option);
     if candidates.is_empty() {
         return Err(MapConversionProblem::NoCrs);
@@ -103,104 +534,100 @@ fn georef_from_map_conversion(
     if !(m.eastings.is_finite() && m.northings.is_finite()) {
         return Err(MapConversionProblem::NotNumbers);
     }
-    let project_unit_m = if m.project_unit_m.is_finite() && m.project_unit_m > 0.0 {
-        m.project_unit_m
-    } else {
-        1.0
-    };
-    let given_map_unit_m = m.map_unit_m.filter(|u| u.is_finite() && *u > 0.0);
-    let orthogonal_height = if m.orthogonal_height.is_finite() {
-        m.orthogonal_height
+    let mut first_error: Option<CrsError> = None;
+    for (crs, field) in candidates {
+        let placed = if m.geographic {
+            georef_geographic(m, &crs, true_north).map(|g| (g, None))
+        } else {
+            read_projected(m, path, &crs, anchor, site).map(|(r, slip)| {
+                // Grid north seen from the project: −θ from +y, θ the x axis's angle from grid
+                // east; true north is grid north turned back by the convergence.
+                let true_north_deg = Some(r.place.convergence_deg - r.theta_deg);
+                let g = IfcGeoref {
+                    longitude_deg: r.place.place.longitude_deg,
+                    latitude_deg: r.place.place.latitude_deg,
+                    height_m: r.place.place.height_m,
+                    true_north_deg: true_north_deg.filter(|d| d.abs() > 1e-12),
+                    map_conversion: Some(m.clone()),
+                    anchor,
+                    map_linear: Some(r.linear),
+                    crs: Some(CrsUse::new("", "", &r.place, r.easting, r.northing)),
+                    crs_field: None,
+                    per_vertex_map: per_vertex.then_some(r.to_map),
+                };
+                (g, slip)
+            })
+        };
+        match placed {
+            Ok((mut g, slip)) => {
+                if let Some(u) = g.crs.as_mut() {
+                    u.file = path.display().to_string();
+                    u.source = field.label(m.operation).to_string();
+                    with_vertical_part(u, &crs, m.vertical_datum.as_deref());
+                }
+                g.crs_field = Some(field);
+                return Ok((g, slip));
+            }
+            Err(err) => {
+                first_error.get_or_insert(err);
+            }
+        }
+    }
+    Err(MapConversionProblem::Unplaceable { first_error })
+}
+
+/// An IfcRigidOperation into an IfcGeographicCRS: the project origin at (longitude, latitude,
+/// Height), the project's axes east, north, up (turned by the context's TrueNorth if given).
+fn georef_geographic(
+    m: &IfcMapConversion,
+    crs: &str,
+    true_north: Option<[f64; 2]>,
+) -> Result<IfcGeoref, CrsError> {
+    let height_m = if m.orthogonal_height.is_finite() {
+        m.orthogonal_height * project_unit_m(m)
     } else {
         0.0
     };
-    let mut first_error: Option<CrsError> = None;
-    for (crs, source) in candidates {
-        // Eastings/Northings/OrthogonalHeight are in the MapUnit, or (none given) in the CRS's
-        // own unit; PROJ takes the CRS's unit.
-        let first = place_map_point(
-            &crs,
-            m.eastings,
-            m.northings,
-            orthogonal_height * given_map_unit_m.unwrap_or(1.0),
-        );
-        let placed = first.and_then(|p| {
-            let map_unit_m = given_map_unit_m.unwrap_or(p.unit_m);
-            let ratio = map_unit_m / p.unit_m;
-            if (ratio - 1.0).abs() < 1e-12 {
-                let h = orthogonal_height * map_unit_m;
-                let p = MapPlace {
-                    place: crate::geodesy::GeoOrigin {
-                        height_m: h,
-                        ..p.place
-                    },
-                    ..p
-                };
-                Ok((p, m.eastings, m.northings, map_unit_m))
-            } else {
-                let (e, n) = (m.eastings * ratio, m.northings * ratio);
-                place_map_point(&crs, e, n, orthogonal_height * map_unit_m)
-                    .map(|p| (p, e, n, map_unit_m))
-            }
-        });
-        let (p, e, n, map_unit_m) = match placed {
-            Ok(x) => x,
-            Err(err) => {
-                first_error.get_or_insert(err);
-                continue;
-            }
-        };
-        let height_m = p.place.height_m;
-        let (a, b) = if m.x_axis_abscissa == 0.0 && m.x_axis_ordinate == 0.0 {
-            (1.0, 0.0)
-        } else {
-            let l = m.x_axis_abscissa.hypot(m.x_axis_ordinate);
-            (m.x_axis_abscissa / l, m.x_axis_ordinate / l)
-        };
-        let scale = if m.scale.is_finite() && m.scale != 0.0 {
-            m.scale
-        } else {
-            1.0
-        };
-        // Project metres → map units → grid metres, per axis.
-        let per_axis = |f: f64| {
-            let f = if f.is_finite() && f != 0.0 { f } else { 1.0 };
-            scale * f * map_unit_m / project_unit_m
-        };
-        let (sx, sy, sz) = (
-            per_axis(m.factors[0]),
-            per_axis(m.factors[1]),
-            per_axis(m.factors[2]),
-        );
-        let rotation = DMat2::from_cols(glam::DVec2::new(a, b), glam::DVec2::new(-b, a));
-        let horizontal = p.grid_to_enu * rotation * DMat2::from_diagonal(glam::DVec2::new(sx, sy));
-        let linear = DMat3::from_cols(
-            horizontal.x_axis.extend(0.0),
-            horizontal.y_axis.extend(0.0),
-            glam::DVec3::new(0.0, 0.0, sz),
-        );
-        // Grid north seen from the project: −θ from +y, θ the x axis's angle from grid east;
-        // true north is grid north turned back by the convergence.
-        let theta_deg = b.atan2(a).to_degrees();
-        let crs_use = CrsUse::new(&path.display().to_string(), source, &p, e, n);
-        return Ok(Some(IfcGeoref {
-            longitude_deg: p.place.longitude_deg,
-            latitude_deg: p.place.latitude_deg,
-            height_m,
-            true_north_deg: Some(p.convergence_deg - theta_deg).filter(|d| d.abs() > 1e-12),
-            map_conversion: Some(m.clone()),
-            anchor: DVec3::ZERO,
-            map_linear: Some(linear),
-            crs: Some(crs_use),
-        }));
+    let p = place_geographic_point(crs, m.eastings, m.northings, height_m)?;
+    let north = true_north_deg(true_north);
+    Ok(IfcGeoref {
+        longitude_deg: p.place.longitude_deg,
+        latitude_deg: p.place.latitude_deg,
+        height_m,
+        true_north_deg: north,
+        map_conversion: Some(m.clone()),
+        anchor: DVec3::ZERO,
+        map_linear: Some(DMat3::from_rotation_z((-north.unwrap_or(0.0)).to_radians())),
+        crs: Some(CrsUse::new("", "", &p, m.eastings, m.northings)),
+        crs_field: None,
+        per_vertex_map: None,
+    })
+}
+
+/// Reports a compound CRS the file names as that compound, and `EPSG:h` with a `VerticalDatum`
+/// code `v` as the compound `EPSG:h+v` when PROJ knows it (heights stay ellipsoidal: the vertical
+/// part only names the file's intent).
+fn with_vertical_part(u: &mut CrsUse, crs: &str, vertical: Option<&str>) {
+    if let Some((id, name)) = compound_crs(crs) {
+        u.crs = id;
+        u.crs_name = format!("{name} (vertical part not applied)");
+        return;
     }
-    Err(MapConversionProblem::Unplaceable { first_error })
+    let (Some(h), Some(v)) = (epsg_code_of(crs), vertical.and_then(epsg_code_of)) else {
+        return;
+    };
+    let compound = format!("EPSG:{h}+{v}");
+    if u.crs == format!("EPSG:{h}") && proj_knows(&compound) {
+        u.crs_name = format!("{} + EPSG:{v} (vertical, not applied)", u.crs_name);
+        u.crs = compound;
+    }
 }
 
 /// What makes a map conversion unusable at all, whatever its CRS (README, "Safety"; an error, not
 /// a fallback): a Scale or FactorX/Y/Z that is zero, negative or not plausible
 /// (`geodesy::plausible_scale`), or Eastings/Northings/OrthogonalHeight that are not plausible
-/// metres. Absent values read as 1 (scales) and 0.
+/// metres in the MapUnit nor in the project unit (an exporter's slip). Absent values read as 1
+/// (scales) and 0.
 pub(super) fn implausible_map_number(m: &IfcMapConversion) -> Option<String> {
     use crate::geodesy::{plausible_m, plausible_scale, PLAUSIBLE_SCALE};
     let scales = [
@@ -217,12 +644,17 @@ pub(super) fn implausible_map_number(m: &IfcMapConversion) -> Option<String> {
     }
     // In the MapUnit (millimetres make a UTM northing 5e9); the CRS's own unit when none is given.
     let unit_m = m.map_unit_m.filter(|u| plausible_scale(*u)).unwrap_or(1.0);
+    let project_m = Some(m.project_unit_m)
+        .filter(|u| plausible_scale(*u))
+        .unwrap_or(unit_m);
     let place = [
         ("Eastings", m.eastings),
         ("Northings", m.northings),
         ("OrthogonalHeight", m.orthogonal_height),
     ];
-    let (name, v) = place.into_iter().find(|(_, v)| !plausible_m(v * unit_m))?;
+    let (name, v) = place
+        .into_iter()
+        .find(|(_, v)| !plausible_m(v * unit_m) && !plausible_m(v * project_m))?;
     Some(format!(
         "IfcMapConversion {name} {v:e} is not a plausible coordinate (beyond ±{:e} m, the Earth's circumference)",
         crate::geodesy::PLAUSIBLE_COORDINATE_M
@@ -232,7 +664,7 @@ pub(super) fn implausible_map_number(m: &IfcMapConversion) -> Option<String> {
 /// Why an IfcMapConversion cannot place the model (a warning: the model falls back).
 #[derive(Debug, thiserror::Error)]
 pub(super) enum MapConversionProblem {
-    #[error("its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name or MapProjection/MapZone): give --crs EPSG:CODE")]
+    #[error("its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name, code or MapProjection/MapZone): give --crs EPSG:CODE")]
     NoCrs,
     #[error("its IfcMapConversion Eastings/Northings are not numbers")]
     NotNumbers,
@@ -263,7 +695,27 @@ mod tests {
             factors: [2.0, 1.0, 0.5],
             map_unit_m: None,
             project_unit_m: 1.0,
+            crs_description: None,
+            vertical_datum: None,
+            operation: MapOperation::MapConversion,
+            geographic: false,
         }
+    }
+
+    fn place(
+        m: &IfcMapConversion,
+        crs_option: Option<&str>,
+    ) -> std::result::Result<IfcGeoref, MapConversionProblem> {
+        georef_from_map_conversion(
+            m,
+            Path::new("t.ifc"),
+            crs_option,
+            DVec3::ZERO,
+            None,
+            None,
+            false,
+        )
+        .map(|(g, _)| g)
     }
 
     /// Scales and factors of zero, below 1e-6 or above 1e6, and places beyond 4e7 m (in the map
@@ -302,10 +754,7 @@ mod tests {
     /// x axis at 90° points to grid north, which at RD's origin is true north.
     #[test]
     fn scaled_conversion_scales_each_axis_then_turns() {
-        let g =
-            georef_from_map_conversion(&conversion(Some("EPSG:28992")), Path::new("t.ifc"), None)
-                .unwrap()
-                .unwrap();
+        let g = place(&conversion(Some("EPSG:28992")), None).unwrap();
         let k = g.crs.as_ref().unwrap().scale_factor;
         let l = g.map_linear.unwrap();
         let x = l * DVec3::X;
@@ -326,13 +775,214 @@ mod tests {
         m.geodetic_datum = None;
         assert_eq!(crs_of_map_projection(&m).as_deref(), Some("EPSG:32632"));
         // No CRS in the file: --crs names it.
-        let g = georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), Some("28992"))
-            .unwrap()
-            .unwrap();
+        let g = place(&conversion(None), Some("28992")).unwrap();
         assert_eq!(g.crs.unwrap().source, "option");
-        let w = georef_from_map_conversion(&conversion(None), Path::new("t.ifc"), None)
-            .unwrap_err()
-            .to_string();
+        let w = place(&conversion(None), None).unwrap_err().to_string();
         assert!(w.contains("--crs"), "{w}");
+    }
+
+    /// Each way exporters name the CRS, in the documented order: a field that names nothing PROJ
+    /// can use gives way to the next one.
+    #[test]
+    fn every_field_that_names_a_crs_is_read() {
+        let field_of = |edit: &dyn Fn(&mut IfcMapConversion)| {
+            let mut m = conversion(None);
+            m.factors = [1.0; 3];
+            edit(&mut m);
+            let g = place(&m, None).unwrap();
+            (g.crs.clone().unwrap().crs, g.crs_field.unwrap())
+        };
+        let rd = "EPSG:28992".to_string();
+        for name in [
+            "28992",
+            "urn:ogc:def:crs:EPSG::28992",
+            "http://www.opengis.net/def/crs/EPSG/0/28992",
+            "Amersfoort / RD New",
+        ] {
+            let got = field_of(&|m| m.crs_name = Some(name.into()));
+            assert_eq!(got, (rd.clone(), CrsField::Name), "{name}");
+        }
+        // A short name PROJ does not know; the code in MapZone.
+        let got = field_of(&|m| {
+            m.crs_name = Some("RDNEW".into());
+            m.map_projection = Some("EPSG".into());
+            m.map_zone = Some("28992".into());
+        });
+        assert_eq!(got, (rd.clone(), CrsField::MapZoneCode));
+        // The projected code in GeodeticDatum wins over building a Gauss-Krüger zone.
+        let gk = |m: &mut IfcMapConversion| {
+            m.eastings = 3_513_038.0;
+            m.northings = 5_516_199.0;
+            m.map_projection = Some("Gauss-Krueger".into());
+            m.map_zone = Some("3".into());
+        };
+        let got = field_of(&|m| {
+            gk(m);
+            m.geodetic_datum = Some("EPSG:31467".into());
+        });
+        assert_eq!(got, ("EPSG:31467".into(), CrsField::CodeInOtherField));
+        let got = field_of(&|m| gk(m));
+        assert_eq!(got, ("EPSG:31467".into(), CrsField::GaussKruegerZone));
+        // MGA 2020 by UTM zone and datum code; the vertical code makes it a compound.
+        let got = field_of(&|m| {
+            m.eastings = 256_400.0;
+            m.northings = 7_011_600.0;
+            m.map_projection = Some("UTM".into());
+            m.map_zone = Some("56".into());
+            m.geodetic_datum = Some("EPSG:7844".into());
+            m.vertical_datum = Some("EPSG:5711".into());
+        });
+        assert_eq!(got, ("EPSG:7856+5711".into(), CrsField::UtmZone));
+        // Name 'WKT' with the WKT in Description.
+        let got = field_of(&|m| {
+            m.eastings = 458_000.0;
+            m.northings = 5_438_000.0;
+            m.crs_name = Some("WKT".into());
+            m.crs_description = Some(UTM32_WKT.into());
+        });
+        assert_eq!(got.1, CrsField::DescriptionWkt);
+        // A compound code is reported as such, placed by its horizontal part.
+        let got = field_of(&|m| {
+            m.eastings = 76_670.0;
+            m.northings = 77_179.0;
+            m.crs_name = Some("EPSG:9897".into());
+        });
+        assert_eq!(got, ("EPSG:9897".into(), CrsField::Name));
+        // The property-set labels say so.
+        assert_eq!(
+            CrsField::Name.label(MapOperation::PropertySets),
+            "epset-name"
+        );
+    }
+
+    const UTM32_WKT: &str = r#"PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER["false_northing",0],UNIT["metre",1]]"#;
+
+    /// The WKT places a point where its EPSG twin does.
+    #[test]
+    fn a_wkt_places_like_its_code() {
+        let a = place_map_point(UTM32_WKT, 458_000.0, 5_438_000.0, 0.0).unwrap();
+        let b = place_map_point("EPSG:32632", 458_000.0, 5_438_000.0, 0.0).unwrap();
+        assert!((a.place.to_ecef() - b.place.to_ecef()).length() < 1e-3);
+    }
+
+    /// Model in map coordinates with E/N 0: placed at its footprint (the anchor), not at (0, 0),
+    /// which lies outside the CRS's area of use.
+    #[test]
+    fn map_coordinates_with_a_zero_offset_are_placed_at_the_model() {
+        let mut m = conversion(Some("EPSG:28992"));
+        (m.eastings, m.northings, m.orthogonal_height) = (0.0, 0.0, 0.0);
+        m.factors = [1.0; 3];
+        m.x_axis_ordinate = 0.0;
+        m.x_axis_abscissa = 1.0;
+        let anchor = DVec3::new(155_000.0, 463_000.0, 2.0);
+        let (g, slip) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, false)
+                .unwrap();
+        assert!(slip.is_none());
+        assert!((g.longitude_deg - 5.3872).abs() < 1e-3, "{g:?}");
+        assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
+        assert_eq!(g.anchor, anchor);
+        assert!((g.height_m - 2.0).abs() < 1e-9);
+    }
+
+    /// State Plane in US survey feet (no MapUnit: the CRS's unit) under a project in the same
+    /// feet: one scene metre stays one ground metre (up to the grid's scale factor).
+    #[test]
+    fn us_survey_feet_map_and_project() {
+        let mut m = conversion(Some("EPSG:2263"));
+        (m.eastings, m.northings) = (988_000.0, 200_000.0);
+        m.factors = [1.0; 3];
+        m.project_unit_m = 1200.0 / 3937.0;
+        let g = place(&m, None).unwrap();
+        // Manhattan.
+        assert!((g.longitude_deg + 73.98).abs() < 0.05, "{g:?}");
+        assert!((g.latitude_deg - 40.75).abs() < 0.05, "{g:?}");
+        let l = g.map_linear.unwrap();
+        let k = g.crs.unwrap().scale_factor;
+        assert!(((l * DVec3::X).length() - 1.0 / k).abs() < 1e-6);
+    }
+
+    /// Revit's slip: E/N in project millimetres under a foot-sized MapUnit are read in project
+    /// units, near the site reference, with a warning naming both readings.
+    #[test]
+    fn eastings_in_project_units_are_read_around() {
+        let mut m = conversion(Some("EPSG:28992"));
+        (m.eastings, m.northings, m.orthogonal_height) = (155_000_000.0, 463_000_000.0, 0.0);
+        m.factors = [1.0; 3];
+        m.map_unit_m = Some(0.3048);
+        m.project_unit_m = 0.001;
+        assert_eq!(implausible_map_number(&m), None);
+        let site = Some((5.387, 52.155));
+        let (g, slip) = georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            DVec3::ZERO,
+            site,
+            None,
+            false,
+        )
+        .unwrap();
+        let slip = slip.expect("a warning");
+        assert!(slip.contains("MapUnit (0.3048 m)") && slip.contains("project unit (0.001 m)"));
+        assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
+        // One scene metre is one grid metre: the project-unit reading has no unit change.
+        let x = g.map_linear.unwrap() * DVec3::X;
+        assert!((x.length() - 1.0).abs() < 1e-3, "{x}");
+        // Far from the site reference, the slip is not taken.
+        let far = Some((-87.6, 41.9));
+        assert!(georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            DVec3::ZERO,
+            far,
+            None,
+            false
+        )
+        .is_err());
+    }
+
+    /// A millimetre project under a metre map: Scale 0.001 converts the units (IFC4); with Scale
+    /// omitted the units are converted all the same, not read as a grid a thousand times the
+    /// ground; a Scale near 1 that is not the unit conversion stays as written.
+    #[test]
+    fn millimetre_projects_under_a_metre_map() {
+        let x_length = |scale: f64| {
+            let mut m = conversion(Some("EPSG:28992"));
+            m.factors = [1.0; 3];
+            m.project_unit_m = 0.001;
+            m.scale = scale;
+            let g = place(&m, None).unwrap();
+            let k = g.crs.unwrap().scale_factor;
+            (g.map_linear.unwrap() * DVec3::X).length() * k
+        };
+        assert!((x_length(0.001) - 1.0).abs() < 1e-5);
+        assert!((x_length(1.0) - 1.0).abs() < 1e-5);
+        assert!((x_length(0.0015) - 1.5).abs() < 1e-5);
+    }
+
+    /// One linear map is kept while the Earth's curvature across the model stays within a
+    /// millimetre of the anchor's tangent plane; past that, every vertex goes through PROJ.
+    #[test]
+    fn wide_models_go_vertex_by_vertex() {
+        let box_of = |half_m: f64| Aabb {
+            min: DVec3::new(-half_m, -half_m, 0.0),
+            max: DVec3::new(half_m, half_m, 10.0),
+        };
+        assert!(!needs_per_vertex(&box_of(50.0), DVec3::ZERO));
+        assert!(needs_per_vertex(&box_of(200.0), DVec3::ZERO));
+        assert!(!needs_per_vertex(&Aabb::EMPTY, DVec3::ZERO));
+        // The map of a wide model takes the anchor to its map point.
+        let mut m = conversion(Some("EPSG:28992"));
+        m.factors = [1.0; 3];
+        let anchor = DVec3::new(300.0, -200.0, 5.0);
+        let (g, _) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, true)
+                .unwrap();
+        let to_map = g.per_vertex_map.unwrap();
+        let u = g.crs.unwrap();
+        let at = to_map.transform_point3(anchor);
+        assert!((at - DVec3::new(u.easting, u.northing, g.height_m)).length() < 1e-6);
     }
 }

@@ -55,6 +55,7 @@ mod step;
 use assembly::assemble;
 pub use assembly::parse_loose;
 use georef::georef_from_raw;
+pub use georef::CrsField;
 pub use step::{check_step, RecordProblem, StepError, StepSummary};
 
 /// IFC classes never turned into components, with the reason (exact class names; subtypes such as
@@ -129,6 +130,27 @@ pub struct IfcMapConversion {
     pub map_unit_m: Option<f64>,
     /// Metres per project length unit (1 for metres, 0.001 for millimetres).
     pub project_unit_m: f64,
+    /// IfcProjectedCRS Description and VerticalDatum (a WKT, a vertical CRS code).
+    pub crs_description: Option<String>,
+    pub vertical_datum: Option<String>,
+    /// Which entity wrote the placement.
+    pub operation: MapOperation,
+    /// The target is an IfcGeographicCRS: Eastings/Northings are longitude/latitude in degrees
+    /// (an IFC4.3 IfcRigidOperation with plane angles, already converted from the angle unit).
+    pub geographic: bool,
+}
+
+/// The entity that carries a file's placement in map coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum MapOperation {
+    /// IfcMapConversion (or IfcMapConversionScaled) and its IfcProjectedCRS.
+    #[default]
+    MapConversion,
+    /// IFC4.3 IfcRigidOperation: a translation only, into a projected or geographic CRS.
+    RigidOperation,
+    /// IFC2X3 property sets ePSet_MapConversion and ePSet_ProjectedCRS (on IfcProject or
+    /// IfcSite).
+    PropertySets,
 }
 
 /// Where the model sits on Earth, as the IFC file says.
@@ -153,6 +175,12 @@ pub struct IfcGeoref {
     pub map_linear: Option<glam::DMat3>,
     /// The CRS that placed the model, for the report.
     pub crs: Option<crate::geodesy::crs::CrsUse>,
+    /// The field that named that CRS.
+    pub crs_field: Option<CrsField>,
+    /// Scene metres → map coordinates of `crs` (easting, northing in its units, height in
+    /// metres), when one linear map at the anchor would be off by more than a millimetre
+    /// somewhere in the model: then every vertex goes through PROJ instead.
+    pub per_vertex_map: Option<DMat4>,
 }
 
 /// Read timings, seconds.
@@ -217,7 +245,7 @@ pub fn read_ifc_georef(path: &Path) -> Option<IfcGeoref> {
         engine::IfcEngine::georef(&engine, &bytes)
     })
     .ok()?;
-    georef_from_raw(raw, path, None).0
+    georef_from_raw(raw, path, None, &Aabb::EMPTY).georef
 }
 
 /// Like [`read_ifc_with_report`], from bytes.
@@ -266,17 +294,20 @@ pub fn read_ifc_bytes_with_crs(
     if let Some(problem) = conversion.and_then(georef::implausible_map_number) {
         return Err(Error::input(path, problem));
     }
-    let (georef, georef_warning) =
-        raw_georef.map_or((None, None), |raw| georef_from_raw(raw, path, crs_option));
     let mut report = IfcReadReport {
         schema: header.schema.clone(),
-        georef,
-        georef_warning,
         curve_only: geometry.curve_only.len(),
         ..Default::default()
     };
     let mut scene = assemble(path, bytes.len() as u64, geometry, data, &mut report)?;
     scene.finish();
+    // The model's own box decides the anchor and where the CRS's area of use is checked.
+    if let Some(raw) = raw_georef {
+        let placed = georef_from_raw(raw, path, crs_option, &scene.bounds());
+        report.georef = placed.georef;
+        report.georef_warning = placed.warning;
+        scene.reader_warnings.extend(placed.notes);
+    }
     report.elements = scene.components.len();
     report.triangles = scene.triangle_count();
     report.timings = IfcTimings {
