@@ -25,14 +25,14 @@ mod valid_tilesets;
 mod cityjson;
 /// glTF compressed by third-party tools (Draco, meshopt) reads as the plain files do.
 mod compressed_gltf;
+/// Real georeferenced IFC exports land where their georeferencing says.
+#[cfg(feature = "ifc")]
+mod georef_ifc;
 /// The IFC reader against IfcOpenShell's exports of the same files.
 #[cfg(feature = "ifc")]
 mod ifc_crosscheck;
 /// Campus manifests: models placed on Earth, one tileset, element identity kept.
 mod manifest;
-/// Real georeferenced IFC exports land where their georeferencing says.
-#[cfg(feature = "ifc")]
-mod georef_ifc;
 
 // The pipeline's stages, checked from the outside.
 /// Repeated shapes and exact duplicates found on real models.
