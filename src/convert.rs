@@ -27,7 +27,7 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
     convert_input_set(&InputSet::new(inputs, None), opts)
 }
 
-/// Reads an input set (sample, model files or a campus manifest) and converts it.
+/// Reads an input set (sample, model files or a manifest of many models) and converts it.
 pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
     let t0 = Instant::now();
     let opts = &opts.resolve();

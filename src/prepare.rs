@@ -4,13 +4,13 @@
 
 use crate::dedup::{deduplicate, DedupReport};
 use crate::error::{Error, Result};
-use crate::geodesy::GeoOrigin;
+use crate::geodesy::{GeoOrigin, OriginSource};
 use crate::ingest::InputSet;
 use crate::lod::chain_levels::with_lod_chains;
 use crate::options::{LodMode, Settings};
 use crate::partition::content::AppearanceClasses;
 use crate::partition::{plan_octree, TilePlan};
-use crate::scene::placement::Placement;
+use crate::scene::placement::{AnchorRule, Placement};
 use crate::scene::Scene;
 use crate::texture::admit::ImageLimits;
 use glam::DVec3;
@@ -73,9 +73,9 @@ fn refuse_implausible(scene: &Scene) -> Result<()> {
 pub(crate) struct Prepared {
     pub input: InputReport,
     pub anchor: DVec3,
-    pub anchor_rule: String,
+    pub anchor_rule: AnchorRule,
     pub origin: GeoOrigin,
-    pub origin_source: &'static str,
+    pub origin_source: OriginSource,
     /// The projected CRSs that placed inputs, and georeferences that could not be used.
     pub crs_used: Vec<crate::geodesy::crs::CrsUse>,
     pub georef_warnings: Vec<String>,
@@ -124,7 +124,7 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &Settings) -> Result<Prepared> {
         refuse_implausible(scene)?;
     }
     let (origin, origin_source) = match (scene.georeference, opts.origin) {
-        (_, Some(user)) => (user, "option"),
+        (_, Some(user)) => (user, OriginSource::Option),
         (Some(g), None) => (
             GeoOrigin {
                 longitude_deg: g.longitude_deg,
@@ -132,14 +132,14 @@ pub(crate) fn prepare(scene: &mut Scene, opts: &Settings) -> Result<Prepared> {
                 height_m: g.height_m,
             },
             if g.map_linear.is_some() {
-                "input-crs"
+                OriginSource::InputCrs
             } else {
-                "input-site"
+                OriginSource::InputSite
             },
         ),
-        (None, None) => (GeoOrigin::DEFAULT, "default"),
+        (None, None) => (GeoOrigin::DEFAULT, OriginSource::Default),
     };
-    if opts.strict_georef && origin_source == "default" {
+    if opts.strict_georef && origin_source == OriginSource::Default {
         let file = scene
             .sources
             .first()

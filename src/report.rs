@@ -4,9 +4,10 @@
 
 use crate::dedup::DedupReport;
 use crate::encode::TileRecord;
-use crate::geodesy::GeoOrigin;
+use crate::geodesy::{GeoOrigin, OriginSource};
 use crate::options::{ErrorMetric, LodMode, Settings};
 use crate::prepare::{InputReport, Prepared};
+use crate::scene::placement::AnchorRule;
 use crate::scene::Scene;
 use crate::tileset::view::{paper_delta_mesh_px, sse_px, switch_distance_m, ViewOptions};
 use serde::Serialize;
@@ -71,9 +72,9 @@ pub struct LevelReport {
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct GeoReport {
     pub origin: GeoOrigin,
-    /// "option" (from --origin), "input-crs" (a projected CRS: an IFC map conversion, --crs),
-    /// "input-site" (an IFC site reference, a manifest's origin) or "default".
-    pub origin_source: String,
+    /// What gave the place: `option` (from --origin), `input-crs` (a projected CRS: an IFC map
+    /// conversion, --crs), `input-site` (an IFC site reference, a manifest's origin) or `default`.
+    pub origin_source: OriginSource,
     /// Every projected CRS that placed an input: which, where it came from, the PROJ operation
     /// and its accuracy, convergence and scale factor, and how heights were read.
     #[serde(default)]
@@ -83,7 +84,7 @@ pub struct GeoReport {
     pub warnings: Vec<String>,
     /// The point of the input's coordinates placed at `origin` (metres, z-up scene frame).
     pub anchor_m: [f64; 3],
-    pub anchor_rule: String,
+    pub anchor_rule: AnchorRule,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -229,7 +230,7 @@ pub(crate) fn make_report(
         tiles,
         georeference: GeoReport {
             origin: prep.origin,
-            origin_source: prep.origin_source.into(),
+            origin_source: prep.origin_source,
             crs: prep.crs_used,
             warnings: prep.georef_warnings.clone(),
             anchor_m: prep.anchor.to_array(),

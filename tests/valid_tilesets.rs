@@ -218,10 +218,9 @@ fn projected_coordinates_keep_millimetres() {
     .unwrap();
     let out = d.join("out");
     let report = convert(&input, &out, &["--compression", "none"]);
-    assert!(report["georeference"]["anchor_rule"]
-        .as_str()
-        .unwrap()
-        .contains("projected"));
+    let rule = &report["georeference"]["anchor_rule"];
+    assert_eq!(rule["rule"], "footprint-centre", "{rule}");
+    assert!(rule["distance_m"].as_f64().unwrap() > 10_000.0, "{rule}");
     let anchor: Vec<f64> = report["georeference"]["anchor_m"]
         .as_array()
         .unwrap()

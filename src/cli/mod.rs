@@ -161,8 +161,8 @@ enum Command {
 struct ConvertArgs {
     /// Input models (.glb, .gltf, .ifc). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
-    /// A campus manifest (JSON): models placed by longitude/latitude/height/heading or by an
-    /// east/north/up offset, converted into one tileset (README "Many buildings").
+    /// A manifest of many models (JSON): models placed by longitude/latitude/height/heading or
+    /// by an east/north/up offset, converted into one tileset (README "Many buildings").
     #[arg(long, conflicts_with = "inputs")]
     manifest: Option<PathBuf>,
     /// Output folder (must not exist, unless --force).
@@ -795,12 +795,15 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
 /// Where the tileset landed: longitude, latitude, height, the CRS and the field that named it.
 fn place_line(g: &bimtiles::report::GeoReport) -> String {
     let o = g.origin;
-    let by = match (g.origin_source.as_str(), g.crs.first()) {
-        ("option", _) => "--origin".to_string(),
-        ("input-crs", Some(c)) => format!("{} ({}), from {}", c.crs, c.crs_name, c.source),
-        ("input-site", _) => "the input's site reference (WGS 84)".to_string(),
-        ("default", _) => "the default origin: the input names no place".to_string(),
-        (other, _) => other.to_string(),
+    use bimtiles::geodesy::OriginSource;
+    let by = match (g.origin_source, g.crs.first()) {
+        (OriginSource::Option, _) => "--origin".to_string(),
+        (OriginSource::InputCrs, Some(c)) => {
+            format!("{} ({}), from {}", c.crs, c.crs_name, c.source)
+        }
+        (OriginSource::InputCrs, None) => "a projected CRS".to_string(),
+        (OriginSource::InputSite, _) => "the input's site reference (WGS 84)".to_string(),
+        (OriginSource::Default, _) => "the default origin: the input names no place".to_string(),
     };
     format!(
         "{:.6}° {}, {:.6}° {}, height {:.2} m, by {by}",

@@ -60,6 +60,60 @@ pub enum OriginError {
     Height { text: String, height_m: f64 },
 }
 
+/// What gave a tileset its place on Earth (report.json's `georeference.origin_source`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(into = "&'static str", try_from = "String")]
+pub enum OriginSource {
+    /// `--origin`.
+    Option,
+    /// A projected CRS: an IFC map conversion, a CityJSON reference system, `--crs`.
+    InputCrs,
+    /// An IFC site reference, a manifest's origin.
+    InputSite,
+    /// Nothing: [`GeoOrigin::DEFAULT`].
+    Default,
+}
+
+impl OriginSource {
+    pub const ALL: [OriginSource; 4] = [
+        OriginSource::Option,
+        OriginSource::InputCrs,
+        OriginSource::InputSite,
+        OriginSource::Default,
+    ];
+
+    /// Its name in report.json, the one spelling of each value.
+    pub fn name(self) -> &'static str {
+        match self {
+            OriginSource::Option => "option",
+            OriginSource::InputCrs => "input-crs",
+            OriginSource::InputSite => "input-site",
+            OriginSource::Default => "default",
+        }
+    }
+}
+
+impl From<OriginSource> for &'static str {
+    fn from(s: OriginSource) -> &'static str {
+        s.name()
+    }
+}
+
+impl TryFrom<String> for OriginSource {
+    type Error = String;
+    fn try_from(name: String) -> Result<Self, String> {
+        (OriginSource::ALL.into_iter())
+            .find(|s| s.name() == name)
+            .ok_or_else(|| format!("unknown origin source '{name}'"))
+    }
+}
+
+impl std::fmt::Display for OriginSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// A place on WGS84: degrees, degrees, metres above the ellipsoid.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GeoOrigin {
@@ -70,7 +124,7 @@ pub struct GeoOrigin {
 
 impl GeoOrigin {
     /// Where a tileset goes when the user gives no `--origin` and the input carries no
-    /// georeference: the KIT campus in Karlsruhe, Germany (documented in the README), so that
+    /// georeference: Karlsruhe Institute of Technology, Germany (documented in the README), so that
     /// viewers show the model on land, in a known place, rather than in the ocean at 0°,0°.
     pub const DEFAULT: GeoOrigin = GeoOrigin {
         longitude_deg: 8.4116,
@@ -154,6 +208,19 @@ pub fn geodetic_to_ecef(lon_deg: f64, lat_deg: f64, h: f64) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn origin_sources_have_one_name_each_and_read_back() {
+        for source in OriginSource::ALL {
+            let json = serde_json::to_value(source).unwrap();
+            assert_eq!(json, source.name());
+            assert_eq!(
+                serde_json::from_value::<OriginSource>(json).unwrap(),
+                source
+            );
+        }
+        assert!(serde_json::from_value::<OriginSource>("nowhere".into()).is_err());
+    }
 
     #[test]
     fn ecef_of_known_places() {

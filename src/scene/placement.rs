@@ -11,13 +11,49 @@ use glam::{DMat3, DMat4, DVec3};
 /// projected (map) coordinates: they are re-anchored at their footprint centre.
 pub const PROJECTED_COORDINATES_THRESHOLD_M: f64 = 10_000.0;
 
+/// Why a point of the input was chosen as its anchor (report.json's `georeference.anchor_rule`,
+/// tagged by `rule`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "rule", rename_all = "kebab-case")]
+pub enum AnchorRule {
+    /// A map conversion's point, turned to true north.
+    MapPoint { true_north_deg: f64 },
+    /// An IFC site's reference point, turned to true north.
+    SiteReference { true_north_deg: f64 },
+    /// The model's own origin: its coordinates are local.
+    ModelOrigin,
+    /// The footprint centre at the lowest point: the model lies this far from its own origin, so
+    /// its coordinates are projected ones.
+    FootprintCentre { distance_m: f64 },
+}
+
+impl std::fmt::Display for AnchorRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            AnchorRule::MapPoint { true_north_deg } => write!(
+                f,
+                "the input's map point (turned {true_north_deg:.4}° to true north)"
+            ),
+            AnchorRule::SiteReference { true_north_deg } => write!(
+                f,
+                "the input's site reference point (turned {true_north_deg:.3}° to true north)"
+            ),
+            AnchorRule::ModelOrigin => f.write_str("model origin (coordinates are local)"),
+            AnchorRule::FootprintCentre { distance_m } => write!(
+                f,
+                "footprint centre at the lowest point (the model lies {distance_m:.0} m from its origin: projected coordinates)"
+            ),
+        }
+    }
+}
+
 /// Where a scene is anchored.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Placement {
     /// The point of the input's coordinates placed at the geographic origin (scene frame, m).
     pub anchor: DVec3,
     /// Why that point, for the report.
-    pub rule: String,
+    pub rule: AnchorRule,
     /// Scene frame → anchored frame: the anchor to the origin, then (with a georeference) the turn
     /// from the model's north to true north.
     pub local: DMat4,
@@ -30,19 +66,17 @@ impl Placement {
         match scene.georeference {
             Some(g) if g.map_linear.is_some() => Placement {
                 anchor: g.anchor,
-                rule: format!(
-                    "the input's map point (turned {:.4}° to true north)",
-                    g.true_north_deg.unwrap_or(0.0)
-                ),
+                rule: AnchorRule::MapPoint {
+                    true_north_deg: g.true_north_deg.unwrap_or(0.0),
+                },
                 local: DMat4::from_mat3(g.map_linear.unwrap_or(DMat3::IDENTITY))
                     * DMat4::from_translation(-g.anchor),
             },
             Some(g) => Placement {
                 anchor: g.anchor,
-                rule: format!(
-                    "the input's site reference point (turned {:.3}° to true north)",
-                    g.true_north_deg.unwrap_or(0.0)
-                ),
+                rule: AnchorRule::SiteReference {
+                    true_north_deg: g.true_north_deg.unwrap_or(0.0),
+                },
                 local: DMat4::from_rotation_z((-g.true_north_deg.unwrap_or(0.0)).to_radians())
                     * DMat4::from_translation(-g.anchor),
             },
@@ -73,17 +107,16 @@ fn record_crs_use(scene: &mut Scene, source: &str, p: &MapPlace, anchor: DVec3) 
 
 /// The anchor (the input point placed at the geographic origin): the model's own origin, unless the
 /// model lies far from it (projected coordinates), then its footprint centre at ground level.
-pub fn choose_anchor(bounds: &Aabb) -> (DVec3, String) {
+pub fn choose_anchor(bounds: &Aabb) -> (DVec3, AnchorRule) {
     let c = bounds.center();
     if c.length() <= PROJECTED_COORDINATES_THRESHOLD_M {
-        (DVec3::ZERO, "model origin (coordinates are local)".into())
+        (DVec3::ZERO, AnchorRule::ModelOrigin)
     } else {
         (
             DVec3::new(c.x, c.y, bounds.min.z),
-            format!(
-                "footprint centre at the lowest point (the model lies {:.0} m from its origin: projected coordinates)",
-                c.length()
-            ),
+            AnchorRule::FootprintCentre {
+                distance_m: c.length(),
+            },
         )
     }
 }
@@ -179,4 +212,37 @@ pub fn georeference_map_coordinates_per_vertex(
     });
     scene.finish();
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn anchor_rules_read_back_from_the_report_and_read_as_sentences() {
+        for rule in [
+            AnchorRule::MapPoint {
+                true_north_deg: -35.25,
+            },
+            AnchorRule::SiteReference {
+                true_north_deg: 50.0,
+            },
+            AnchorRule::ModelOrigin,
+            AnchorRule::FootprintCentre {
+                distance_m: 5_516_000.0,
+            },
+        ] {
+            let json = serde_json::to_value(rule).unwrap();
+            assert!(json["rule"].is_string(), "{json}");
+            assert_eq!(serde_json::from_value::<AnchorRule>(json).unwrap(), rule);
+        }
+        let far = AnchorRule::FootprintCentre {
+            distance_m: 5_516_000.4,
+        };
+        assert_eq!(
+            serde_json::to_value(far).unwrap(),
+            serde_json::json!({"rule": "footprint-centre", "distance_m": 5_516_000.4})
+        );
+        assert!(far.to_string().contains("5516000 m from its origin"));
+    }
 }
