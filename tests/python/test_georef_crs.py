@@ -174,9 +174,10 @@ def glb_positions(glb):
 Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
 
 
-def tileset_ecef_vertices(out_dir):
-    """Every vertex of every tile, in ECEF (tile transforms, glTF y-up to z-up); a content inlined
-    in tileset.json as a data URI (the root, by default) is read from there."""
+def tileset_ecef_vertices(out_dir, leaves_only=False):
+    """Every vertex of every tile (`leaves_only`: of the tiles without children, full detail), in
+    ECEF (tile transforms, glTF y-up to z-up); a content inlined in tileset.json as a data URI (the
+    root, by default) is read from there."""
     ts = json.loads((out_dir / "tileset.json").read_text())
     pts = []
 
@@ -185,7 +186,7 @@ def tileset_ecef_vertices(out_dir):
         if "transform" in tile:
             m = parent @ np.asarray(tile["transform"], dtype=np.float64).reshape(4, 4).T
         uri = tile.get("content", {}).get("uri")
-        if uri:
+        if uri and not (leaves_only and tile.get("children")):
             p = glb_positions(content_bytes(out_dir, uri))
             p = np.c_[p, np.ones(len(p))] @ (m @ Y_UP_TO_Z_UP).T
             pts.append(p[:, :3])

@@ -32,15 +32,13 @@ ifcopenshell = pytest.importorskip("ifcopenshell")
 import ifcopenshell.util.element  # noqa: E402
 
 from test_georef_crs import (  # noqa: E402
-    Y_UP_TO_Z_UP,
     convert,
     ecef,
-    glb_positions,
     ifcopenshell_world_mesh,
     map_to_ecef,
     point_triangle_distances,
+    tileset_ecef_vertices,
 )
-from tile_content import content_bytes  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 EARTH_RADIUS_M = 6371008.8
@@ -122,26 +120,6 @@ CASES = [
 ]
 
 
-def leaf_ecef_vertices(out_dir):
-    """The vertices of the tiles without children (full detail), in ECEF."""
-    ts = json.loads((out_dir / "tileset.json").read_text())
-    pts = []
-
-    def walk(tile, parent):
-        m = parent
-        if "transform" in tile:
-            m = parent @ np.asarray(tile["transform"], dtype=np.float64).reshape(4, 4).T
-        uri = tile.get("content", {}).get("uri")
-        if uri and not tile.get("children"):
-            p = glb_positions(content_bytes(out_dir, uri))
-            pts.append((np.c_[p, np.ones(len(p))] @ (m @ Y_UP_TO_Z_UP).T)[:, :3])
-        for c in tile.get("children", []):
-            walk(c, m)
-
-    walk(ts["root"], np.eye(4))
-    return np.concatenate(pts)
-
-
 @pytest.mark.parametrize("case", CASES, ids=[c[0].split("_")[0] for c in CASES])
 def test_export_lands_on_its_independent_triangles(case, tmp_path):
     name, place = case
@@ -153,7 +131,7 @@ def test_export_lands_on_its_independent_triangles(case, tmp_path):
     theirs = place(f, verts)
     out = tmp_path / "tiles"
     convert([src], out)
-    ours = leaf_ecef_vertices(out)
+    ours = tileset_ecef_vertices(out, leaves_only=True)
     rng = np.random.default_rng(7)
     sample = ours[rng.choice(len(ours), size=min(SAMPLE, len(ours)), replace=False)]
     d = point_triangle_distances(sample, theirs[faces])
