@@ -164,6 +164,31 @@ pub fn epsg_code_of(text: &str) -> Option<u32> {
     None
 }
 
+thread_local! {
+    /// This thread's PROJ context, kept for the process: a new context opens PROJ's database cold
+    /// and builds every CRS from its text again, which cost more than a small model's conversion.
+    static CONTEXT: Option<Context> = Context::new();
+}
+
+/// Runs `f` with this thread's PROJ context; `definition` names the CRS when PROJ cannot start.
+fn with_context<R>(
+    definition: &str,
+    f: impl FnOnce(&Context) -> Result<R, CrsError>,
+) -> Result<R, CrsError> {
+    CONTEXT.with(|ctx| match ctx {
+        Some(ctx) => f(ctx),
+        None => Err(transform_error(definition)("PROJ could not start".into())),
+    })
+}
+
+/// The error of a transformation of `definition` that failed for the reason given.
+fn transform_error(definition: &str) -> impl Fn(String) -> CrsError + '_ {
+    move |why| CrsError::Transform {
+        crs: definition.to_string(),
+        why,
+    }
+}
+
 /// The CRS of a PROJ definition; of a compound CRS (e.g. RD New + NAP height), its horizontal
 /// part, which places points (heights are taken as ellipsoidal).
 fn horizontal_crs<'c>(ctx: &'c Context, definition: &str) -> Result<proj::Object<'c>, CrsError> {
@@ -201,22 +226,20 @@ pub fn with_map_to_enu<R>(
     convert: impl FnOnce(&mut dyn FnMut(glam::DVec3) -> Result<glam::DVec3, CrsError>) -> R,
 ) -> Result<R, CrsError> {
     let definition = normalize_crs_text(crs_text);
-    let fail = |why: String| CrsError::Transform {
-        crs: definition.clone(),
-        why,
-    };
-    let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
-    let crs = horizontal_crs(&ctx, &definition)?;
-    let op = ctx
-        .operation_to_wgs84(&crs)
-        .map_err(|e: ProjError| fail(e.message))?;
-    let ecef_to_enu = DMat3::from_mat4(origin.enu_to_ecef()).transpose();
-    let origin_ecef = origin.to_ecef();
-    let mut to_enu = |p: glam::DVec3| -> Result<glam::DVec3, CrsError> {
-        let ll = op.forward(p.x, p.y, 0.0).map_err(|e| fail(e.message))?;
-        Ok(ecef_to_enu * (geodetic_to_ecef(ll[0], ll[1], p.z) - origin_ecef))
-    };
-    Ok(convert(&mut to_enu))
+    let fail = transform_error(&definition);
+    with_context(&definition, |ctx| {
+        let crs = horizontal_crs(ctx, &definition)?;
+        let op = ctx
+            .operation_to_wgs84(&crs)
+            .map_err(|e: ProjError| fail(e.message))?;
+        let ecef_to_enu = DMat3::from_mat4(origin.enu_to_ecef()).transpose();
+        let origin_ecef = origin.to_ecef();
+        let mut to_enu = |p: glam::DVec3| -> Result<glam::DVec3, CrsError> {
+            let ll = op.forward(p.x, p.y, 0.0).map_err(|e| fail(e.message))?;
+            Ok(ecef_to_enu * (geodetic_to_ecef(ll[0], ll[1], p.z) - origin_ecef))
+        };
+        Ok(convert(&mut to_enu))
+    })
 }
 
 /// A projected CRS as PROJ makes it from `definition`: the object, its id ("EPSG:28992", or the
@@ -258,30 +281,33 @@ fn projected<'c>(
 /// land.
 pub fn projected_unit_m(crs_text: &str) -> Result<f64, CrsError> {
     let definition = normalize_crs_text(crs_text);
-    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
-        crs: definition.clone(),
-        why: "PROJ could not start".into(),
-    })?;
-    projected(&ctx, &definition).map(|(_, _, _, unit_m)| unit_m)
+    with_context(&definition, |ctx| {
+        projected(ctx, &definition).map(|(_, _, _, unit_m)| unit_m)
+    })
 }
 
 /// Whether PROJ makes a CRS of `definition` (a compound "EPSG:7856+5711", a WKT).
 pub fn proj_knows(definition: &str) -> bool {
-    Context::new().is_some_and(|ctx| ctx.create(definition).is_ok())
+    with_context(definition, |ctx| Ok(ctx.create(definition).is_ok())).unwrap_or(false)
 }
 
 /// The id and name of `definition` when PROJ makes a compound CRS of it (a projected CRS with a
 /// height, such as "EPSG:9897"): points are placed by its horizontal part, the report names the
 /// whole.
 pub fn compound_crs(definition: &str) -> Option<(String, String)> {
-    let ctx = Context::new()?;
-    let crs = ctx.create(&normalize_crs_text(definition)).ok()?;
-    (crs.kind() == proj::PJ_TYPE_COMPOUND_CRS).then(|| {
-        (
-            crs.id().unwrap_or_else(|| definition.trim().to_string()),
-            crs.name(),
-        )
+    with_context(definition, |ctx| {
+        let crs = ctx.create(&normalize_crs_text(definition)).ok();
+        Ok(crs
+            .filter(|c| c.kind() == proj::PJ_TYPE_COMPOUND_CRS)
+            .map(|c| {
+                (
+                    c.id().unwrap_or_else(|| definition.trim().to_string()),
+                    c.name(),
+                )
+            }))
     })
+    .ok()
+    .flatten()
 }
 
 /// Refuses a place (`at`: longitude, latitude) farther than [`AREA_OF_USE_MARGIN_DEG`] outside
@@ -330,53 +356,51 @@ pub fn place_geographic_point(
     height_m: f64,
 ) -> Result<MapPlace, CrsError> {
     let definition = normalize_crs_text(crs_text);
-    let fail = |why: String| CrsError::Transform {
-        crs: definition.clone(),
-        why,
-    };
-    let ctx = Context::new().ok_or_else(|| fail("PROJ could not start".into()))?;
-    let crs = horizontal_crs(&ctx, &definition)?;
-    let id = crs.id().unwrap_or_else(|| definition.clone());
-    let name = crs.name();
-    if !matches!(
-        crs.kind(),
-        proj::PJ_TYPE_GEOGRAPHIC_2D_CRS | proj::PJ_TYPE_GEOGRAPHIC_3D_CRS
-    ) {
-        return Err(fail(format!(
+    let fail = transform_error(&definition);
+    with_context(&definition, |ctx| {
+        let crs = horizontal_crs(ctx, &definition)?;
+        let id = crs.id().unwrap_or_else(|| definition.clone());
+        let name = crs.name();
+        if !matches!(
+            crs.kind(),
+            proj::PJ_TYPE_GEOGRAPHIC_2D_CRS | proj::PJ_TYPE_GEOGRAPHIC_3D_CRS
+        ) {
+            return Err(fail(format!(
             "{name} is not a geographic CRS, so (longitude, latitude) in degrees cannot be placed in it"
         )));
-    }
-    if !((-180.0..=360.0).contains(&longitude_deg) && (-90.0..=90.0).contains(&latitude_deg)) {
-        return Err(fail(format!(
-            "longitude {longitude_deg}° and latitude {latitude_deg}° are not a place on Earth"
-        )));
-    }
-    let op = ctx
-        .operation_to_wgs84(&crs)
-        .map_err(|e: ProjError| fail(e.message))?;
-    let ll = op
-        .forward(longitude_deg, latitude_deg, 0.0)
-        .map_err(|e| fail(e.message))?;
-    let at = DVec2::new(ll[0], ll[1]);
-    check_area_of_use(&crs, (&id, &name), (longitude_deg, latitude_deg), at)?;
-    let (operation, accuracy_m) = op
-        .last_used()
-        .unwrap_or_else(|| ("unknown operation".into(), None));
-    Ok(MapPlace {
-        crs: id,
-        crs_name: name,
-        place: GeoOrigin {
-            longitude_deg: at.x,
-            latitude_deg: at.y,
-            height_m,
-        },
-        grid_to_enu: DMat2::IDENTITY,
-        convergence_deg: 0.0,
-        scale_factor: 1.0,
-        // Degrees have no length; nothing is measured in them past this point.
-        unit_m: 1.0,
-        operation,
-        accuracy_m,
+        }
+        if !((-180.0..=360.0).contains(&longitude_deg) && (-90.0..=90.0).contains(&latitude_deg)) {
+            return Err(fail(format!(
+                "longitude {longitude_deg}° and latitude {latitude_deg}° are not a place on Earth"
+            )));
+        }
+        let op = ctx
+            .operation_to_wgs84(&crs)
+            .map_err(|e: ProjError| fail(e.message))?;
+        let ll = op
+            .forward(longitude_deg, latitude_deg, 0.0)
+            .map_err(|e| fail(e.message))?;
+        let at = DVec2::new(ll[0], ll[1]);
+        check_area_of_use(&crs, (&id, &name), (longitude_deg, latitude_deg), at)?;
+        let (operation, accuracy_m) = op
+            .last_used()
+            .unwrap_or_else(|| ("unknown operation".into(), None));
+        Ok(MapPlace {
+            crs: id,
+            crs_name: name,
+            place: GeoOrigin {
+                longitude_deg: at.x,
+                latitude_deg: at.y,
+                height_m,
+            },
+            grid_to_enu: DMat2::IDENTITY,
+            convergence_deg: 0.0,
+            scale_factor: 1.0,
+            // Degrees have no length; nothing is measured in them past this point.
+            unit_m: 1.0,
+            operation,
+            accuracy_m,
+        })
     })
 }
 
@@ -389,73 +413,68 @@ pub fn place_map_point(
     height_m: f64,
 ) -> Result<MapPlace, CrsError> {
     let definition = normalize_crs_text(crs_text);
-    let fail = |why: String| CrsError::Transform {
-        crs: definition.clone(),
-        why,
-    };
-    let ctx = Context::new().ok_or_else(|| CrsError::Transform {
-        crs: definition.clone(),
-        why: "PROJ could not start".into(),
-    })?;
-    let (crs, id, name, unit_m) = projected(&ctx, &definition)?;
-    if let Some(v) = crate::geodesy::first_implausible_m([easting, northing, height_m]) {
-        return Err(fail(format!(
+    let fail = transform_error(&definition);
+    with_context(&definition, |ctx| {
+        let (crs, id, name, unit_m) = projected(ctx, &definition)?;
+        if let Some(v) = crate::geodesy::first_implausible_m([easting, northing, height_m]) {
+            return Err(fail(format!(
             "the map point ({easting}, {northing}, {height_m}) holds {v:e}, not a plausible number of metres"
         )));
-    }
-    let op = ctx
-        .operation_to_wgs84(&crs)
-        .map_err(|e: ProjError| fail(e.message))?;
-    let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
-    let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
-    if !(centre.is_finite() && (-180.0..=180.0).contains(&centre.x)) {
-        return Err(fail(format!(
+        }
+        let op = ctx
+            .operation_to_wgs84(&crs)
+            .map_err(|e: ProjError| fail(e.message))?;
+        let lon_lat = |e: f64, n: f64| op.forward(e, n, 0.0).map(|p| DVec2::new(p[0], p[1]));
+        let centre = lon_lat(easting, northing).map_err(|e| fail(e.message))?;
+        if !(centre.is_finite() && (-180.0..=180.0).contains(&centre.x)) {
+            return Err(fail(format!(
             "PROJ gives no place on Earth for E {easting} N {northing} (longitude {}, latitude {})",
             centre.x, centre.y
         )));
-    }
-    let (operation, accuracy_m) = op
-        .last_used()
-        .unwrap_or_else(|| ("unknown operation".into(), None));
-    check_area_of_use(&crs, (&id, &name), (easting, northing), centre)?;
-    if !(-90.0..=90.0).contains(&centre.y) {
-        return Err(fail(format!("latitude {} out of range", centre.y)));
-    }
-    let place = GeoOrigin {
-        longitude_deg: centre.x,
-        latitude_deg: centre.y,
-        height_m,
-    };
-    // Local east-north metres of a grid point near the centre (on the ellipsoid: the height
-    // does not change the horizontal map at this scale).
-    let ecef_to_enu = DMat3::from_mat4(place.enu_to_ecef()).transpose();
-    let origin_ecef = geodetic_to_ecef(centre.x, centre.y, 0.0);
-    let step = JACOBIAN_STEP_M / unit_m;
-    let enu_of = |de: f64, dn: f64| -> Result<DVec2, CrsError> {
-        let ll = lon_lat(easting + de, northing + dn).map_err(|e| fail(e.message))?;
-        let local = ecef_to_enu * (geodetic_to_ecef(ll.x, ll.y, 0.0) - origin_ecef);
-        Ok(local.truncate())
-    };
-    let d_east = (enu_of(step, 0.0)? - enu_of(-step, 0.0)?) / (2.0 * JACOBIAN_STEP_M);
-    let d_north = (enu_of(0.0, step)? - enu_of(0.0, -step)?) / (2.0 * JACOBIAN_STEP_M);
-    let grid_to_enu = DMat2::from_cols(d_east, d_north);
-    let det = grid_to_enu.determinant();
-    if !(det.is_finite() && det > 0.0) {
-        return Err(fail(format!(
-            "the grid around E {easting} N {northing} does not map to the ground (det {det})"
-        )));
-    }
-    Ok(MapPlace {
-        crs: id,
-        crs_name: name,
-        place,
-        grid_to_enu,
-        // Grid north (0, 1) lands at (sin γ, cos γ) / k in east-north.
-        convergence_deg: d_north.x.atan2(d_north.y).to_degrees(),
-        scale_factor: 1.0 / det.sqrt(),
-        unit_m,
-        operation,
-        accuracy_m,
+        }
+        let (operation, accuracy_m) = op
+            .last_used()
+            .unwrap_or_else(|| ("unknown operation".into(), None));
+        check_area_of_use(&crs, (&id, &name), (easting, northing), centre)?;
+        if !(-90.0..=90.0).contains(&centre.y) {
+            return Err(fail(format!("latitude {} out of range", centre.y)));
+        }
+        let place = GeoOrigin {
+            longitude_deg: centre.x,
+            latitude_deg: centre.y,
+            height_m,
+        };
+        // Local east-north metres of a grid point near the centre (on the ellipsoid: the height
+        // does not change the horizontal map at this scale).
+        let ecef_to_enu = DMat3::from_mat4(place.enu_to_ecef()).transpose();
+        let origin_ecef = geodetic_to_ecef(centre.x, centre.y, 0.0);
+        let step = JACOBIAN_STEP_M / unit_m;
+        let enu_of = |de: f64, dn: f64| -> Result<DVec2, CrsError> {
+            let ll = lon_lat(easting + de, northing + dn).map_err(|e| fail(e.message))?;
+            let local = ecef_to_enu * (geodetic_to_ecef(ll.x, ll.y, 0.0) - origin_ecef);
+            Ok(local.truncate())
+        };
+        let d_east = (enu_of(step, 0.0)? - enu_of(-step, 0.0)?) / (2.0 * JACOBIAN_STEP_M);
+        let d_north = (enu_of(0.0, step)? - enu_of(0.0, -step)?) / (2.0 * JACOBIAN_STEP_M);
+        let grid_to_enu = DMat2::from_cols(d_east, d_north);
+        let det = grid_to_enu.determinant();
+        if !(det.is_finite() && det > 0.0) {
+            return Err(fail(format!(
+                "the grid around E {easting} N {northing} does not map to the ground (det {det})"
+            )));
+        }
+        Ok(MapPlace {
+            crs: id,
+            crs_name: name,
+            place,
+            grid_to_enu,
+            // Grid north (0, 1) lands at (sin γ, cos γ) / k in east-north.
+            convergence_deg: d_north.x.atan2(d_north.y).to_degrees(),
+            scale_factor: 1.0 / det.sqrt(),
+            unit_m,
+            operation,
+            accuracy_m,
+        })
     })
 }
 
