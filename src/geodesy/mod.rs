@@ -13,6 +13,18 @@ pub mod projection;
 use glam::{DMat4, DVec3, DVec4};
 
 const WGS84_A: f64 = 6_378_137.0;
+/// The mean Earth radius (IUGG), for estimates where the ellipsoid's flattening does not matter.
+pub const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// Great-circle distance between two longitude/latitude points (degrees) on the mean sphere
+/// (haversine): enough to tell places kilometres apart, not a survey distance.
+pub fn great_circle_m(lon1_deg: f64, lat1_deg: f64, lon2_deg: f64, lat2_deg: f64) -> f64 {
+    let (p1, p2) = (lat1_deg.to_radians(), lat2_deg.to_radians());
+    let dp = p2 - p1;
+    let dl = (lon2_deg - lon1_deg).to_radians();
+    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
+    2.0 * MEAN_EARTH_RADIUS_M * h.sqrt().min(1.0).asin()
+}
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
 
 /// The largest coordinate, offset or extent taken as plausible, in metres (README, "Safety"): the

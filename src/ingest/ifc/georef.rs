@@ -37,6 +37,7 @@ use crate::geodesy::crs::{
     projected_unit_m, CrsError, CrsUse, MapPlace,
 };
 use crate::geodesy::projection::UtmZone;
+use crate::geodesy::{great_circle_m, MEAN_EARTH_RADIUS_M};
 use crate::scene::placement::choose_anchor;
 use glam::{DMat2, DMat3, DMat4, DVec2};
 
@@ -133,7 +134,7 @@ pub(super) fn georef_from_raw(
             Ok((g, slip)) => {
                 out.notes.extend(slip);
                 if let Some((lon, lat)) = site {
-                    let d = distance_m(lon, lat, g.longitude_deg, g.latitude_deg);
+                    let d = great_circle_m(lon, lat, g.longitude_deg, g.latitude_deg);
                     if d > FAR_M {
                         out.notes.push(format!(
                             "{file}: the map conversion places the model at {}, {:.0} km from where IfcSite RefLatitude/RefLongitude put it ({}); the map conversion is used",
@@ -182,15 +183,6 @@ fn lon_lat_text(lon: f64, lat: f64) -> String {
         lat.abs(),
         if lat < 0.0 { 'S' } else { 'N' }
     )
-}
-
-/// Great-circle distance (metres, mean Earth radius): enough to tell 100 km.
-fn distance_m(lon1: f64, lat1: f64, lon2: f64, lat2: f64) -> f64 {
-    let (p1, p2) = (lat1.to_radians(), lat2.to_radians());
-    let dp = p2 - p1;
-    let dl = (lon2 - lon1).to_radians();
-    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
-    2.0 * 6_371_008.8 * h.sqrt().min(1.0).asin()
 }
 
 fn georef_from_site(raw: engine::RawGeoref) -> Option<IfcGeoref> {
@@ -472,7 +464,6 @@ fn needs_per_vertex(bounds: &Aabb, anchor: DVec3) -> bool {
 
 /// The error of one linear map above which every vertex goes through PROJ.
 pub const PER_VERTEX_ABOVE_M: f64 = 0.001;
-const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
 
 /// Places a projected map conversion in `crs`: as declared, else (a unit slip) with
 /// Eastings/Northings in project units, which must then land near the site reference if there
@@ -501,7 +492,7 @@ fn read_projected(
         return Err(first);
     };
     let (lon, lat) = (r.place.place.longitude_deg, r.place.place.latitude_deg);
-    if site.is_some_and(|(slon, slat)| distance_m(slon, slat, lon, lat) > FAR_M) {
+    if site.is_some_and(|(slon, slat)| great_circle_m(slon, slat, lon, lat) > FAR_M) {
         return Err(first);
     }
     let warning = format!(
