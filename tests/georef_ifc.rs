@@ -169,6 +169,10 @@ fn lands_where_the_manifest_says(file: &str, expect: Expect) {
     assert!(o.status.success(), "{file}: convert failed: {stderr}");
     let report: Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    // Placed or not, the tileset is whole and valid.
+    let triangles = report["input"]["triangles"].as_u64().unwrap() as usize;
+    check_tileset(&out, triangles);
+    gltf_validator(&out);
     let geo = &report["georeference"];
     let warnings: Vec<String> = report["warnings"]
         .as_array()

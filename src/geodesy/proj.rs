@@ -1,11 +1,16 @@
 //! The few functions of the PROJ C library (Debian's `libproj-dev`, linked by `build.rs`) that
-//! bimtiles uses, behind safe owners that free what PROJ allocates: a [`Context`] (one per use:
-//! PROJ contexts are not shared between threads), CRS and operation objects ([`Object`]).
+//! bimtiles uses, behind safe owners that free what PROJ allocates: a [`Context`] (one per
+//! thread: PROJ contexts are not shared between threads), CRS and operation objects ([`Object`]).
+//! A context keeps the CRSs it made from text and the operations it chose to WGS 84, because
+//! each of them is a query of PROJ's database, and reading one model asks for the same CRS
+//! several times (is it known, its unit, its place, its vertices).
 //!
 //! Only what placing a model needs is declared: creating a CRS from a name or code, its type, its
 //! axes' unit, its area of use, a CRS-to-CRS operation normalized to easting/northing and
 //! longitude/latitude order, the operation PROJ actually used and its accuracy.
 
+use std::cell::RefCell;
+use std::collections::HashMap;
 use std::ffi::{c_char, c_double, c_int, c_void, CStr, CString};
 use std::ptr::{null, null_mut};
 
@@ -120,6 +125,12 @@ fn text(p: *const c_char) -> Option<String> {
 /// A PROJ context: owns the objects made in it (they must not outlive it, so they borrow it).
 pub struct Context {
     ptr: *mut PjContext,
+    /// [`Context::create`]'s results by definition, failures too.
+    made: RefCell<HashMap<String, Result<*mut Pj, ProjError>>>,
+    /// [`Object::sub_crs`] of kept objects, by (object, index).
+    parts: RefCell<HashMap<(usize, i32), *mut Pj>>,
+    /// [`Context::operation_to_wgs84`] of kept objects, by source.
+    to_wgs84: RefCell<HashMap<usize, *mut Pj>>,
 }
 
 impl Context {
@@ -132,7 +143,12 @@ impl Context {
         }
         // SAFETY: ptr is a live context.
         unsafe { proj_log_level(ptr, PJ_LOG_NONE) };
-        Some(Context { ptr })
+        Some(Context {
+            ptr,
+            made: RefCell::default(),
+            parts: RefCell::default(),
+            to_wgs84: RefCell::default(),
+        })
     }
 
     /// The text of the context's last error.
@@ -147,17 +163,60 @@ impl Context {
         if ptr.is_null() {
             Err(ProjError::new(self.last_error()))
         } else {
-            Ok(Object { ctx: self, ptr })
+            Ok(Object {
+                ctx: self,
+                ptr,
+                kept: false,
+            })
         }
     }
 
+    /// A handle on an object the context keeps (not freed on drop).
+    fn kept(&self, ptr: *mut Pj) -> Object<'_> {
+        Object {
+            ctx: self,
+            ptr,
+            kept: true,
+        }
+    }
+
+    /// Makes an object with `make` once per `key` of `cache` and keeps it for the context's life.
+    fn keep<'s, K: std::hash::Hash + Eq>(
+        &'s self,
+        cache: &RefCell<HashMap<K, *mut Pj>>,
+        key: K,
+        make: impl FnOnce() -> Result<Object<'s>, ProjError>,
+    ) -> Result<Object<'s>, ProjError> {
+        if let Some(&ptr) = cache.borrow().get(&key) {
+            return Ok(self.kept(ptr));
+        }
+        let mut made = make()?;
+        made.kept = true;
+        cache.borrow_mut().insert(key, made.ptr);
+        Ok(made)
+    }
+
     /// A CRS (or any object) from a definition PROJ understands: "EPSG:28992", a CRS name such
-    /// as "WGS 84 / UTM zone 32N", a WKT or PROJJSON text.
+    /// as "WGS 84 / UTM zone 32N", a WKT or PROJJSON text. Kept: the same definition gives the
+    /// same object.
     pub fn create(&self, definition: &str) -> Result<Object<'_>, ProjError> {
+        if let Some(made) = self.made.borrow().get(definition) {
+            return made.clone().map(|ptr| self.kept(ptr));
+        }
         let c = CString::new(definition)
             .map_err(|_| ProjError::new("the name holds a NUL byte".into()))?;
         // SAFETY: live context and a NUL-terminated string.
-        self.wrap(unsafe { proj_create(self.ptr, c.as_ptr()) })
+        let made = self
+            .wrap(unsafe { proj_create(self.ptr, c.as_ptr()) })
+            .map(|mut object| {
+                object.kept = true;
+                object
+            });
+        self.made.borrow_mut().insert(
+            definition.to_string(),
+            made.as_ref().map(|o| o.ptr).map_err(Clone::clone),
+        );
+        made
     }
 
     /// The operation from `source` to `target` that PROJ chooses (by area of use and
@@ -178,28 +237,46 @@ impl Context {
 
     /// The operation from `source` to WGS 84 longitude, latitude (degrees), as [`Self::operation`].
     pub fn operation_to_wgs84(&self, source: &Object<'_>) -> Result<Object<'_>, ProjError> {
-        let wgs84 = self.create("EPSG:4326")?;
-        self.operation(source, &wgs84)
+        let make = || {
+            let wgs84 = self.create("EPSG:4326")?;
+            self.operation(source, &wgs84)
+        };
+        if source.kept {
+            self.keep(&self.to_wgs84, source.ptr as usize, make)
+        } else {
+            make()
+        }
     }
 }
 
 impl Drop for Context {
     fn drop(&mut self) {
+        let made = self.made.get_mut().drain().filter_map(|(_, m)| m.ok());
+        let parts = self.parts.get_mut().drain().map(|(_, p)| p);
+        let ops = self.to_wgs84.get_mut().drain().map(|(_, p)| p);
+        for ptr in made.chain(parts).chain(ops).collect::<Vec<_>>() {
+            // SAFETY: kept objects are owned by the context alone, each destroyed once.
+            unsafe { proj_destroy(ptr) };
+        }
         // SAFETY: every object borrowed the context and is dropped first.
         unsafe { proj_context_destroy(self.ptr) };
     }
 }
 
-/// A PROJ object (CRS, coordinate system or operation), freed on drop.
+/// A PROJ object (CRS, coordinate system or operation), freed on drop unless its context keeps
+/// it.
 pub struct Object<'c> {
     ctx: &'c Context,
     ptr: *mut Pj,
+    kept: bool,
 }
 
 impl Drop for Object<'_> {
     fn drop(&mut self) {
-        // SAFETY: owned pointer, destroyed once.
-        unsafe { proj_destroy(self.ptr) };
+        if !self.kept {
+            // SAFETY: owned pointer, destroyed once.
+            unsafe { proj_destroy(self.ptr) };
+        }
     }
 }
 
@@ -246,8 +323,16 @@ impl<'c> Object<'c> {
     /// Component `index` of a compound CRS (0: horizontal, 1: vertical).
     pub fn sub_crs(&self, index: i32) -> Result<Object<'c>, ProjError> {
         // SAFETY: live context and object.
-        self.ctx
-            .wrap(unsafe { proj_crs_get_sub_crs(self.ctx.ptr, self.ptr, index) })
+        let make = || {
+            self.ctx
+                .wrap(unsafe { proj_crs_get_sub_crs(self.ctx.ptr, self.ptr, index) })
+        };
+        if self.kept {
+            self.ctx
+                .keep(&self.ctx.parts, (self.ptr as usize, index), make)
+        } else {
+            make()
+        }
     }
 
     /// The axes of this CRS's coordinate system.

@@ -16,6 +16,7 @@ pub use gltf_compressed::{decode_meshopt_view, MeshoptError};
 pub use gltf_index::MeshoptView;
 
 use crate::error::{Error, Result};
+use crate::scene::placement::PerVertexError;
 use crate::scene::Scene;
 use std::path::Path;
 
@@ -168,14 +169,19 @@ fn read_cityjson(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
             return Ok(scene);
         }
     };
-    if let Err(e) =
-        crate::scene::placement::georeference_map_coordinates_per_vertex(&mut scene, &crs, source)
+    let what = match source {
+        "option" => "--crs",
+        _ => "metadata.referenceSystem",
+    };
+    match crate::scene::placement::georeference_map_coordinates_per_vertex(&mut scene, &crs, source)
     {
-        let what = match source {
-            "option" => "--crs",
-            _ => "metadata.referenceSystem",
-        };
-        warn_georef(&mut scene, path, format!("{what} {crs}: {e}"));
+        Ok(()) => {}
+        Err(PerVertexError::NotPlaced(e)) => {
+            warn_georef(&mut scene, path, format!("{what} {crs}: {e}"))
+        }
+        Err(e @ PerVertexError::Midway(_)) => {
+            return Err(Error::input(path, format!("{what} {crs}: {e}")))
+        }
     }
     Ok(scene)
 }
@@ -218,7 +224,7 @@ fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
         return Ok(scene);
     };
     match (georef.per_vertex_map, georef.crs) {
-        (Some(to_map), Some(crs)) => place_ifc_per_vertex(&mut scene, to_map, crs),
+        (Some(to_map), Some(crs)) => place_ifc_per_vertex(&mut scene, path, to_map, crs)?,
         (_, crs) => scene.crs_used.extend(crs),
     }
     Ok(scene)
@@ -226,11 +232,17 @@ fn read_ifc(path: &Path, crs: Option<&str>) -> Result<Scene> {
 
 /// A map placement too wide for one linear map: the scene goes to map coordinates, then every
 /// vertex through PROJ, as CityJSON; the report keeps the CRS as the IFC reader named it. PROJ
-/// refusing the anchor there leaves the scene as it was and the linear map stays (the IFC reader
-/// placed that anchor already, so the vertices around it are within the CRS's reach).
+/// refusing the anchor there puts the components back where they were and the linear map stays
+/// (the IFC reader placed that anchor already, so the vertices around it are within the CRS's
+/// reach); PROJ refusing a vertex is an error.
 #[cfg(feature = "ifc")]
-fn place_ifc_per_vertex(scene: &mut Scene, to_map: glam::DMat4, crs: crate::geodesy::crs::CrsUse) {
-    let linear = scene.georeference;
+fn place_ifc_per_vertex(
+    scene: &mut Scene,
+    path: &Path,
+    to_map: glam::DMat4,
+    crs: crate::geodesy::crs::CrsUse,
+) -> Result<()> {
+    let before = scene.components.clone();
     scene.apply_transform(&to_map);
     let placed = crate::scene::placement::georeference_map_coordinates_per_vertex(
         scene,
@@ -244,12 +256,18 @@ fn place_ifc_per_vertex(scene: &mut Scene, to_map: glam::DMat4, crs: crate::geod
                 u.crs_name = crs.crs_name;
             }
         }
-        Err(_) => {
-            scene.apply_transform(&to_map.inverse());
-            scene.georeference = linear;
+        Err(PerVertexError::NotPlaced(_)) => {
+            scene.components = before;
             scene.crs_used.push(crs);
         }
+        Err(e @ PerVertexError::Midway(_)) => {
+            return Err(Error::input(
+                path,
+                format!("{} ({}): {e}", crs.crs, crs.source),
+            ))
+        }
     }
+    Ok(())
 }
 
 #[cfg(not(feature = "ifc"))]

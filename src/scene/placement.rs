@@ -147,6 +147,18 @@ pub fn georeference_map_coordinates(
     Ok(())
 }
 
+/// Why [`georeference_map_coordinates_per_vertex`] did not place a scene.
+#[derive(Debug, thiserror::Error)]
+pub enum PerVertexError {
+    /// PROJ could not place the anchor: nothing moved, the scene is as it was.
+    #[error(transparent)]
+    NotPlaced(CrsError),
+    /// PROJ placed the anchor but refused a vertex: part of the scene moved, so it cannot be
+    /// used at all.
+    #[error("{0} (the model is only partly placed)")]
+    Midway(CrsError),
+}
+
 /// Like [`georeference_map_coordinates`], but every vertex is converted on its own
 /// ([`with_map_to_enu`]) instead of by one linear map at the anchor: for inputs that cover a
 /// district (CityJSON), where the linear map would be centimetres to metres off at the edges.
@@ -158,9 +170,10 @@ pub fn georeference_map_coordinates_per_vertex(
     scene: &mut Scene,
     crs: &str,
     source: &str,
-) -> Result<(), CrsError> {
+) -> Result<(), PerVertexError> {
     let (anchor, _) = choose_anchor(&scene.bounds());
-    let p = place_map_point(crs, anchor.x, anchor.y, anchor.z)?;
+    let p =
+        place_map_point(crs, anchor.x, anchor.y, anchor.z).map_err(PerVertexError::NotPlaced)?;
     // Normals turn with the grid's convergence (the map is conformal: no shear to undo).
     let turn = DMat3::from_cols(
         p.grid_to_enu.x_axis.extend(0.0),
@@ -200,7 +213,9 @@ pub fn georeference_map_coordinates_per_vertex(
             c.world = DMat4::from_translation(corner);
         }
         Ok(())
-    })??;
+    })
+    .map_err(PerVertexError::NotPlaced)?
+    .map_err(PerVertexError::Midway)?;
     record_crs_use(scene, source, &p, anchor);
     scene.georeference = Some(SourceGeoreference {
         longitude_deg: p.place.longitude_deg,

@@ -9,7 +9,9 @@ real exporters write (shared data/georef-ifc/MANIFEST.md), one convention a file
   its points scaled 10x (a 1.1 km road) and its site placed in ETRS89 / UTM 32N near KIT;
 - IFC2X3 ePSet_MapConversion + ePSet_ProjectedCRS on IfcProject (duplex.ifc);
 - a State Plane CRS in US survey feet (EPSG:2263) with the MapUnit an IfcConversionBasedUnit;
-- a millimetre project under a metre map, Scale omitted.
+- a millimetre project under a metre map, Scale omitted;
+- a project declared in metres whose geometry is in feet of the map (the unit slip read around;
+  IfcOpenShell reads its twin declared in feet).
 
 The independent side: IfcOpenShell's triangulation of the variant in world coordinates (metres),
 through the map conversion written (values held here, units as the exporter meant them), pyproj to
@@ -124,12 +126,25 @@ def short_name_map_zone():
                   f"'EPSG:2056',$);",
         lambda n: f"#{n + 1}=IFCMAPCONVERSION(#{ctx},#{n},{e0},{n0},{h0},{a!r},{b!r},0.001);",
     ])
-    place = dict(crs="EPSG:2056", e=e0, n=n0, h=h0, a=a, b=b, unit=1.0, source="ifc-code-in-other-field")
+    place = dict(crs="EPSG:2056", e=e0, n=n0, h=h0, a=a, b=b, unit=1.0, source="ifc-map-zone-code")
     return text, place
 
 
 # The road's site in ETRS89 / UTM 32N, near KIT Campus North (metres).
 ROAD_E, ROAD_N, ROAD_H = 457300.0, 5439400.0, 110.0
+
+
+def site_point_at(text, xyz):
+    """The IfcSite's placement point moved to `xyz` (file units): the model into map coordinates."""
+    site = entity_id(text, "IFCSITE")
+    label = r"(?:'[^']*'|\$)"
+    placement = int(re.search(rf"^#{site}\s*=\s*IFCSITE\('[^']*',\s*#\d+,\s*{label},\s*{label},\s*{label},\s*#(\d+)",
+                              text, re.M).group(1))
+    axis = int(re.search(rf"^#{placement}\s*=\s*IFCLOCALPLACEMENT\(\$,\s*#(\d+)\)", text, re.M).group(1))
+    point = int(re.search(rf"^#{axis}\s*=\s*IFCAXIS2PLACEMENT3D\(#(\d+)", text, re.M).group(1))
+    assert len(re.findall(rf"#{point}\b", text)) == 2, "the site's point is its own"
+    x, y, z = xyz
+    return re.sub(rf"^#{point}\s*=.*$", f"#{point} = IFCCARTESIANPOINT(({x!r}, {y!r}, {z!r}));", text, flags=re.M)
 
 
 def road_in_map_coordinates():
@@ -143,14 +158,7 @@ def road_in_map_coordinates():
         return "IFCCARTESIANPOINT((" + ", ".join(repr(float(c) * 10) for c in m.group(1).split(",")) + "))"
 
     text = re.sub(r"IFCCARTESIANPOINT\(\(([^)]*)\)\)", scaled, text)
-    site = entity_id(text, "IFCSITE")
-    placement = int(re.search(rf"^#{site}\s*=\s*IFCSITE\('[^']*',\s*#\d+,\s*'[^']*',\s*'[^']*',\s*\$,\s*#(\d+)",
-                              text, re.M).group(1))
-    axis = int(re.search(rf"^#{placement}\s*=\s*IFCLOCALPLACEMENT\(\$,\s*#(\d+)\)", text, re.M).group(1))
-    point = int(re.search(rf"^#{axis}\s*=\s*IFCAXIS2PLACEMENT3D\(#(\d+)", text, re.M).group(1))
-    assert len(re.findall(rf"#{point}\b", text)) == 2, "the site's point is its own"
-    text = re.sub(rf"^#{point}\s*=.*$", f"#{point} = IFCCARTESIANPOINT(({ROAD_E * 1000!r}, {ROAD_N * 1000!r}, "
-                  f"{ROAD_H * 1000!r}));", text, flags=re.M)
+    text = site_point_at(text, (ROAD_E * 1000, ROAD_N * 1000, ROAD_H * 1000))
     ctx = entity_id(text, "IFCGEOMETRICREPRESENTATIONCONTEXT")
     text = append_entities(text, [
         lambda n: f"#{n} = IFCPROJECTEDCRS('EPSG:25832', 'ETRS89 / UTM zone 32N', 'EPSG:4258', 'EPSG:7837', "
@@ -229,6 +237,42 @@ def millimetre_project_metre_map():
     return text, place
 
 
+def geometry_in_feet_declared_metres():
+    """The KIT road, its points in feet (10x, as the 1.1 km road) with its site in map coordinates
+    of ETRS89 / UTM 32N, its project length unit declared METRE, which its geometry contradicts;
+    IfcMapConversion with E/N 0 and Scale 1. Read in metres the model lies 3.28 times farther north
+    than the CRS reaches: it must be read in feet, with a warning. The independent side reads the
+    file as the exporter meant it (declared in feet)."""
+    text = read("KIT-Simple-Road-Test-Web-IFC4x3_RC2.ifc").replace("'IFC4X3_RC2'", "'IFC4X3_ADD2'")
+    text = without_site_reference(text)
+
+    def in_feet(m):
+        return "IFCCARTESIANPOINT((" + ", ".join(repr(float(c) * 10 / 304.8) for c in m.group(1).split(",")) + "))"
+
+    text = re.sub(r"IFCCARTESIANPOINT\(\(([^)]*)\)\)", in_feet, text)
+    text = site_point_at(text, (ROAD_E / 0.3048, ROAD_N / 0.3048, ROAD_H / 0.3048))
+    ctx = entity_id(text, "IFCGEOMETRICREPRESENTATIONCONTEXT")
+    length_unit = r"^(#\d+)\s*=\s*IFCSIUNIT\(\*,\s*\.LENGTHUNIT\.,\s*\.MILLI\.,\s*\.METRE\.\);"
+    unit_id = int(re.search(length_unit, text, re.M).group(1)[1:])
+    text = append_entities(text, [
+        lambda n: f"#{n} = IFCPROJECTEDCRS('EPSG:25832', 'ETRS89 / UTM zone 32N', 'EPSG:4258', $, 'UTM', '32N', $);",
+        lambda n: f"#{n + 1} = IFCMAPCONVERSION(#{ctx}, #{n}, 0., 0., 0., 1., 0., 1.);",
+        lambda n: f"#{n + 2} = IFCDIMENSIONALEXPONENTS(1, 0, 0, 0, 0, 0, 0);",
+        lambda n: f"#{n + 3} = IFCSIUNIT(*, .LENGTHUNIT., $, .METRE.);",
+        lambda n: f"#{n + 4} = IFCMEASUREWITHUNIT(IFCLENGTHMEASURE(0.3048), #{n + 3});",
+        lambda n: f"#{n + 5} = IFCCONVERSIONBASEDUNIT(#{n + 2}, .LENGTHUNIT., 'FOOT', #{n + 4});",
+    ])
+    feet = int(re.search(r"^#(\d+) = IFCCONVERSIONBASEDUNIT\([^;]*'FOOT'", text, re.M).group(1))
+    assignment = re.compile(r"^(#\d+\s*=\s*IFCUNITASSIGNMENT\(\(.*?)#%d\b" % unit_id, re.M)
+    truth, n = assignment.subn(rf"\g<1>#{feet}", text, count=1)
+    assert n == 1
+    slip, n = re.subn(length_unit, r"\1 = IFCSIUNIT(*, .LENGTHUNIT., $, .METRE.);", text, count=1, flags=re.M)
+    assert n == 1
+    place = dict(crs="EPSG:25832", e=0.0, n=0.0, h=0.0, a=1.0, b=0.0, unit=1.0, source="ifc-name",
+                 truth=truth, warning="read in 0.3048 m units")
+    return slip, place
+
+
 VARIANTS = {
     "bentley-epsg-map-zone": bentley_epsg_code,
     "short-name-code-in-map-zone": short_name_map_zone,
@@ -236,6 +280,7 @@ VARIANTS = {
     "ifc2x3-epsets-on-project": ifc2x3_property_sets_on_project,
     "state-plane-us-feet": state_plane_us_feet,
     "millimetre-project-metre-map": millimetre_project_metre_map,
+    "geometry-in-feet-declared-metres": geometry_in_feet_declared_metres,
 }
 
 
@@ -262,6 +307,9 @@ def converted(tmp_path_factory):
             text, place = VARIANTS[name]()
             ifc = root / f"{name}.ifc"
             ifc.write_text(text, encoding="latin-1")
+            if "truth" in place:
+                place["truth_ifc"] = root / f"{name}-as-meant.ifc"
+                place["truth_ifc"].write_text(place.pop("truth"), encoding="latin-1")
             out = root / f"{name}-tiles"
             r = convert([ifc], out)
             done[name] = (ifc, out, r.stderr, place)
@@ -273,17 +321,24 @@ def converted(tmp_path_factory):
 @pytest.mark.parametrize("name", list(VARIANTS))
 def test_variant_vertices_land_where_pyproj_puts_them(name, converted):
     ifc, out, stderr, place = converted(name)
-    assert "warning" not in stderr, stderr
-    geo = json.loads((out / "report.json").read_text())["georeference"]
+    report = json.loads((out / "report.json").read_text())
+    if "warning" in place:
+        assert any(place["warning"] in w for w in report["warnings"]), report["warnings"]
+    else:
+        assert "warning" not in stderr, stderr
+    geo = report["georeference"]
     assert geo["origin_source"] == "input-crs", geo
     assert not geo.get("warnings"), geo
     [used] = geo["crs"]
     assert used["crs"].startswith(place["crs"]), used
     assert used["source"] == place["source"], used
-    chosen = pyproj.Transformer.from_crs(used["crs"], "EPSG:4326", always_xy=True).description
+    transformer = pyproj.Transformer.from_crs(used["crs"], "EPSG:4326", always_xy=True)
+    # Where several operations apply, PROJ chooses by place: ask at the anchor's map point.
+    transformer.transform(used["easting"], used["northing"])
+    chosen = transformer.get_last_used_operation().description
     assert datum_step(used["operation"]) == datum_step(chosen), (used["operation"], chosen)
 
-    world, faces = ifcopenshell_world_mesh(ifc)
+    world, faces = ifcopenshell_world_mesh(place.get("truth_ifc", ifc))
     theirs = independent_ecef(world, place)
     ours = tileset_ecef_vertices(out)
     d_ours = nearest_distances(ours, theirs)

@@ -38,7 +38,7 @@ use crate::geodesy::crs::{
 };
 use crate::geodesy::projection::UtmZone;
 use crate::geodesy::{great_circle_m, MEAN_EARTH_RADIUS_M};
-use crate::scene::placement::choose_anchor;
+use crate::scene::placement::{choose_anchor, AnchorRule};
 use glam::{DMat2, DMat3, DMat4, DVec2};
 
 /// A map placement farther than this from the site's RefLatitude/RefLongitude is reported; so are
@@ -56,7 +56,7 @@ pub enum CrsField {
     DescriptionWkt,
     /// `Description` as a name PROJ knows.
     Description,
-    /// `MapProjection` 'EPSG' + the code in `MapZone`.
+    /// An EPSG code in `MapZone`: bare under `MapProjection` 'EPSG', or written out ('EPSG:n').
     MapZoneCode,
     /// An explicit EPSG code written in a field not meant for it (`GeodeticDatum`...).
     CodeInOtherField,
@@ -121,16 +121,8 @@ pub(super) fn georef_from_raw(
     let site = site_lon_lat(&raw);
     let mut out = GeorefOutcome::default();
     if let Some(m) = &raw.map_conversion {
-        let per_vertex = needs_per_vertex(bounds, anchor);
-        match georef_from_map_conversion(
-            m,
-            path,
-            crs_option,
-            anchor,
-            site,
-            raw.true_north,
-            per_vertex,
-        ) {
+        match georef_from_map_conversion(m, path, crs_option, anchor, site, raw.true_north, bounds)
+        {
             Ok((g, slip)) => {
                 out.notes.extend(slip);
                 if let Some((lon, lat)) = site {
@@ -154,16 +146,23 @@ pub(super) fn georef_from_raw(
     let centre = bounds.center();
     if crs_option.is_none() && centre.is_finite() && centre.truncate().length() > FAR_M {
         let grid = format!(
-            "its coordinates lie {:.0} km from the origin (national-grid sized) but no CRS places them: give --crs EPSG:CODE",
+            "its coordinates lie {:.0} km from the origin (national-grid sized) but no CRS places them",
             centre.truncate().length() / 1000.0
         );
         match &mut out.warning {
-            Some(w) => *w = format!("{w}; {grid}"),
-            None => out.notes.push(format!("{file}: {grid}")),
+            // The advice once, after both facts.
+            Some(w) => {
+                let facts = w.strip_suffix(GIVE_CRS).unwrap_or(w);
+                *w = format!("{facts}; {grid}{GIVE_CRS}");
+            }
+            None => out.notes.push(format!("{file}: {grid}{GIVE_CRS}")),
         }
     }
     out
 }
+
+/// The advice that ends a warning about a model no CRS places.
+const GIVE_CRS: &str = ": give --crs EPSG:CODE";
 
 /// IfcSite RefLongitude, RefLatitude (degrees), when both are there and a place on Earth.
 fn site_lon_lat(raw: &engine::RawGeoref) -> Option<(f64, f64)> {
@@ -245,17 +244,17 @@ fn crs_candidates(m: &IfcMapConversion, crs_option: Option<&str>) -> Vec<(String
         }
     }
     // Only explicit codes here: a bare number in these fields is a zone or a datum's name.
-    for field in [
-        &m.geodetic_datum,
-        &m.crs_description,
-        &m.map_zone,
-        &m.map_projection,
+    for (field, label) in [
+        (&m.geodetic_datum, CrsField::CodeInOtherField),
+        (&m.crs_description, CrsField::CodeInOtherField),
+        (&m.map_zone, CrsField::MapZoneCode),
+        (&m.map_projection, CrsField::CodeInOtherField),
     ] {
         if let Some(code) = text(field)
             .filter(|t| !t.chars().all(|c| c.is_ascii_digit()))
             .and_then(epsg_code_of)
         {
-            push(format!("EPSG:{code}"), CrsField::CodeInOtherField);
+            push(format!("EPSG:{code}"), label);
         }
     }
     if let Some(code) = crs_of_map_projection(m) {
@@ -361,6 +360,11 @@ struct Reading {
     linear: DMat3,
     /// Scene metres → map coordinates (easting, northing in the CRS's units; height in metres).
     to_map: DMat4,
+    /// The scene point placed at the map point (scene metres).
+    anchor: DVec3,
+    /// True metres per scene metre: 1, or the ratio of the length unit the geometry is really in
+    /// to the declared project unit ([`read_projected`]).
+    geometry_scale: f64,
     easting: f64,
     northing: f64,
     theta_deg: f64,
@@ -374,6 +378,7 @@ fn read_in_unit(
     crs_unit_m: f64,
     map_unit_m: f64,
     anchor: DVec3,
+    geometry_scale: f64,
 ) -> Result<Reading, CrsError> {
     let (a, b) = if m.x_axis_abscissa == 0.0 && m.x_axis_ordinate == 0.0 {
         (1.0, 0.0)
@@ -398,7 +403,7 @@ fn read_in_unit(
     };
     let per_axis = |f: f64| {
         let f = if f.is_finite() && f != 0.0 { f } else { 1.0 };
-        scale * f * units
+        scale * f * units * geometry_scale
     };
     let (sx, sy, sz) = (
         per_axis(m.factors[0]),
@@ -437,6 +442,8 @@ fn read_in_unit(
         place,
         linear,
         to_map,
+        anchor,
+        geometry_scale,
         easting,
         northing,
         theta_deg: b.atan2(a).to_degrees(),
@@ -456,10 +463,11 @@ fn reach_m(bounds: &Aabb, anchor: DVec3) -> f64 {
 }
 
 /// Whether one linear map at the anchor would be off by more than [`PER_VERTEX_ABOVE_M`]
-/// somewhere in the model: the Earth's curvature lowers a point `r` from the anchor by about
-/// r² / 2R below the anchor's tangent plane, which the linear map keeps it on.
-fn needs_per_vertex(bounds: &Aabb, anchor: DVec3) -> bool {
-    reach_m(bounds, anchor).powi(2) / (2.0 * MEAN_EARTH_RADIUS_M) > PER_VERTEX_ABOVE_M
+/// somewhere in a model reaching `reach_m` from it: the Earth's curvature lowers a point `r`
+/// from the anchor by about r² / 2R below the anchor's tangent plane, which the linear map keeps
+/// it on.
+fn needs_per_vertex(reach_m: f64) -> bool {
+    reach_m.powi(2) / (2.0 * MEAN_EARTH_RADIUS_M) > PER_VERTEX_ABOVE_M
 }
 
 /// The error of one linear map above which every vertex goes through PROJ.
@@ -472,7 +480,7 @@ fn read_projected(
     m: &IfcMapConversion,
     path: &Path,
     crs: &str,
-    anchor: DVec3,
+    (anchor, bounds): (DVec3, &Aabb),
     site: Option<(f64, f64)>,
 ) -> Result<(Reading, Option<String>), CrsError> {
     let crs_unit_m = projected_unit_m(crs)?;
@@ -480,21 +488,25 @@ fn read_projected(
         .map_unit_m
         .filter(|u| u.is_finite() && *u > 0.0)
         .unwrap_or(crs_unit_m);
-    let first = match read_in_unit(m, crs, crs_unit_m, declared_m, anchor) {
+    let first = match read_in_unit(m, crs, crs_unit_m, declared_m, anchor, 1.0) {
         Ok(r) => return Ok((r, None)),
         Err(e) => e,
     };
+    let near_site = |r: &Reading| {
+        let (lon, lat) = (r.place.place.longitude_deg, r.place.place.latitude_deg);
+        site.is_none_or(|(slon, slat)| great_circle_m(slon, slat, lon, lat) <= FAR_M)
+    };
     let project_m = project_unit_m(m);
-    if (project_m / declared_m - 1.0).abs() < 1e-9 {
-        return Err(first);
-    }
-    let Ok(r) = read_in_unit(m, crs, crs_unit_m, project_m, anchor) else {
-        return Err(first);
+    let map_unit_slip = ((project_m / declared_m - 1.0).abs() > 1e-9)
+        .then(|| read_in_unit(m, crs, crs_unit_m, project_m, anchor, 1.0).ok())
+        .flatten()
+        .filter(near_site);
+    let Some(r) = map_unit_slip else {
+        return read_geometry_unit_slip(m, path, crs, (crs_unit_m, declared_m), bounds, near_site)
+            .map(|(r, warning)| (r, Some(warning)))
+            .ok_or(first);
     };
     let (lon, lat) = (r.place.place.longitude_deg, r.place.place.latitude_deg);
-    if site.is_some_and(|(slon, slat)| great_circle_m(slon, slat, lon, lat) > FAR_M) {
-        return Err(first);
-    }
     let warning = format!(
         "{}: IfcMapConversion Eastings {} Northings {} read in the MapUnit ({declared_m} m) give no place in {} ({first}); read in the project unit ({project_m} m) they land at {}{}: that reading is used",
         path.display(),
@@ -507,6 +519,51 @@ fn read_projected(
     Ok((r, Some(warning)))
 }
 
+/// Length units an exporter may have written geometry in (metres per unit): metre, millimetre,
+/// centimetre, foot, inch, US survey foot.
+const GEOMETRY_UNITS_M: [f64; 6] = [1.0, 0.001, 0.01, 0.3048, 0.0254, 1200.0 / 3937.0];
+
+/// A declared project unit that the geometry contradicts: a model in map coordinates (so far from
+/// the origin once read in another length unit that [`choose_anchor`] anchors it at its
+/// footprint) that no CRS can place in the declared unit, but that lands inside the CRS's area of use (and near the site reference, if
+/// any) read in that other unit. The first such unit wins, anchored where its reading puts the
+/// anchor, with the warning that names both readings.
+fn read_geometry_unit_slip(
+    m: &IfcMapConversion,
+    path: &Path,
+    crs: &str,
+    (crs_unit_m, map_unit_m): (f64, f64),
+    bounds: &Aabb,
+    near_site: impl Fn(&Reading) -> bool,
+) -> Option<(Reading, String)> {
+    if !(bounds.min.is_finite() && bounds.max.is_finite()) {
+        return None;
+    }
+    let declared_m = project_unit_m(m);
+    let (real_m, r) = GEOMETRY_UNITS_M
+        .into_iter()
+        .filter(|u| (u / declared_m - 1.0).abs() > 1e-9)
+        .find_map(|u| {
+            let scale = u / declared_m;
+            let (anchor, rule) = choose_anchor(&Aabb {
+                min: bounds.min * scale,
+                max: bounds.max * scale,
+            });
+            if rule == AnchorRule::ModelOrigin {
+                return None;
+            }
+            let r = read_in_unit(m, crs, crs_unit_m, map_unit_m, anchor / scale, scale).ok()?;
+            near_site(&r).then_some((u, r))
+        })?;
+    let warning = format!(
+        "{}: the geometry lies in map coordinates that give no place in {} in the declared project unit ({declared_m} m); read in {real_m} m units it lands at {}: that reading is used",
+        path.display(),
+        r.place.crs,
+        lon_lat_text(r.place.place.longitude_deg, r.place.place.latitude_deg),
+    );
+    Some((r, warning))
+}
+
 /// A map placement (IfcMapConversion, IfcRigidOperation, ePSet_MapConversion) placed through the
 /// first of its CRSs that can place it. `Err`: the one-line warning when none can.
 fn georef_from_map_conversion(
@@ -516,7 +573,7 @@ fn georef_from_map_conversion(
     anchor: DVec3,
     site: Option<(f64, f64)>,
     true_north: Option<[f64; 2]>,
-    per_vertex: bool,
+    bounds: &Aabb,
 ) -> std::result::Result<(IfcGeoref, Option<String>), MapConversionProblem> {
     let candidates = crs_candidates(m, crs_option);
     if candidates.is_empty() {
@@ -530,7 +587,7 @@ fn georef_from_map_conversion(
         let placed = if m.geographic {
             georef_geographic(m, &crs, true_north).map(|g| (g, None))
         } else {
-            read_projected(m, path, &crs, anchor, site).map(|(r, slip)| {
+            read_projected(m, path, &crs, (anchor, bounds), site).map(|(r, slip)| {
                 // Grid north seen from the project: −θ from +y, θ the x axis's angle from grid
                 // east; true north is grid north turned back by the convergence.
                 let true_north_deg = Some(r.place.convergence_deg - r.theta_deg);
@@ -540,11 +597,12 @@ fn georef_from_map_conversion(
                     height_m: r.place.place.height_m,
                     true_north_deg: true_north_deg.filter(|d| d.abs() > 1e-12),
                     map_conversion: Some(m.clone()),
-                    anchor,
+                    anchor: r.anchor,
                     map_linear: Some(r.linear),
                     crs: Some(CrsUse::new("", "", &r.place, r.easting, r.northing)),
                     crs_field: None,
-                    per_vertex_map: per_vertex.then_some(r.to_map),
+                    per_vertex_map: needs_per_vertex(reach_m(bounds, r.anchor) * r.geometry_scale)
+                        .then_some(r.to_map),
                 };
                 (g, slip)
             })
@@ -655,7 +713,7 @@ pub(super) fn implausible_map_number(m: &IfcMapConversion) -> Option<String> {
 /// Why an IfcMapConversion cannot place the model (a warning: the model falls back).
 #[derive(Debug, thiserror::Error)]
 pub(super) enum MapConversionProblem {
-    #[error("its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name, code or MapProjection/MapZone): give --crs EPSG:CODE")]
+    #[error("its IfcMapConversion names no projected CRS PROJ can use (no IfcProjectedCRS Name, code or MapProjection/MapZone){GIVE_CRS}")]
     NoCrs,
     #[error("its IfcMapConversion Eastings/Northings are not numbers")]
     NotNumbers,
@@ -704,7 +762,7 @@ mod tests {
             DVec3::ZERO,
             None,
             None,
-            false,
+            &Aabb::EMPTY,
         )
         .map(|(g, _)| g)
     }
@@ -866,9 +924,16 @@ mod tests {
         m.x_axis_ordinate = 0.0;
         m.x_axis_abscissa = 1.0;
         let anchor = DVec3::new(155_000.0, 463_000.0, 2.0);
-        let (g, slip) =
-            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, false)
-                .unwrap();
+        let (g, slip) = georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            anchor,
+            None,
+            None,
+            &Aabb::EMPTY,
+        )
+        .unwrap();
         assert!(slip.is_none());
         assert!((g.longitude_deg - 5.3872).abs() < 1e-3, "{g:?}");
         assert!((g.latitude_deg - 52.1552).abs() < 1e-3, "{g:?}");
@@ -911,7 +976,7 @@ mod tests {
             DVec3::ZERO,
             site,
             None,
-            false,
+            &Aabb::EMPTY,
         )
         .unwrap();
         let slip = slip.expect("a warning");
@@ -929,7 +994,62 @@ mod tests {
             DVec3::ZERO,
             far,
             None,
-            false
+            &Aabb::EMPTY
+        )
+        .is_err());
+    }
+
+    /// A project declared in millimetres whose geometry is in metres of the map: read in the
+    /// declared unit it lies a thousand times nearer the grid's origin, outside the CRS; read in
+    /// metres it lands where its coordinates say, with a warning, one scene metre a thousand
+    /// grid metres (the scene is in declared metres).
+    #[test]
+    fn geometry_in_another_unit_than_declared_is_read_around() {
+        let mut m = conversion(Some("EPSG:28992"));
+        (m.eastings, m.northings, m.orthogonal_height) = (0.0, 0.0, 0.0);
+        m.factors = [1.0; 3];
+        (m.x_axis_abscissa, m.x_axis_ordinate) = (1.0, 0.0);
+        m.project_unit_m = 0.001;
+        // The Amersfoort tower's block, 100 m wide, read as millimetres into scene metres.
+        let bounds = Aabb {
+            min: DVec3::new(155.0, 463.0, 0.0),
+            max: DVec3::new(155.1, 463.1, 0.02),
+        };
+        let (anchor, _) = choose_anchor(&bounds);
+        let site = Some((5.387, 52.155));
+        let (g, slip) =
+            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, site, None, &bounds)
+                .unwrap();
+        let slip = slip.expect("a warning");
+        assert!(
+            slip.contains("declared project unit (0.001 m)") && slip.contains("in 1 m units"),
+            "{slip}"
+        );
+        assert!((g.longitude_deg - 5.3879).abs() < 1e-3, "{g:?}");
+        assert!((g.latitude_deg - 52.1557).abs() < 1e-3, "{g:?}");
+        let x = g.map_linear.unwrap() * DVec3::X;
+        assert!((x.length() / 1000.0 - 1.0).abs() < 1e-3, "{x}");
+        assert_eq!(
+            g.anchor * 1000.0,
+            choose_anchor(&Aabb {
+                min: bounds.min * 1000.0,
+                max: bounds.max * 1000.0
+            })
+            .0
+        );
+        // Local coordinates (a building near its own origin) are never read around.
+        let local = Aabb {
+            min: DVec3::ZERO,
+            max: DVec3::new(0.1, 0.1, 0.02),
+        };
+        assert!(georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            DVec3::ZERO,
+            None,
+            None,
+            &local
         )
         .is_err());
     }
@@ -961,16 +1081,23 @@ mod tests {
             min: DVec3::new(-half_m, -half_m, 0.0),
             max: DVec3::new(half_m, half_m, 10.0),
         };
-        assert!(!needs_per_vertex(&box_of(50.0), DVec3::ZERO));
-        assert!(needs_per_vertex(&box_of(200.0), DVec3::ZERO));
-        assert!(!needs_per_vertex(&Aabb::EMPTY, DVec3::ZERO));
+        assert!(!needs_per_vertex(reach_m(&box_of(50.0), DVec3::ZERO)));
+        assert!(needs_per_vertex(reach_m(&box_of(200.0), DVec3::ZERO)));
+        assert!(!needs_per_vertex(reach_m(&Aabb::EMPTY, DVec3::ZERO)));
         // The map of a wide model takes the anchor to its map point.
         let mut m = conversion(Some("EPSG:28992"));
         m.factors = [1.0; 3];
         let anchor = DVec3::new(300.0, -200.0, 5.0);
-        let (g, _) =
-            georef_from_map_conversion(&m, Path::new("t.ifc"), None, anchor, None, None, true)
-                .unwrap();
+        let (g, _) = georef_from_map_conversion(
+            &m,
+            Path::new("t.ifc"),
+            None,
+            anchor,
+            None,
+            None,
+            &box_of(200.0),
+        )
+        .unwrap();
         let to_map = g.per_vertex_map.unwrap();
         let u = g.crs.unwrap();
         let at = to_map.transform_point3(anchor);
