@@ -142,7 +142,7 @@ docs: deps-docs build
 	python3 tools/check_docs.py --report target/docs/sample/report.json
 
 # The README's and the book's screenshot, taken by the browser test: a shared IFC model converted
-# with the default options, loaded in the viewer at full resolution, an element picked.
+# with the default options, loaded in the viewer at full resolution (a click must pick an element).
 SCREENSHOT_MODEL ?= $(SHARED)/data/AC20-FZK-Haus.ifc
 screenshot: deps build
 	mkdir -p target/screenshot
