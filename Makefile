@@ -1,6 +1,7 @@
 # bimtiles — two set-up commands on a fresh Debian machine (as root, or with sudo):
 #   make run    installs what is missing, builds, converts the bundled sample into out/ and prints a summary
-#   make test   installs what the tests need and runs the whole suite
+#   make test   installs what the tests need and runs the whole suite (the book's checks included)
+#   make docs   builds the book (docs/, mdBook) into target/book/ and checks it
 # Every install step is idempotent: it only acts when something is missing or out of date.
 
 SHELL   := /bin/bash
@@ -17,7 +18,7 @@ APT_BUILD_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data
 APT_TEST_PKGS  := nodejs npm python3 python3-venv chromium fonts-dejavu-core
 APT_PKGS := $(APT_BUILD_PKGS) $(APT_TEST_PKGS)
 
-.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python build bench clean
+.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python deps-docs docs screenshot build bench clean
 
 run: deps-build build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -27,7 +28,7 @@ build:
 	@command -v $(CARGO) >/dev/null || { echo "error: cargo (Rust toolchain) is required: https://rustup.rs"; exit 1; }
 	$(CARGO) build --release
 
-deps: deps-system deps-node deps-python
+deps: deps-system deps-node deps-python deps-docs
 
 # Debian packages: only those not installed yet (deps-build: the converter's alone).
 deps-build:
@@ -56,7 +57,17 @@ $(VENV)/.installed: tests/python/requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
 	touch $@
 
-# Fuzzing (README, "Safety"): every cargo-fuzz target in fuzz/ runs FUZZ_SECONDS, one after the
+# mdBook for the book (make docs): pinned, with no default features (no server, watcher or search
+# index: `mdbook build` alone), installed from crates.io into cargo's bin folder when that version
+# is missing. python3 runs the docs checks.
+MDBOOK_VERSION := 0.5.4
+MDBOOK := $(or $(CARGO_HOME),$(HOME)/.cargo)/bin/mdbook
+deps-docs:
+	@$(MAKE) --no-print-directory deps-system APT_PKGS="python3"
+	@[ "$$($(MDBOOK) --version 2>/dev/null)" = "mdbook v$(MDBOOK_VERSION)" ] || \
+	  $(CARGO) install mdbook --locked --version $(MDBOOK_VERSION) --no-default-features
+
+# Fuzzing (the book, "Safety"): every cargo-fuzz target in fuzz/ runs FUZZ_SECONDS, one after the
 # other, on the nightly toolchain (cargo-fuzz comes from crates.io when missing). New inputs go
 # to target/fuzz-corpus/<target>/ (the checked-in seeds in fuzz/corpus/ stay as they are), crashes
 # to fuzz/artifacts/<target>/: copy each into fuzz/corpus/<target>/ once fixed, and
@@ -95,6 +106,7 @@ test: deps
 	BIMTILES_TILESET_DIRS=$$(find target/test-out -name tileset.json -printf '%h:' | sed 's/:$$//') \
 	  $(PY) -m pytest -q tests/python
 	$(MAKE) --no-print-directory test-browser
+	$(MAKE) --no-print-directory docs
 
 # Real CesiumJS in headless Chromium (software WebGL) loads each tileset the suite wrote: every
 # tile loads, none fails, no console error, no request leaves loopback, the model is drawn (one
@@ -114,6 +126,29 @@ test-browser: deps build
 	  log=target/test-out/$$s.browser.log; \
 	  BIMTILES_SERVE_LOG=1 node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" \
 	    --out target/test-out/$$s.png $$pick > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log; done
+
+# The book: the CLI reference is written again from the clap definitions (examples/cli_reference.rs)
+# and must equal the committed page (else it is replaced and make fails: commit the new page), then
+# mdBook builds target/book/ and tools/check_docs.py checks every link and anchor of the book and
+# the README, the README's rules, and that the reference pages name every report.json key (of a
+# report the current binary writes), schema property and dependency.
+docs: deps-docs build
+	@mkdir -p target/docs
+	$(CARGO) run --release --quiet --example cli_reference -- target/docs/cli.md
+	@cmp -s target/docs/cli.md docs/src/reference/cli.md || { cp target/docs/cli.md docs/src/reference/cli.md; \
+	  echo "docs: docs/src/reference/cli.md differed from the clap definitions: regenerated, commit it"; exit 1; }
+	$(MDBOOK) build docs
+	$(BIN) convert --out target/docs/sample --force --quiet
+	python3 tools/check_docs.py --report target/docs/sample/report.json
+
+# The README's and the book's screenshot, taken by the browser test: a shared IFC model converted
+# with the default options, loaded in the viewer at full resolution (a click must pick an element).
+SCREENSHOT_MODEL ?= $(SHARED)/data/AC20-FZK-Haus.ifc
+screenshot: deps build
+	mkdir -p target/screenshot
+	$(BIN) convert $(SCREENSHOT_MODEL) --out target/screenshot/tiles --force --quiet
+	node tools/browser_test.mjs --server-cmd "$(BIN) serve target/screenshot/tiles --port 0" \
+	  --query "msaa=4&scale=1" --require-pick --out docs/src/images/viewer.png
 
 # Raw model (one-tile tileset) vs our tileset in real CesiumJS, cold and warm (tile cache) loads:
 # load time, bytes, memory, frame cost -> target/bench/browser.json, then the charts
@@ -136,9 +171,15 @@ serve: deps build
 	$(BIN) serve out/sample
 
 # make_campus.py needs numpy: the venv's python3 comes first on PATH.
+# Each table is kept in target/bench/ and written into the book's benchmarks page with the date,
+# commit and machine (tools/bench_page.py); the hand-kept figures below it stay as they are.
 bench: deps build
-	PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(CARGO) run --release --example bench_tiler -- $(SHARED)/data
-	$(CARGO) run --release --example bench_textures -- $(SHARED)/data
+	mkdir -p target/bench
+	set -o pipefail; PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(CARGO) run --release --quiet --example bench_tiler -- $(SHARED)/data | tee target/bench/tiler.txt
+	set -o pipefail; $(CARGO) run --release --quiet --example bench_textures -- $(SHARED)/data | tee target/bench/textures.txt
+	python3 tools/bench_page.py docs/src/benchmarks.md \
+	  --run "cargo run --release --example bench_tiler -- ../shared/data" target/bench/tiler.txt \
+	  --run "cargo run --release --example bench_textures -- ../shared/data" target/bench/textures.txt
 
 # Issue 12's scale measurements (not in `make test`; about 25 minutes on 2 cores, most of it the 100M campuses):
 # campuses of about 1M, 8.2M, 32M and 100M triangles from make_campus.py --bake, exact and jittered

@@ -1,6 +1,6 @@
 //! The command line as a user meets it: every subcommand's `--help` ends with examples, `--version`
 //! names the commit the binary was built from, the shell completions are valid shell, and the
-//! manual pages are roff, one per subcommand.
+//! manual pages are roff, one per subcommand, and every summary ends with a newline.
 
 use crate::common::*;
 use std::process::Command;
@@ -138,4 +138,45 @@ fn man_pages_cover_every_subcommand() {
         convert.contains("max\\-tile\\-triangles"),
         "convert's options are on its page"
     );
+}
+
+/// An element of the bundled sample (a column with an exact duplicate, `sample_building.expect.json`).
+const KEPT_COLUMN: &str = "2ly2pe6nJWfJEs5ygkN$0U";
+
+/// What `convert`, `simplify` and `inspect` print ends with a newline, so a shell prompt or the
+/// next line of a script never lands on the summary's last line.
+#[test]
+fn every_summary_ends_with_a_newline() {
+    let dir = tmpdir("cli-summary-newline");
+    let out = dir.join("tiles");
+    let (sample, out_s) = (sample(), out.to_str().unwrap());
+    let converted = stdout_of(&["convert", sample.to_str().unwrap(), "--out", out_s]);
+    let simplified = dir.join("simplified.glb");
+    let summaries = [
+        ("convert", converted),
+        ("inspect", stdout_of(&["inspect", out_s])),
+        ("inspect --json", stdout_of(&["inspect", out_s, "--json"])),
+        (
+            "simplify",
+            stdout_of(&[
+                "simplify",
+                sample.to_str().unwrap(),
+                "--ratio",
+                "0.5",
+                "--out",
+                simplified.to_str().unwrap(),
+            ]),
+        ),
+    ];
+    let feature = (
+        "inspect --feature",
+        stdout_of(&["inspect", out_s, "--feature", KEPT_COLUMN]),
+    );
+    for (what, text) in summaries.into_iter().chain([feature]) {
+        assert!(!text.is_empty(), "{what} printed nothing");
+        assert!(
+            text.ends_with('\n'),
+            "{what} does not end with a newline: {text:?}"
+        );
+    }
 }

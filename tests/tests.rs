@@ -11,7 +11,8 @@ mod common;
 // What every conversion promises.
 /// Bad input: one clear error line naming the file, no panic, no output left behind.
 mod bad_input;
-/// The command line: help with examples, the version's commit, completions and man pages.
+/// The command line: help with examples, the version's commit, completions, man pages, and
+/// summaries that end with a newline.
 mod cli;
 /// The fuzz corpora replayed on stable: every input returns, none panics.
 mod fuzz_corpus;

@@ -162,7 +162,7 @@ struct ConvertArgs {
     /// Input models (.glb, .gltf, .ifc). Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
     /// A manifest of many models (JSON): models placed by longitude/latitude/height/heading or
-    /// by an east/north/up offset, converted into one tileset (README "Many buildings").
+    /// by an east/north/up offset, converted into one tileset (the book's "Campus manifests").
     #[arg(long, conflicts_with = "inputs")]
     manifest: Option<PathBuf>,
     /// Output folder (must not exist, unless --force).
@@ -356,11 +356,17 @@ enum CompressionArg {
     None,
 }
 
+/// The whole command line as clap defines it: the completions, the manual and the book's CLI
+/// reference (`examples/cli_reference.rs`) are all generated from it.
+pub fn command() -> clap::Command {
+    Cli::command()
+}
+
 /// Prints to stdout; a closed pipe (`| head`) ends the output quietly instead of failing.
 /// The manual: the top page on stdout, or every page (the top one and one per subcommand) in
 /// `out_dir`.
 fn write_man_pages(out_dir: Option<&std::path::Path>) -> Result<()> {
-    let top = Cli::command();
+    let top = command();
     let render = |cmd: clap::Command| -> Result<Vec<u8>> {
         let mut out = Vec::new();
         clap_mangen::Man::new(cmd).render(&mut out)?;
@@ -397,7 +403,7 @@ pub fn main() -> Result<()> {
         Command::Convert(a) => run_convert(a),
         Command::Completions { shell } => {
             let mut out = Vec::new();
-            clap_complete::generate(shell, &mut Cli::command(), "bimtiles", &mut out);
+            clap_complete::generate(shell, &mut command(), "bimtiles", &mut out);
             emit(&String::from_utf8_lossy(&out))
         }
         Command::Man { out_dir } => write_man_pages(out_dir.as_deref()),
