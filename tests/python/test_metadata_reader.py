@@ -260,3 +260,37 @@ def test_metadata_names_every_input_element():
               f"{sum(1 for t in report['tiles'] if t['content'])} tiles ({inlined} inlined in tileset.json)")
     if checked == 0:
         pytest.skip("no tileset converted from a single glTF input among BIMTILES_TILESET_DIRS")
+
+
+def test_feature_count_is_the_number_of_distinct_feature_ids():
+    """EXT_mesh_features / EXT_instance_features: `featureCount` is the number of unique features
+    the IDs name (the extensions' definition), not the property table's row count."""
+    checked = 0
+    for d in tileset_dirs():
+        d = decoded_tileset(d)
+        report_path = d / "report.json"
+        if not report_path.is_file():
+            continue
+        for tile in json.loads(report_path.read_text())["tiles"]:
+            if not tile["content"]:
+                continue
+            where = record_label(d, tile)
+            doc, blob = read_glb(where, record_bytes(d, tile))
+            for n in doc.get("nodes", []):
+                ext = n.get("extensions", {})
+                if "EXT_instance_features" in ext:
+                    fid = ext["EXT_instance_features"]["featureIds"][0]
+                    ids = read_scalars(doc, blob, ext["EXT_mesh_gpu_instancing"]["attributes"][f"_FEATURE_ID_{fid['attribute']}"])
+                    assert fid["featureCount"] == len(set(ids)), f"{where}: instances {fid} name {len(set(ids))} features"
+                    checked += 1
+            for mesh in doc.get("meshes", []):
+                for p in mesh["primitives"]:
+                    ext = p.get("extensions", {})
+                    if "EXT_mesh_features" not in ext or "KHR_draco_mesh_compression" in ext:
+                        continue
+                    fid = ext["EXT_mesh_features"]["featureIds"][0]
+                    ids = read_scalars(doc, blob, p["attributes"][f"_FEATURE_ID_{fid['attribute']}"])
+                    assert fid["featureCount"] == len(set(ids)), f"{where}: a primitive {fid} names {len(set(ids))} features"
+                    checked += 1
+    assert checked, "no feature ID sets found"
+    print(f"featureCount checked on {checked} feature ID sets")

@@ -331,7 +331,7 @@ fn write_glb(
         used.push("EXT_mesh_features");
     }
     for shape in &content.instanced {
-        w.write_instanced_shape(shape, center, feature_count, table.is_some(), bounds)?;
+        w.write_instanced_shape(shape, center, table.is_some(), bounds)?;
     }
     if !w.nodes.is_empty() {
         root_node["children"] = json!((1..=w.nodes.len()).collect::<Vec<_>>());
@@ -405,7 +405,6 @@ impl GlbWriter<'_> {
         &mut self,
         shape: &InstancedShape,
         center: DVec3,
-        feature_count: usize,
         property_table: bool,
         bounds: &mut Aabb,
     ) -> std::result::Result<(), EncodeError> {
@@ -418,7 +417,8 @@ impl GlbWriter<'_> {
         })?;
         let attributes =
             self.instance_attributes(shape, frame.as_ref(), &decoded_points, center, bounds)?;
-        let mut feature_ids = json!({"featureCount": feature_count, "attribute": 0});
+        let distinct = distinct_feature_count(shape.instances.iter().map(|i| i.feature));
+        let mut feature_ids = json!({"featureCount": distinct, "attribute": 0});
         if property_table {
             feature_ids["propertyTable"] = json!(0);
         }
@@ -551,6 +551,15 @@ impl GlbWriter<'_> {
         let json_bytes = serde_json::to_vec(&root)?;
         Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
     }
+}
+
+/// `featureCount` of an `EXT_mesh_features` / `EXT_instance_features` feature ID set: the number
+/// of distinct features its IDs name (the spec's definition), not the property table's rows.
+fn distinct_feature_count(ids: impl Iterator<Item = u32>) -> usize {
+    let mut ids: Vec<u32> = ids.collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids.len()
 }
 
 #[cfg(test)]

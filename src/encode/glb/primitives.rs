@@ -41,8 +41,9 @@ pub(super) fn write_primitive(
         }
     };
     prim["mode"] = json!(4);
-    if let Some(n) = feature_count {
-        let mut feature_ids = json!({"featureCount": n, "attribute": 0});
+    if feature_count.is_some() {
+        let distinct = super::distinct_feature_count(m.feature_ids.iter().copied());
+        let mut feature_ids = json!({"featureCount": distinct, "attribute": 0});
         if property_table {
             feature_ids["propertyTable"] = json!(0);
         }
