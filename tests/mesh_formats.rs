@@ -460,3 +460,61 @@ fn fbx_textures_reach_the_tiles_with_their_uvs() {
         assert_eq!(textured, expected, "{rel}");
     }
 }
+
+#[test]
+fn manifest_entries_place_obj_and_fbx_with_their_own_unit() {
+    let (Some(obj), Some(fbx)) = (
+        shared_file(OBJ_FILES[2].0),
+        shared_file("fbx/revit-wall-binary/revit_wall_square_7700_binary.fbx"),
+    ) else {
+        return;
+    };
+    let dir = tmpdir("mesh-formats-manifest");
+    for (name, from) in [("block", &obj), ("wall", &fbx)] {
+        let folder = dir.join(name);
+        std::fs::create_dir_all(&folder).unwrap();
+        for f in std::fs::read_dir(from.parent().unwrap()).unwrap() {
+            let f = f.unwrap().path();
+            std::fs::copy(&f, folder.join(f.file_name().unwrap())).unwrap();
+        }
+    }
+    let obj_name = obj.file_name().unwrap().to_string_lossy();
+    let fbx_name = fbx.file_name().unwrap().to_string_lossy();
+    let manifest = dir.join("campus.json");
+    std::fs::write(
+        &manifest,
+        serde_json::json!({"models": [
+            {"path": format!("block/{obj_name}"), "unit": "cm", "up": "y"},
+            {"path": format!("wall/{fbx_name}"), "east_m": 200.0},
+        ]})
+        .to_string(),
+    )
+    .unwrap();
+    let out = dir.join("tiles");
+    let o = run(&[
+        "convert",
+        "--manifest",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--lod",
+        "none",
+        "--unit",
+        "mm",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let triangles = report["input"]["triangles"].as_u64().unwrap() as usize;
+    let area_m2: f64 = check_tileset(&out, triangles).iter().map(|t| t.area).sum();
+    // The entry's centimetres win over --unit mm; the FBX keeps its own feet.
+    let (Some(block), Some(wall)) = (assimp_area(&obj), assimp_area(&fbx)) else {
+        return;
+    };
+    let expected_m2 = block * 1e-4 + wall * 0.3048 * 0.3048;
+    assert!(
+        (area_m2 - expected_m2).abs() / expected_m2 < 1e-3,
+        "{area_m2} vs {expected_m2}"
+    );
+}
