@@ -4,7 +4,9 @@
 //! the data folder's own `stats.py` lists; the tiles' triangle area against Debian's `assimp`
 //! (its own readers, the faces exported to PLY); ids and Revit element ids against the group and
 //! model names; textured triangles against the MTL maps (of the OBJ itself, or of assimp's OBJ
-//! export of an FBX); gltf-validator and the 3D Tiles schemas on every tileset.
+//! export of an FBX); gltf-validator and the 3D Tiles schemas on every tileset. A manifest entry's
+//! `unit` wins over `--unit`, and an OBJ read under a tiny `--memory-budget` (its groups spilled)
+//! gives the same tiles.
 
 use crate::common::*;
 use serde_json::Value;
@@ -517,4 +519,56 @@ fn manifest_entries_place_obj_and_fbx_with_their_own_unit() {
         (area_m2 - expected_m2).abs() / expected_m2 < 1e-3,
         "{area_m2} vs {expected_m2}"
     );
+}
+
+/// Every file of a tileset folder but the report, by relative path.
+fn tileset_files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.file_name().is_some_and(|n| n != "report.json") {
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn an_obj_read_under_a_tiny_memory_budget_gives_the_same_tiles() {
+    let rel = OBJ_FILES[0].0;
+    let Some(done) = converted(rel) else {
+        return;
+    };
+    let out = tmpdir("mesh-formats-budget").join("tiles");
+    let options = [
+        "--lod",
+        "none",
+        "--compression",
+        "none",
+        "--no-instancing",
+        "--memory-budget",
+        "64K",
+    ];
+    let report = convert(&shared_file(rel).unwrap(), &out, &options);
+    assert!(
+        report["memory"]["geometry"]["spilled_bytes"]
+            .as_u64()
+            .unwrap_or(0)
+            > 0,
+        "the groups went to disk: {}",
+        report["memory"]
+    );
+    let (a, b) = (tileset_files(&done.dir), tileset_files(&out));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (name, bytes) in &a {
+        assert!(bytes == &b[name], "{rel}: {} differs", name.display());
+    }
 }
