@@ -15,7 +15,7 @@ SAMPLE  := samples/sample_building.glb
 # What building and running the converter needs (make run), and what only the tests and benches
 # need on top (make test).
 APT_BUILD_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data
-APT_TEST_PKGS  := nodejs npm python3 python3-venv chromium fonts-dejavu-core
+APT_TEST_PKGS  := nodejs npm python3 python3-venv chromium fonts-dejavu-core assimp-utils
 APT_PKGS := $(APT_BUILD_PKGS) $(APT_TEST_PKGS)
 
 .PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python deps-docs docs screenshot build bench clean
@@ -75,7 +75,7 @@ deps-docs:
 # decoders the glTF reader calls (Debian's libdraco, meshoptimizer) are not instrumented either way
 # (a memory error there shows as a crash), and ASan would halve the executions.
 FUZZ_SECONDS ?= 600
-FUZZ_TARGETS := gltf ifc manifest image inspect http_head
+FUZZ_TARGETS := gltf ifc manifest image inspect http_head obj fbx
 deps-fuzz:
 	@rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 	@command -v cargo-fuzz >/dev/null || $(CARGO) install cargo-fuzz --locked

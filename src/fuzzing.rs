@@ -18,6 +18,8 @@ pub const TARGETS: &[(&str, EntryPoint)] = &[
     ("image", image),
     ("inspect", inspect),
     ("http_head", http_head),
+    ("obj", obj),
+    ("fbx", fbx),
 ];
 
 /// A fuzz target's `init` where bimtiles catches some dependencies' panics on purpose and turns
@@ -50,6 +52,22 @@ pub fn ifc(data: &[u8]) {
     let _ = crate::ingest::ifc::read_ifc_bytes_with_crs(&scratch().join("model.ifc"), data, None);
     #[cfg(not(feature = "ifc"))]
     let _ = data;
+}
+
+/// A Wavefront OBJ file (`ingest::obj`), read as a stream; its MTL libraries and textures
+/// resolve in an empty folder.
+pub fn obj(data: &[u8]) {
+    let _ = crate::ingest::obj::read_obj_from(
+        &scratch().join("model.obj"),
+        data,
+        crate::ingest::interchange::MeshFrame::default(),
+    );
+}
+
+/// An FBX file (`ingest::fbx`, binary or ASCII); the textures it names resolve in an empty
+/// folder.
+pub fn fbx(data: &[u8]) {
+    let _ = crate::ingest::fbx::read_fbx_bytes(&scratch().join("model.fbx"), data);
 }
 
 /// A manifest's text, checked against a folder that holds one model (`model.glb`).

@@ -21,6 +21,8 @@ pub struct ConvertOptions {
     pub crs: Option<String>,
     /// The CityJSON LoD to read ("2.2"; `--cityjson-lod`); `None`: each object's highest.
     pub cityjson_lod: Option<String>,
+    /// The up axis and unit of OBJ inputs (`--up`, `--unit`); `None`: y up, metres.
+    pub mesh_frame: crate::ingest::interchange::MeshFrame,
     /// A georeference that cannot be used is an error instead of a warning (`--strict-georef`).
     pub strict_georef: bool,
     pub octree: OctreeOptions,
@@ -72,6 +74,7 @@ impl ConvertOptions {
             origin: None,
             crs: None,
             cityjson_lod: None,
+            mesh_frame: Default::default(),
             strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),

@@ -259,6 +259,8 @@ pub(crate) fn make_report(
             "min_instanced_triangles_saved": opts.min_instanced_triangles_saved,
             "texture": opts.texture,
             "cityjson_lod": opts.cityjson_lod,
+            "obj_up": opts.mesh_frame.up,
+            "obj_unit": opts.mesh_frame.unit,
         }),
         timings_s: timings,
         peak_memory_bytes: 0,

@@ -621,3 +621,57 @@ fn manifest_symlinks_leading_out_are_refused() {
     );
     assert!(!out.exists());
 }
+
+#[test]
+fn broken_obj_files() {
+    let d = tmpdir("bad-obj");
+    let cases: &[(&str, &[u8], &[&str])] = &[
+        (
+            "index.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
+            &["line 4", "'4'"],
+        ),
+        (
+            "relative.obj",
+            b"v 0 0 0\nf -1 -2 -3\n",
+            &["line 2", "'-2'"],
+        ),
+        (
+            "number.obj",
+            b"v 0 0 0\nv 1 zero 0\n",
+            &["line 2", "'zero'"],
+        ),
+        ("short.obj", b"v 0 0\n", &["line 1", "fewer than 3"]),
+        (
+            "uv.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\n",
+            &["line 4", "texture coordinate"],
+        ),
+        ("huge.obj", b"v 0 0 1e400\n", &["line 1", "'1e400'"]),
+    ];
+    for (name, bytes, mention) in cases {
+        let p = write(&d, name, bytes);
+        expect_failure(&p, name, mention);
+    }
+}
+
+#[test]
+fn broken_fbx_files() {
+    let d = tmpdir("bad-fbx");
+    let cases: &[(&str, &[u8], &[&str])] = &[
+        (
+            "truncated.fbx",
+            b"Kaydara FBX Binary  \x00\x1a\x00\xe8\x1c\x00\x00",
+            &["not a readable FBX file"],
+        ),
+        (
+            "text.fbx",
+            b"this is no FBX file",
+            &["not a readable FBX file"],
+        ),
+    ];
+    for (name, bytes, mention) in cases {
+        let p = write(&d, name, bytes);
+        expect_failure(&p, name, mention);
+    }
+}

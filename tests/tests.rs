@@ -34,6 +34,8 @@ mod georef_ifc;
 mod ifc_crosscheck;
 /// Campus manifests: models placed on Earth, one tileset, element identity kept.
 mod manifest;
+/// Wavefront OBJ (+MTL) and FBX: groups and mesh nodes as elements, their area, ids and textures.
+mod mesh_formats;
 
 // The pipeline's stages, checked from the outside.
 /// Repeated shapes and exact duplicates found on real models.

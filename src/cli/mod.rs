@@ -183,6 +183,13 @@ struct ConvertArgs {
     /// out. Default: each object's highest.
     #[arg(long)]
     cityjson_lod: Option<String>,
+    /// OBJ: the model's up axis, y or z. Default: y.
+    #[arg(long, value_name = "AXIS")]
+    up: Option<bimtiles::ingest::interchange::UpAxis>,
+    /// OBJ: the length one model unit stands for: m, cm, mm, ft or in. Default: m (cm when the
+    /// file's header says "uses centimeters as units").
+    #[arg(long, value_name = "UNIT")]
+    unit: Option<bimtiles::ingest::interchange::LengthUnit>,
     /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
     /// area of use) is an error and nothing is written, instead of a warning and the default
     /// placement.
@@ -679,6 +686,10 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         origin: a.origin,
         crs: a.crs.clone(),
         cityjson_lod: a.cityjson_lod.clone(),
+        mesh_frame: bimtiles::ingest::interchange::MeshFrame {
+            up: a.up,
+            unit: a.unit,
+        },
         strict_georef: a.strict_georef,
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles,

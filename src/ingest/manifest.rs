@@ -70,6 +70,12 @@ pub struct ManifestModel {
     /// they are, by its own CRS, instead of by a placement.
     #[serde(default)]
     pub crs: Option<String>,
+    /// An OBJ model's up axis (`y`, `z`); default: `--up`.
+    #[serde(default)]
+    pub up: Option<crate::ingest::interchange::UpAxis>,
+    /// An OBJ model's length unit (`m`, `cm`, `mm`, `ft`, `in`); default: `--unit`.
+    #[serde(default)]
+    pub unit: Option<crate::ingest::interchange::LengthUnit>,
 }
 
 /// A checked manifest entry: the model file and its transform from the model's anchored frame into
@@ -81,6 +87,8 @@ pub struct Placement {
     pub transform: DMat4,
     /// The model's map coordinates are in this CRS: it goes where they are.
     pub crs: Option<String>,
+    /// The entry's own OBJ up axis and unit.
+    pub mesh_frame: crate::ingest::interchange::MeshFrame,
 }
 
 impl Manifest {
@@ -240,6 +248,10 @@ impl Manifest {
                 file,
                 transform,
                 crs: e.crs.clone(),
+                mesh_frame: crate::ingest::interchange::MeshFrame {
+                    up: e.up,
+                    unit: e.unit,
+                },
             });
         }
         Ok((origin, out))
@@ -249,7 +261,11 @@ impl Manifest {
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
 /// origin, no turn), so `convert` places the site there unless `--origin` moves it.
-pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
+pub fn read_manifest(
+    path: &Path,
+    cityjson_lod: Option<&str>,
+    mesh_frame: crate::ingest::interchange::MeshFrame,
+) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
     let ecef_to_origin = origin.enu_to_ecef().inverse();
@@ -263,6 +279,7 @@ pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
             super::ReadOptions {
                 crs: given,
                 cityjson_lod,
+                mesh_frame: p.mesh_frame.or(mesh_frame),
             },
         )?;
         // The model's own anchor goes to its placement (the rule of `convert`); a model in map

@@ -1,14 +1,17 @@
-//! Readers: turn input files (glTF/GLB, IFC, CityJSON) into a [`Scene`](crate::scene::Scene). One file per format; each
+//! Readers: turn input files (glTF/GLB, IFC, CityJSON, Wavefront OBJ, FBX) into a [`Scene`](crate::scene::Scene). One file per format; each
 //! checks its input completely and reports problems as [`Error::Input`](crate::error::Error)
 //! naming the file.
 
 pub mod cityjson;
+pub mod fbx;
 pub mod gltf;
 mod gltf_compressed;
 mod gltf_index;
 #[cfg(feature = "ifc")]
 pub mod ifc;
+pub mod interchange;
 pub mod manifest;
+pub mod obj;
 
 /// `EXT_meshopt_compression` views, decoded as the glTF reader does (the tests' tile reader uses
 /// them too).
@@ -74,6 +77,8 @@ pub struct GivenCrs<'a> {
 pub struct ReadOptions<'a> {
     pub crs: Option<GivenCrs<'a>>,
     pub cityjson_lod: Option<&'a str>,
+    /// The up axis and unit of OBJ files (`--up`, `--unit`).
+    pub mesh_frame: interchange::MeshFrame,
 }
 
 /// Like [`read_input`], with [`ReadOptions`]. A given CRS is the CRS of the input's coordinates:
@@ -86,7 +91,7 @@ pub fn read_input_with(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
     let mut scene = if cityjson::is_cityjson(path) {
         read_cityjson(path, opts)?
     } else {
-        let mut scene = read_model(path, opts.crs)?;
+        let mut scene = read_model(path, opts)?;
         if let (Some(given), None) = (opts.crs, scene.georeference) {
             if let Err(e) = crate::scene::placement::georeference_map_coordinates(
                 &mut scene,
@@ -131,15 +136,21 @@ fn check_input_file(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// An IFC or glTF/GLB file.
-fn read_model(path: &Path, crs: Option<GivenCrs<'_>>) -> Result<Scene> {
+/// An IFC, OBJ or glTF/GLB file.
+fn read_model(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     if ext == "ifc" || looks_like_step(path) {
-        return read_ifc(path, crs.map(|c| c.crs));
+        return read_ifc(path, opts.crs.map(|c| c.crs));
+    }
+    if ext == "obj" {
+        return obj::read_obj(path, opts.mesh_frame);
+    }
+    if ext == "fbx" || looks_like_fbx(path) {
+        return fbx::read_fbx(path);
     }
     gltf::read_gltf(path)
 }
@@ -184,6 +195,16 @@ fn read_cityjson(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
         }
     }
     Ok(scene)
+}
+
+/// Binary FBX files open with the magic `Kaydara FBX Binary`, whatever their extension.
+fn looks_like_fbx(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 18];
+    let n = open_regular(path)
+        .and_then(|mut f| f.read(&mut head))
+        .unwrap_or(0);
+    head[..n] == *b"Kaydara FBX Binary"
 }
 
 /// IFC files are ISO 10303-21 (STEP) text, whatever their extension.
@@ -340,12 +361,18 @@ impl InputSet {
     }
 
     pub fn read(&self) -> Result<Scene> {
-        self.read_with(None, None)
+        self.read_with(None, None, interchange::MeshFrame::default())
     }
 
     /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_with`]), a
-    /// manifest's entries name their own; CityJSON objects at `cityjson_lod`.
-    pub fn read_with(&self, crs: Option<&str>, cityjson_lod: Option<&str>) -> Result<Scene> {
+    /// manifest's entries name their own; CityJSON objects at `cityjson_lod`; OBJ files in
+    /// `mesh_frame` unless a manifest entry names its own.
+    pub fn read_with(
+        &self,
+        crs: Option<&str>,
+        cityjson_lod: Option<&str>,
+        mesh_frame: interchange::MeshFrame,
+    ) -> Result<Scene> {
         let given = crs.map(|crs| GivenCrs {
             crs,
             source: "option",
@@ -357,9 +384,10 @@ impl InputSet {
                 ReadOptions {
                     crs: given,
                     cityjson_lod,
+                    mesh_frame,
                 },
             ),
-            InputSet::Manifest(m) => manifest::read_manifest(m, cityjson_lod),
+            InputSet::Manifest(m) => manifest::read_manifest(m, cityjson_lod, mesh_frame),
         }
     }
 }

@@ -17,6 +17,7 @@
 mod appearance;
 
 use crate::error::{Error, Result};
+use crate::geometry::triangulate;
 use crate::scene::*;
 use appearance::{DocumentTextures, ImageFiles};
 use glam::{DMat4, DVec3};
@@ -615,59 +616,6 @@ impl<'a> Reader<'a> {
         }
         Ok(self.scene)
     }
-}
-
-/// A polygon's triangles: indices into its ring points (outer ring, then holes), wound like the
-/// polygon, and the polygon's normal.
-struct PolygonTriangles {
-    indices: Vec<usize>,
-    normal: DVec3,
-}
-
-/// Triangulates a polygon with holes on its best-fit plane (`None`: degenerate, no area).
-fn triangulate(
-    ring_points: &[DVec3],
-    holes: &[usize],
-) -> std::result::Result<Option<PolygonTriangles>, String> {
-    if ring_points.len() < 3 {
-        return Ok(None);
-    }
-    // Newell's normal of the outer ring (robust for non-convex and slightly warped rings).
-    let outer = holes.first().copied().unwrap_or(ring_points.len());
-    let centre = ring_points[..outer].iter().sum::<DVec3>() / outer as f64;
-    let mut normal = DVec3::ZERO;
-    for k in 0..outer {
-        let (a, b) = (
-            ring_points[k] - centre,
-            ring_points[(k + 1) % outer] - centre,
-        );
-        normal += DVec3::new(
-            (a.y - b.y) * (a.z + b.z),
-            (a.z - b.z) * (a.x + b.x),
-            (a.x - b.x) * (a.y + b.y),
-        );
-    }
-    let Some(normal) = normal.try_normalize() else {
-        return Ok(None);
-    };
-    let u = normal.any_orthonormal_vector();
-    let v = normal.cross(u);
-    let flat: Vec<f64> = ring_points
-        .iter()
-        .flat_map(|p| {
-            let d = *p - centre;
-            [d.dot(u), d.dot(v)]
-        })
-        .collect();
-    let mut indices = earcutr::earcut(&flat, holes, 2).map_err(|e| format!("{e:?}"))?;
-    for t in indices.chunks_exact_mut(3) {
-        let [a, b, c] = [ring_points[t[0]], ring_points[t[1]], ring_points[t[2]]];
-        // earcut's winding follows the 2-D frame: keep the polygon's own orientation.
-        if (b - a).cross(c - a).dot(normal) < 0.0 {
-            t.swap(1, 2);
-        }
-    }
-    Ok(Some(PolygonTriangles { indices, normal }))
 }
 
 /// An object's mesh, relative to its lowest corner (returned: the component's translation), so
