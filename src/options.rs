@@ -21,6 +21,10 @@ pub struct ConvertOptions {
     pub crs: Option<String>,
     /// The CityJSON LoD to read ("2.2"; `--cityjson-lod`); `None`: each object's highest.
     pub cityjson_lod: Option<String>,
+    /// The CityGML LoD to read ("2"; `--citygml-lod`); `None`: each object's highest.
+    pub citygml_lod: Option<String>,
+    /// The CityGML appearance theme to draw (`--citygml-theme`); `None`: the file's first.
+    pub citygml_theme: Option<String>,
     /// A georeference that cannot be used is an error instead of a warning (`--strict-georef`).
     pub strict_georef: bool,
     pub octree: OctreeOptions,
@@ -72,6 +76,8 @@ impl ConvertOptions {
             origin: None,
             crs: None,
             cityjson_lod: None,
+            citygml_lod: None,
+            citygml_theme: None,
             strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),

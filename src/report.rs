@@ -259,6 +259,8 @@ pub(crate) fn make_report(
             "min_instanced_triangles_saved": opts.min_instanced_triangles_saved,
             "texture": opts.texture,
             "cityjson_lod": opts.cityjson_lod,
+            "citygml_lod": opts.citygml_lod,
+            "citygml_theme": opts.citygml_theme,
         }),
         timings_s: timings,
         peak_memory_bytes: 0,

@@ -249,7 +249,7 @@ impl Manifest {
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
 /// origin, no turn), so `convert` places the site there unless `--origin` moves it.
-pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
+pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
     let ecef_to_origin = origin.enu_to_ecef().inverse();
@@ -258,13 +258,7 @@ pub fn read_manifest(path: &Path, cityjson_lod: Option<&str>) -> Result<Scene> {
             crs,
             source: "manifest",
         });
-        let mut s = super::read_input_with(
-            &p.file,
-            super::ReadOptions {
-                crs: given,
-                cityjson_lod,
-            },
-        )?;
+        let mut s = super::read_input_with(&p.file, super::ReadOptions { crs: given, ..opts })?;
         // The model's own anchor goes to its placement (the rule of `convert`); a model in map
         // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;
