@@ -42,11 +42,22 @@ pub(super) struct Appearances {
     pub materials: Vec<MaterialDef>,
 }
 
+/// The UVs of each ring of a polygon (`None` for a ring its texture gives none).
+pub(super) type RingUvs = Vec<Option<Vec<[f32; 2]>>>;
+
+/// Finds what appearances target: a polygon by gml:id, a ring by gml:id (polygon, ring index),
+/// and how many rings a polygon has.
+pub(super) struct Targets<'d> {
+    pub polygon_ids: &'d HashMap<String, u32>,
+    pub ring_ids: HashMap<&'d str, (u32, usize)>,
+    pub polygons: &'d [super::parse::Polygon],
+}
+
 /// The look of one polygon in the theme drawn: a texture with UVs per ring (in ring order), and
 /// a colour.
 #[derive(Debug, Default)]
 pub(super) struct PolygonLooks {
-    pub textured: HashMap<u32, (TextureRef, Vec<Option<Vec<[f32; 2]>>>)>,
+    pub textured: HashMap<u32, (TextureRef, RingUvs)>,
     pub colours: HashMap<u32, [f32; 4]>,
 }
 
@@ -68,18 +79,18 @@ impl Appearances {
         out
     }
 
-    /// The looks of theme `theme` per polygon: `polygon_of` finds a polygon by gml:id,
-    /// `ring_of` a ring (polygon, ring index).
+    /// The looks of theme `theme` per polygon.
     pub(super) fn looks(
         &self,
         theme: &str,
-        polygon_of: impl Fn(&str) -> Option<u32>,
-        ring_of: impl Fn(&str) -> Option<(u32, usize)>,
-        rings_in: impl Fn(u32) -> usize,
+        targets: &Targets<'_>,
         images: &mut ImageFiles,
         base_dir: &Path,
         scene: &mut Scene,
     ) -> PolygonLooks {
+        let polygon_of = |id: &str| targets.polygon_ids.get(id).copied();
+        let ring_of = |id: &str| targets.ring_ids.get(id).copied();
+        let rings_in = |p: u32| targets.polygons[p as usize].rings.len();
         let mut looks = PolygonLooks::default();
         let in_theme = |t: &Option<String>| t.as_deref().unwrap_or("") == theme;
         for m in self.materials.iter().filter(|m| in_theme(&m.theme)) {

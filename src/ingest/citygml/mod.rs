@@ -102,15 +102,10 @@ fn open(path: &Path) -> std::io::Result<Box<dyn BufRead>> {
 fn line_at(path: &Path, offset: u64) -> Option<usize> {
     let reader = open(path).ok()?;
     let mut line = 1;
-    let mut seen = 0u64;
-    for byte in reader.bytes() {
-        if seen >= offset {
-            break;
-        }
+    for byte in reader.bytes().take(offset as usize) {
         if byte.ok()? == b'\n' {
             line += 1;
         }
-        seen += 1;
     }
     Some(line)
 }
@@ -297,6 +292,9 @@ fn raw_bounds(doc: &Document) -> (DVec3, DVec3) {
         )
 }
 
+/// What makes two surfaces' materials the same: semantic type, texture, colour (as bits).
+type MaterialKey = (Option<usize>, Option<TextureRef>, Option<[u32; 4]>);
+
 /// Turns the document into the scene.
 struct Builder<'a> {
     path: &'a Path,
@@ -305,7 +303,7 @@ struct Builder<'a> {
     scene: Scene,
     texts: TextInterner,
     /// Material per (semantic type, texture, colour), made on first use.
-    materials: HashMap<(Option<usize>, Option<TextureRef>, Option<[u32; 4]>), MaterialId>,
+    materials: HashMap<MaterialKey, MaterialId>,
     lods_present: BTreeSet<u8>,
     objects_without_lod: usize,
 }
@@ -317,9 +315,10 @@ impl Builder<'_> {
         let themes = doc.appearances.themes();
         let chosen = match theme {
             Some(t) if themes.iter().any(|x| x == t) => t.to_string(),
-            Some(t) => return Err(Error::input(
-                self.path,
-                format!(
+            Some(t) => {
+                return Err(Error::input(
+                    self.path,
+                    format!(
                     "--citygml-theme {t}: the file has no such appearance theme; its themes are {}",
                     if themes.is_empty() {
                         "none".into()
@@ -327,31 +326,30 @@ impl Builder<'_> {
                         themes.join(", ")
                     }
                 ),
-            )),
+                ))
+            }
             None => match themes.first() {
                 Some(t) => t.clone(),
                 None => return Ok(appearance::PolygonLooks::default()),
             },
         };
-        let mut rings: HashMap<&str, (u32, usize)> = HashMap::new();
+        let mut targets = appearance::Targets {
+            polygon_ids: &doc.polygon_ids,
+            ring_ids: HashMap::new(),
+            polygons: &doc.polygons,
+        };
         for (i, p) in doc.polygons.iter().enumerate() {
             for (r, id) in p.ring_ids.iter().enumerate() {
                 if let Some(id) = id {
-                    rings.insert(id, (i as u32, r));
+                    targets.ring_ids.insert(id, (i as u32, r));
                 }
             }
         }
         let mut images = ImageFiles::default();
         let base_dir = self.path.parent().unwrap_or(Path::new("")).to_path_buf();
-        let looks = doc.appearances.looks(
-            &chosen,
-            |id| doc.polygon_ids.get(id).copied(),
-            |id| rings.get(id).copied(),
-            |p| doc.polygons[p as usize].rings.len(),
-            &mut images,
-            &base_dir,
-            &mut self.scene,
-        );
+        let looks =
+            doc.appearances
+                .looks(&chosen, &targets, &mut images, &base_dir, &mut self.scene);
         if !images.missing.is_empty() {
             let named: Vec<&str> = images
                 .missing
