@@ -114,10 +114,24 @@ fn line_at(path: &Path, offset: u64) -> Option<usize> {
 /// have is an error naming those it has.
 pub fn read_citygml(path: &Path, opts: CityGmlOptions<'_>) -> Result<CityModel> {
     let input = open(path).map_err(|e| Error::input_from(path, "cannot read", e))?;
-    let mut doc = parse::parse(input).map_err(|e| {
+    let doc = parse::parse(input).map_err(|e| {
         let line = line_at(path, e.offset).map_or(String::new(), |l| format!("line {l}: "));
         Error::input(path, format!("{line}{}", e.message))
     })?;
+    read_document(path, doc, opts)
+}
+
+/// Like [`read_citygml`], from the (uncompressed) bytes of a file named `path` (fuzzing).
+pub fn read_citygml_bytes(path: &Path, data: &[u8], opts: CityGmlOptions<'_>) -> Result<CityModel> {
+    let doc = parse::parse(data).map_err(|e| {
+        let head = &data[..(e.offset as usize).min(data.len())];
+        let line = head.iter().filter(|&&b| b == b'\n').count() + 1;
+        Error::input(path, format!("line {line}: {}", e.message))
+    })?;
+    read_document(path, doc, opts)
+}
+
+fn read_document(path: &Path, mut doc: Document, opts: CityGmlOptions<'_>) -> Result<CityModel> {
     let mut warnings = Vec::new();
     let (map_crs, geographic) = choose_crs(path, &mut doc, opts.crs, &mut warnings);
     let mut builder = Builder {
