@@ -165,3 +165,43 @@ fn citygml_lod_reads_one_lod_and_an_unknown_one_names_those_present() {
     assert!(err.contains("LoD 3") && err.contains("0, 1, 2"), "{err}");
     assert!(!missing.exists(), "nothing written");
 }
+
+#[test]
+fn a_manifest_entry_reads_a_citygml_file_at_its_lod() {
+    let Some(path) = citygml_files()
+        .into_iter()
+        .find(|p| p.to_string_lossy().contains("52397519_bldg"))
+    else {
+        return;
+    };
+    let dir = tmpdir("citygml-manifest");
+    let name = put_model_in(&path, &dir);
+    let manifest = serde_json::json!({
+        "origin": {"longitude_deg": 139.7389, "latitude_deg": 35.2599, "height_m": 0.0},
+        "models": [{"name": "yokosuka", "path": name.file_name().unwrap().to_str().unwrap(), "lod": "1"}]
+    });
+    std::fs::write(dir.join("campus.json"), manifest.to_string()).unwrap();
+    let out = dir.join("out");
+    let o = run(&[
+        "convert",
+        "--manifest",
+        dir.join("campus.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--lod",
+        "none",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let lod1 = convert(
+        &path,
+        &dir.join("lod1"),
+        &["--lod", "none", "--citygml-lod", "1"],
+    );
+    assert_eq!(
+        report["input"]["triangles"], lod1["input"]["triangles"],
+        "the entry's LoD"
+    );
+}

@@ -70,6 +70,10 @@ pub struct ManifestModel {
     /// they are, by its own CRS, instead of by a placement.
     #[serde(default)]
     pub crs: Option<String>,
+    /// The LoD to read of a CityGML or CityJSON model ("2"), instead of `--citygml-lod` /
+    /// `--cityjson-lod`.
+    #[serde(default)]
+    pub lod: Option<String>,
 }
 
 /// A checked manifest entry: the model file and its transform from the model's anchored frame into
@@ -81,6 +85,8 @@ pub struct Placement {
     pub transform: DMat4,
     /// The model's map coordinates are in this CRS: it goes where they are.
     pub crs: Option<String>,
+    /// The entry's LoD of a city model.
+    pub lod: Option<String>,
 }
 
 impl Manifest {
@@ -240,6 +246,7 @@ impl Manifest {
                 file,
                 transform,
                 crs: e.crs.clone(),
+                lod: e.lod.clone(),
             });
         }
         Ok((origin, out))
@@ -258,7 +265,14 @@ pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene>
             crs,
             source: "manifest",
         });
-        let mut s = super::read_input_with(&p.file, super::ReadOptions { crs: given, ..opts })?;
+        let lod = p.lod.as_deref();
+        let read = super::ReadOptions {
+            crs: given,
+            cityjson_lod: lod.or(opts.cityjson_lod),
+            citygml_lod: lod.or(opts.citygml_lod),
+            ..opts
+        };
+        let mut s = super::read_input_with(&p.file, read)?;
         // The model's own anchor goes to its placement (the rule of `convert`); a model in map
         // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;
