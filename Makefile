@@ -75,7 +75,7 @@ deps-docs:
 # decoders the glTF reader calls (Debian's libdraco, meshoptimizer) are not instrumented either way
 # (a memory error there shows as a crash), and ASan would halve the executions.
 FUZZ_SECONDS ?= 600
-FUZZ_TARGETS := gltf ifc manifest image inspect http_head obj fbx
+FUZZ_TARGETS := gltf ifc manifest citygml image inspect http_head obj fbx
 deps-fuzz:
 	@rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 	@command -v cargo-fuzz >/dev/null || $(CARGO) install cargo-fuzz --locked

@@ -15,6 +15,7 @@ pub const TARGETS: &[(&str, EntryPoint)] = &[
     ("gltf", gltf),
     ("ifc", ifc),
     ("manifest", manifest),
+    ("citygml", citygml),
     ("image", image),
     ("inspect", inspect),
     ("http_head", http_head),
@@ -73,6 +74,16 @@ pub fn fbx(data: &[u8]) {
 /// A manifest's text, checked against a folder that holds one model (`model.glb`).
 pub fn manifest(data: &[u8]) {
     let _ = crate::ingest::manifest::Manifest::from_bytes(&scratch().join("campus.json"), data);
+}
+
+/// A CityGML document (`ingest::citygml`): the XML stream, geometry, references, appearances
+/// and the srsName; image paths resolve in an empty folder.
+pub fn citygml(data: &[u8]) {
+    let _ = crate::ingest::citygml::read_citygml_bytes(
+        &scratch().join("model.gml"),
+        data,
+        Default::default(),
+    );
 }
 
 /// An image: its header against small limits (as `texture::admit`), then, if admitted, the one

@@ -23,6 +23,10 @@ pub struct ConvertOptions {
     pub cityjson_lod: Option<String>,
     /// The up axis and unit of OBJ inputs (`--up`, `--unit`); `None`: y up, metres.
     pub mesh_frame: crate::ingest::interchange::MeshFrame,
+    /// The CityGML LoD to read ("2"; `--citygml-lod`); `None`: each object's highest.
+    pub citygml_lod: Option<String>,
+    /// The CityGML appearance theme to draw (`--citygml-theme`); `None`: the file's first.
+    pub citygml_theme: Option<String>,
     /// A georeference that cannot be used is an error instead of a warning (`--strict-georef`).
     pub strict_georef: bool,
     pub octree: OctreeOptions,
@@ -75,6 +79,8 @@ impl ConvertOptions {
             crs: None,
             cityjson_lod: None,
             mesh_frame: Default::default(),
+            citygml_lod: None,
+            citygml_theme: None,
             strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),

@@ -40,11 +40,16 @@ pub struct InputReport {
 /// Reads an input set into one scene; an input without triangles is an error, and so is a
 /// georeference that could not be used under `--strict-georef`.
 pub(crate) fn read_scene(inputs: &InputSet, opts: &Settings) -> Result<Scene> {
-    let scene = inputs.read_with(
-        opts.crs.as_deref(),
-        opts.cityjson_lod.as_deref(),
-        opts.mesh_frame,
-    )?;
+    let scene = inputs.read_with(crate::ingest::ReadOptions {
+        crs: opts.crs.as_deref().map(|crs| crate::ingest::GivenCrs {
+            crs,
+            source: "option",
+        }),
+        cityjson_lod: opts.cityjson_lod.as_deref(),
+        citygml_lod: opts.citygml_lod.as_deref(),
+        citygml_theme: opts.citygml_theme.as_deref(),
+        mesh_frame: opts.mesh_frame,
+    })?;
     if let Some(w) = scene.georef_warnings.first().filter(|_| opts.strict_georef) {
         return Err(Error::input(
             &w.file,

@@ -261,6 +261,8 @@ pub(crate) fn make_report(
             "cityjson_lod": opts.cityjson_lod,
             "obj_up": opts.mesh_frame.up,
             "obj_unit": opts.mesh_frame.unit,
+            "citygml_lod": opts.citygml_lod,
+            "citygml_theme": opts.citygml_theme,
         }),
         timings_s: timings,
         peak_memory_bytes: 0,

@@ -675,3 +675,27 @@ fn broken_fbx_files() {
         expect_failure(&p, name, mention);
     }
 }
+
+#[test]
+fn broken_citygml_files() {
+    let dir = tmpdir("bad-citygml");
+    let head = r#"<?xml version="1.0"?><core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" xmlns:bldg="http://www.opengis.net/citygml/building/2.0" xmlns:gml="http://www.opengis.net/gml">"#;
+    let truncated = write(
+        &dir,
+        "truncated.gml",
+        format!("{head}\n<core:cityObjectMember>").as_bytes(),
+    );
+    expect_failure(&truncated, "truncated", &["line 2", "ends inside"]);
+    let not_city = write(&dir, "other.gml", b"<?xml version=\"1.0\"?>\n<kml></kml>");
+    expect_failure(&not_city, "not-citygml", &["not a CityGML file"]);
+    let bad_number = write(
+        &dir,
+        "number.gml",
+        format!("{head}\n<core:cityObjectMember><bldg:Building gml:id=\"b\"><bldg:lod1MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing>\n<gml:posList>0 0 0 1 0 x 1 1 0 0 0 0</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface></bldg:lod1MultiSurface></bldg:Building></core:cityObjectMember></core:CityModel>").as_bytes(),
+    );
+    expect_failure(
+        &bad_number,
+        "bad-number",
+        &["line 3", "'x' is not a number"],
+    );
+}

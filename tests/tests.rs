@@ -22,6 +22,8 @@ mod output_safety;
 mod valid_tilesets;
 
 // Input formats.
+/// CityGML files (2.0, 3.0, ADEs): valid tilesets, gml:ids and ADE attributes, textures, LoD choice.
+mod citygml;
 /// CityJSON datasets: every city object an element, every triangle once, placed on Earth.
 mod cityjson;
 /// glTF compressed by third-party tools (Draco, meshopt) reads as the plain files do.

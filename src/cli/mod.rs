@@ -190,6 +190,14 @@ struct ConvertArgs {
     /// file's header says "uses centimeters as units").
     #[arg(long, value_name = "UNIT")]
     unit: Option<bimtiles::ingest::interchange::LengthUnit>,
+    /// CityGML: the level of detail to read (0 to 4); an object without it is left out.
+    /// Default: each object's highest.
+    #[arg(long)]
+    citygml_lod: Option<String>,
+    /// CityGML: the appearance theme to draw (textures and materials). Default: the file's
+    /// first.
+    #[arg(long)]
+    citygml_theme: Option<String>,
     /// A georeference that cannot be used (unknown CRS, unit not a length, far outside the CRS's
     /// area of use) is an error and nothing is written, instead of a warning and the default
     /// placement.
@@ -690,6 +698,8 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             up: a.up,
             unit: a.unit,
         },
+        citygml_lod: a.citygml_lod.clone(),
+        citygml_theme: a.citygml_theme.clone(),
         strict_georef: a.strict_georef,
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles,

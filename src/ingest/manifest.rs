@@ -76,6 +76,10 @@ pub struct ManifestModel {
     /// An OBJ model's length unit (`m`, `cm`, `mm`, `ft`, `in`); default: `--unit`.
     #[serde(default)]
     pub unit: Option<crate::ingest::interchange::LengthUnit>,
+    /// The LoD to read of a CityGML or CityJSON model ("2"), instead of `--citygml-lod` /
+    /// `--cityjson-lod`.
+    #[serde(default)]
+    pub lod: Option<String>,
 }
 
 /// A checked manifest entry: the model file and its transform from the model's anchored frame into
@@ -89,6 +93,8 @@ pub struct Placement {
     pub crs: Option<String>,
     /// The entry's own OBJ up axis and unit.
     pub mesh_frame: crate::ingest::interchange::MeshFrame,
+    /// The entry's LoD of a city model.
+    pub lod: Option<String>,
 }
 
 impl Manifest {
@@ -252,6 +258,7 @@ impl Manifest {
                     up: e.up,
                     unit: e.unit,
                 },
+                lod: e.lod.clone(),
             });
         }
         Ok((origin, out))
@@ -261,11 +268,7 @@ impl Manifest {
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
 /// origin, no turn), so `convert` places the site there unless `--origin` moves it.
-pub fn read_manifest(
-    path: &Path,
-    cityjson_lod: Option<&str>,
-    mesh_frame: crate::ingest::interchange::MeshFrame,
-) -> Result<Scene> {
+pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
     let mut parts = Vec::with_capacity(placements.len());
     let ecef_to_origin = origin.enu_to_ecef().inverse();
@@ -274,14 +277,15 @@ pub fn read_manifest(
             crs,
             source: "manifest",
         });
-        let mut s = super::read_input_with(
-            &p.file,
-            super::ReadOptions {
-                crs: given,
-                cityjson_lod,
-                mesh_frame: p.mesh_frame.or(mesh_frame),
-            },
-        )?;
+        let lod = p.lod.as_deref();
+        let read = super::ReadOptions {
+            crs: given,
+            cityjson_lod: lod.or(opts.cityjson_lod),
+            citygml_lod: lod.or(opts.citygml_lod),
+            mesh_frame: p.mesh_frame.or(opts.mesh_frame),
+            ..opts
+        };
+        let mut s = super::read_input_with(&p.file, read)?;
         // The model's own anchor goes to its placement (the rule of `convert`); a model in map
         // coordinates goes where its CRS puts its anchor.
         let local = crate::scene::placement::Placement::of(&s).local;

@@ -2,6 +2,7 @@
 //! checks its input completely and reports problems as [`Error::Input`](crate::error::Error)
 //! naming the file.
 
+pub mod citygml;
 pub mod cityjson;
 pub mod fbx;
 pub mod gltf;
@@ -79,6 +80,9 @@ pub struct ReadOptions<'a> {
     pub cityjson_lod: Option<&'a str>,
     /// The up axis and unit of OBJ files (`--up`, `--unit`).
     pub mesh_frame: interchange::MeshFrame,
+    /// CityGML: the LoD (`--citygml-lod`) and appearance theme (`--citygml-theme`) to read.
+    pub citygml_lod: Option<&'a str>,
+    pub citygml_theme: Option<&'a str>,
 }
 
 /// Like [`read_input`], with [`ReadOptions`]. A given CRS is the CRS of the input's coordinates:
@@ -90,6 +94,8 @@ pub fn read_input_with(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
     check_input_file(path)?;
     let mut scene = if cityjson::is_cityjson(path) {
         read_cityjson(path, opts)?
+    } else if citygml::is_citygml(path) {
+        read_citygml(path, opts)?
     } else {
         let mut scene = read_model(path, opts)?;
         if let (Some(given), None) = (opts.crs, scene.georeference) {
@@ -205,6 +211,38 @@ fn looks_like_fbx(path: &Path) -> bool {
         .and_then(|mut f| f.read(&mut head))
         .unwrap_or(0);
     head[..n] == *b"Kaydara FBX Binary"
+}
+
+/// A CityGML file: a geographic CRS is placed by the reader; a projected one (the given CRS, else
+/// the file's `srsName`) every vertex on its own, as CityJSON.
+fn read_citygml(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
+    let citygml::CityModel { mut scene, map_crs } = citygml::read_citygml(
+        path,
+        citygml::CityGmlOptions {
+            lod: opts.citygml_lod,
+            theme: opts.citygml_theme,
+            crs: opts.crs.map(|c| c.crs),
+        },
+    )?;
+    if let Some((crs, source)) = map_crs {
+        let what = if source == "option" {
+            "--crs"
+        } else {
+            "srsName"
+        };
+        match crate::scene::placement::georeference_map_coordinates_per_vertex(
+            &mut scene, &crs, source,
+        ) {
+            Ok(()) => {}
+            Err(PerVertexError::NotPlaced(e)) => {
+                warn_georef(&mut scene, path, format!("{what} {crs}: {e}"))
+            }
+            Err(e @ PerVertexError::Midway(_)) => {
+                return Err(Error::input(path, format!("{what} {crs}: {e}")))
+            }
+        }
+    }
+    Ok(scene)
 }
 
 /// IFC files are ISO 10303-21 (STEP) text, whatever their extension.
@@ -361,33 +399,16 @@ impl InputSet {
     }
 
     pub fn read(&self) -> Result<Scene> {
-        self.read_with(None, None, interchange::MeshFrame::default())
+        self.read_with(ReadOptions::default())
     }
 
-    /// Reads the inputs; model files are in `crs` (`--crs`, see [`read_input_with`]), a
-    /// manifest's entries name their own; CityJSON objects at `cityjson_lod`; OBJ files in
-    /// `mesh_frame` unless a manifest entry names its own.
-    pub fn read_with(
-        &self,
-        crs: Option<&str>,
-        cityjson_lod: Option<&str>,
-        mesh_frame: interchange::MeshFrame,
-    ) -> Result<Scene> {
-        let given = crs.map(|crs| GivenCrs {
-            crs,
-            source: "option",
-        });
+    /// Reads the inputs with `opts` ([`read_input_with`]); a manifest's entries name their own
+    /// CRS.
+    pub fn read_with(&self, opts: ReadOptions<'_>) -> Result<Scene> {
         match self {
             InputSet::Sample => read_embedded_sample(),
-            InputSet::Files(f) => read_inputs_with(
-                f,
-                ReadOptions {
-                    crs: given,
-                    cityjson_lod,
-                    mesh_frame,
-                },
-            ),
-            InputSet::Manifest(m) => manifest::read_manifest(m, cityjson_lod, mesh_frame),
+            InputSet::Files(f) => read_inputs_with(f, opts),
+            InputSet::Manifest(m) => manifest::read_manifest(m, opts),
         }
     }
 }

@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// glTF sampler wrap modes for CityJSON's `wrapMode`.
-const GL_REPEAT: u32 = 10497;
-const GL_MIRRORED_REPEAT: u32 = 33648;
-const GL_CLAMP_TO_EDGE: u32 = 33071;
+pub(crate) const GL_REPEAT: u32 = 10497;
+pub(crate) const GL_MIRRORED_REPEAT: u32 = 33648;
+pub(crate) const GL_CLAMP_TO_EDGE: u32 = 33071;
 
 /// The textures and UVs of one document (a CityJSON file, or one CityJSONFeature with its own
 /// `appearance`).
@@ -99,7 +99,12 @@ impl ImageFiles {
         })
     }
 
-    fn image(&mut self, name: &str, base_dir: &Path, scene: &mut Scene) -> Option<ImageId> {
+    pub(crate) fn image(
+        &mut self,
+        name: &str,
+        base_dir: &Path,
+        scene: &mut Scene,
+    ) -> Option<ImageId> {
         let read = || -> Option<(PathBuf, Vec<u8>, &'static str)> {
             let path = confine::inside(base_dir, name, &confine::INPUT).ok()?;
             let bytes = super::super::read_regular(&path).ok()?;

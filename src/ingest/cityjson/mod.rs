@@ -14,7 +14,7 @@
 //! their millimetres; `metadata.referenceSystem` is returned for the placement
 //! ([`crate::ingest::read_input_with`]).
 
-mod appearance;
+pub(crate) mod appearance;
 
 use crate::error::{Error, Result};
 use crate::geometry::triangulate;
@@ -50,7 +50,7 @@ pub fn is_cityjson(path: &Path) -> bool {
 }
 
 /// Colours of the semantic surface types (linear RGBA), so a viewer tells them apart.
-const SEMANTIC_COLOURS: &[(&str, [f32; 4])] = &[
+pub(crate) const SEMANTIC_COLOURS: &[(&str, [f32; 4])] = &[
     ("RoofSurface", [0.55, 0.12, 0.08, 1.0]),
     ("WallSurface", [0.80, 0.78, 0.72, 1.0]),
     ("GroundSurface", [0.30, 0.30, 0.30, 1.0]),
@@ -61,9 +61,9 @@ const SEMANTIC_COLOURS: &[(&str, [f32; 4])] = &[
     ("Door", [0.45, 0.30, 0.20, 1.0]),
 ];
 /// Surfaces without semantics.
-const NO_SEMANTICS: &str = "Surface";
+pub(crate) const NO_SEMANTICS: &str = "Surface";
 /// How many missing texture images the warning names.
-const MISSING_IMAGES_NAMED: usize = 3;
+pub(crate) const MISSING_IMAGES_NAMED: usize = 3;
 
 /// A CityJSON file read: its scene (in the file's coordinates) and the CRS its
 /// `metadata.referenceSystem` names ("EPSG:7415"), if any.
@@ -150,17 +150,17 @@ fn same_lod(a: &str, b: &str) -> bool {
 /// Triangles of one material, in f64 world coordinates, each corner with its normal (and UV when
 /// the material is textured).
 #[derive(Default)]
-struct Triangles {
-    corners: Vec<DVec3>,
-    normals: Vec<DVec3>,
-    uvs: Vec<[f32; 2]>,
+pub(crate) struct Triangles {
+    pub(crate) corners: Vec<DVec3>,
+    pub(crate) normals: Vec<DVec3>,
+    pub(crate) uvs: Vec<[f32; 2]>,
 }
 
 /// One object's triangles: per material, and counted per semantic type.
 #[derive(Default)]
-struct ObjectTriangles {
-    by_material: BTreeMap<MaterialId, Triangles>,
-    per_semantic: BTreeMap<String, i64>,
+pub(crate) struct ObjectTriangles {
+    pub(crate) by_material: BTreeMap<MaterialId, Triangles>,
+    pub(crate) per_semantic: BTreeMap<String, i64>,
 }
 
 /// What a polygon is drawn with: its semantic type and, when textured, its texture.
@@ -402,30 +402,7 @@ impl<'a> Reader<'a> {
         if let Some(&m) = self.materials.get(&key) {
             return m;
         }
-        let colour = SEMANTIC_COLOURS
-            .iter()
-            .find(|(s, _)| *s == semantic)
-            .map_or([0.75, 0.75, 0.75, 1.0], |(_, c)| *c);
-        let id = MaterialId(self.scene.materials.len() as u32);
-        let name = match texture {
-            None => semantic.to_string(),
-            Some(t) => {
-                let image = &self.scene.images[t.image.index()];
-                format!("{semantic} {}", image.name.as_deref().unwrap_or(""))
-            }
-        };
-        self.scene.materials.push(Material {
-            name: Some(name),
-            // A texture shows its own colours.
-            base_color: if texture.is_some() { [1.0; 4] } else { colour },
-            metallic: 0.0,
-            roughness: 1.0,
-            emissive: [0.0; 3],
-            base_color_texture: texture.cloned(),
-            alpha_mode: AlphaMode::Opaque,
-            alpha_cutoff: 0.5,
-            double_sided: true,
-        });
+        let id = push_surface_material(&mut self.scene, semantic, None, texture);
         self.materials.insert(key, id);
         id
     }
@@ -618,9 +595,49 @@ impl<'a> Reader<'a> {
     }
 }
 
+/// A new material for a semantic surface type: its colour from [`SEMANTIC_COLOURS`] unless one is
+/// given, white under a texture (a texture shows its own colours), named after the type and image.
+pub(crate) fn push_surface_material(
+    scene: &mut Scene,
+    semantic: &str,
+    colour: Option<[f32; 4]>,
+    texture: Option<&TextureRef>,
+) -> MaterialId {
+    let colour = colour.unwrap_or_else(|| {
+        SEMANTIC_COLOURS
+            .iter()
+            .find(|(s, _)| *s == semantic)
+            .map_or([0.75, 0.75, 0.75, 1.0], |(_, c)| *c)
+    });
+    let id = MaterialId(scene.materials.len() as u32);
+    let name = match texture {
+        None => semantic.to_string(),
+        Some(t) => {
+            let image = &scene.images[t.image.index()];
+            format!("{semantic} {}", image.name.as_deref().unwrap_or(""))
+        }
+    };
+    scene.materials.push(Material {
+        name: Some(name),
+        base_color: if texture.is_some() { [1.0; 4] } else { colour },
+        metallic: 0.0,
+        roughness: 1.0,
+        emissive: [0.0; 3],
+        base_color_texture: texture.cloned(),
+        alpha_mode: if colour[3] < 1.0 && texture.is_none() {
+            AlphaMode::Blend
+        } else {
+            AlphaMode::Opaque
+        },
+        alpha_cutoff: 0.5,
+        double_sided: true,
+    });
+    id
+}
+
 /// An object's mesh, relative to its lowest corner (returned: the component's translation), so
 /// f32 positions keep projected coordinates' millimetres.
-fn object_mesh(id: &str, triangles: ObjectTriangles) -> (Mesh, DVec3) {
+pub(crate) fn object_mesh(id: &str, triangles: ObjectTriangles) -> (Mesh, DVec3) {
     let origin = triangles
         .by_material
         .values()
