@@ -159,7 +159,8 @@ enum Command {
 
 #[derive(Args)]
 struct ConvertArgs {
-    /// Input models (.glb, .gltf, .ifc). Without any, the bundled sample building is converted.
+    /// Input models (.ifc, .glb, .gltf, .city.json, .jsonl, .gml, .xml, .gml.gz, .obj, .fbx).
+    /// Without any, the bundled sample building is converted.
     inputs: Vec<PathBuf>,
     /// A manifest of many models (JSON): models placed by longitude/latitude/height/heading or
     /// by an east/north/up offset, converted into one tileset (the book's "Campus manifests").
