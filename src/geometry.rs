@@ -23,6 +23,16 @@ pub fn instance_trs(world: &DMat4) -> Option<(DVec3, DQuat, DVec3)> {
     (err <= 1e-9 * size.max(1.0) && s.is_finite() && r.is_finite()).then_some((t, r, s))
 }
 
+/// A unit normal, or +z for a zero or non-finite one (exporters write both).
+pub fn unit_normal_or_z(n: [f32; 3]) -> [f32; 3] {
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if l.is_finite() && l > 1e-12 {
+        n.map(|c| c / l)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
+
 /// Replaces `normals` (one per vertex) by the area-weighted face normals of the triangles of
 /// `indices` that use each vertex.
 pub fn normals_from_faces(positions: &[[f32; 3]], indices: &[u32], normals: &mut [[f32; 3]]) {

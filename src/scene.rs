@@ -204,11 +204,38 @@ pub struct Sampler {
     pub wrap_t: u32,
 }
 
+impl Sampler {
+    /// glTF `wrapS`/`wrapT` values (WebGL enums).
+    pub const REPEAT: u32 = 10497;
+    pub const MIRRORED_REPEAT: u32 = 33648;
+    pub const CLAMP_TO_EDGE: u32 = 33071;
+
+    /// Filters unset, `wrap_s` and `wrap_t` as given.
+    pub fn wrapping(wrap_s: u32, wrap_t: u32) -> Sampler {
+        Sampler {
+            wrap_s,
+            wrap_t,
+            ..Sampler::default()
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct TextureRef {
     pub image: ImageId,
     pub sampler: Sampler,
     pub tex_coord: u32,
+}
+
+impl TextureRef {
+    /// An image on the first UV set, wrapped `wrap` in both directions.
+    pub fn on_first_uvs(image: ImageId, wrap: u32) -> TextureRef {
+        TextureRef {
+            image,
+            sampler: Sampler::wrapping(wrap, wrap),
+            tex_coord: 0,
+        }
+    }
 }
 
 /// A metallic-roughness material (the subset building models use).

@@ -190,27 +190,53 @@ fn read_cityjson(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
         "option" => "--crs",
         _ => "metadata.referenceSystem",
     };
-    match crate::scene::placement::georeference_map_coordinates_per_vertex(&mut scene, &crs, source)
-    {
-        Ok(()) => {}
-        Err(PerVertexError::NotPlaced(e)) => {
-            warn_georef(&mut scene, path, format!("{what} {crs}: {e}"))
-        }
-        Err(e @ PerVertexError::Midway(_)) => {
-            return Err(Error::input(path, format!("{what} {crs}: {e}")))
-        }
-    }
+    place_per_vertex(&mut scene, path, (&crs, source), what)?;
     Ok(scene)
+}
+
+/// Places a scene in map coordinates of `crs` vertex by vertex
+/// ([`georeference_map_coordinates_per_vertex`](crate::scene::placement::georeference_map_coordinates_per_vertex)):
+/// a CRS that cannot place it is a warning (the scene stays as it was), a vertex PROJ refuses
+/// midway an error. `what` names the CRS's field in both.
+fn place_per_vertex(
+    scene: &mut Scene,
+    path: &Path,
+    (crs, source): (&str, &str),
+    what: &str,
+) -> Result<()> {
+    match crate::scene::placement::georeference_map_coordinates_per_vertex(scene, crs, source) {
+        Ok(()) => Ok(()),
+        Err(PerVertexError::NotPlaced(e)) => {
+            warn_georef(scene, path, format!("{what} {crs}: {e}"));
+            Ok(())
+        }
+        Err(e @ PerVertexError::Midway(_)) => Err(Error::input(path, format!("{what} {crs}: {e}"))),
+    }
 }
 
 /// Binary FBX files open with the magic `Kaydara FBX Binary`, whatever their extension.
 fn looks_like_fbx(path: &Path) -> bool {
+    file_head(path, 18) == b"Kaydara FBX Binary"
+}
+
+/// A file's name in lower case, for choosing a reader by extension.
+pub(crate) fn lowercase_name(path: &Path) -> String {
+    path.file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+/// The first `n` bytes of a file (fewer when it is shorter or unreadable): what format sniffing
+/// looks at.
+pub(crate) fn file_head(path: &Path, n: usize) -> Vec<u8> {
     use std::io::Read;
-    let mut head = [0u8; 18];
-    let n = open_regular(path)
+    let mut head = vec![0u8; n];
+    let read = open_regular(path)
         .and_then(|mut f| f.read(&mut head))
         .unwrap_or(0);
-    head[..n] == *b"Kaydara FBX Binary"
+    head.truncate(read);
+    head
 }
 
 /// A CityGML file: a geographic CRS is placed by the reader; a projected one (the given CRS, else
@@ -230,29 +256,15 @@ fn read_citygml(path: &Path, opts: ReadOptions<'_>) -> Result<Scene> {
         } else {
             "srsName"
         };
-        match crate::scene::placement::georeference_map_coordinates_per_vertex(
-            &mut scene, &crs, source,
-        ) {
-            Ok(()) => {}
-            Err(PerVertexError::NotPlaced(e)) => {
-                warn_georef(&mut scene, path, format!("{what} {crs}: {e}"))
-            }
-            Err(e @ PerVertexError::Midway(_)) => {
-                return Err(Error::input(path, format!("{what} {crs}: {e}")))
-            }
-        }
+        place_per_vertex(&mut scene, path, (&crs, source), what)?;
     }
     Ok(scene)
 }
 
 /// IFC files are ISO 10303-21 (STEP) text, whatever their extension.
 fn looks_like_step(path: &Path) -> bool {
-    use std::io::Read;
-    let mut head = [0u8; 64];
-    let n = open_regular(path)
-        .and_then(|mut f| f.read(&mut head))
-        .unwrap_or(0);
-    let text = String::from_utf8_lossy(&head[..n]);
+    let head = file_head(path, 64);
+    let text = String::from_utf8_lossy(&head);
     text.trim_start_matches('\u{feff}')
         .trim_start()
         .starts_with("ISO-10303-21")

@@ -42,7 +42,16 @@ pub(super) fn write_primitive(
     };
     prim["mode"] = json!(4);
     if feature_count.is_some() {
-        let distinct = super::distinct_feature_count(m.feature_ids.iter().copied());
+        // What the written attribute holds: every vertex, or only those a triangle uses (the
+        // meshopt and Draco encodings drop the others).
+        let distinct = match enc.compression {
+            Compression::Meshopt | Compression::Draco => {
+                super::distinct_feature_count(m.indices.iter().map(|&i| m.feature_ids[i as usize]))
+            }
+            Compression::None | Compression::Quantized => {
+                super::distinct_feature_count(m.feature_ids.iter().copied())
+            }
+        };
         let mut feature_ids = json!({"featureCount": distinct, "attribute": 0});
         if property_table {
             feature_ids["propertyTable"] = json!(0);

@@ -3,10 +3,8 @@
 //! for, else the file's first). Images are read relative to the CityGML file and never from
 //! outside its folder, as the CityJSON reader reads them.
 
-use crate::ingest::cityjson::appearance::{
-    ImageFiles, GL_CLAMP_TO_EDGE, GL_MIRRORED_REPEAT, GL_REPEAT,
-};
-use crate::scene::{Sampler, Scene, TextureRef};
+use crate::ingest::cityjson::appearance::{wrap_of_mode, ImageFiles};
+use crate::scene::{Scene, TextureRef};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -109,21 +107,7 @@ impl Appearances {
             let Some(image) = images.image(t.image.trim(), base_dir, scene) else {
                 continue;
             };
-            let wrap = match t.wrap_mode.as_deref().map(str::trim) {
-                Some("mirror") => GL_MIRRORED_REPEAT,
-                Some("clamp" | "border") => GL_CLAMP_TO_EDGE,
-                // "none" and "wrap" (the default) both repeat in glTF terms.
-                _ => GL_REPEAT,
-            };
-            let texture = TextureRef {
-                image,
-                sampler: Sampler {
-                    wrap_s: wrap,
-                    wrap_t: wrap,
-                    ..Sampler::default()
-                },
-                tex_coord: 0,
-            };
+            let texture = TextureRef::on_first_uvs(image, wrap_of_mode(t.wrap_mode.as_deref()));
             for target in &t.targets {
                 let Some(p) = polygon_of(&target.polygon) else {
                     continue;

@@ -58,11 +58,7 @@ pub struct CityModel {
 /// Whether a file is CityGML: by name (`.gml`, `.gml.gz`), or for `.xml` (and gzipped files) by
 /// a `CityModel` root element near its start.
 pub fn is_citygml(path: &Path) -> bool {
-    let name = path
-        .file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
+    let name = super::lowercase_name(path);
     if name.ends_with(".gml") || name.ends_with(".gml.gz") {
         return true;
     }

@@ -10,10 +10,15 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-/// glTF sampler wrap modes for CityJSON's `wrapMode`.
-pub(crate) const GL_REPEAT: u32 = 10497;
-pub(crate) const GL_MIRRORED_REPEAT: u32 = 33648;
-pub(crate) const GL_CLAMP_TO_EDGE: u32 = 33071;
+/// The glTF wrap of a CityJSON or CityGML `wrapMode` ("none" and "wrap", the default, both
+/// repeat in glTF terms).
+pub(crate) fn wrap_of_mode(mode: Option<&str>) -> u32 {
+    match mode.map(str::trim) {
+        Some("mirror") => Sampler::MIRRORED_REPEAT,
+        Some("clamp" | "border") => Sampler::CLAMP_TO_EDGE,
+        _ => Sampler::REPEAT,
+    }
+}
 
 /// The textures and UVs of one document (a CityJSON file, or one CityJSONFeature with its own
 /// `appearance`).
@@ -83,20 +88,8 @@ impl ImageFiles {
     ) -> Option<TextureRef> {
         let name = texture.get("image").and_then(Value::as_str)?;
         let image = self.image(name, base_dir, scene)?;
-        let wrap = match texture.get("wrapMode").and_then(Value::as_str) {
-            Some("mirror") => GL_MIRRORED_REPEAT,
-            Some("clamp" | "border") => GL_CLAMP_TO_EDGE,
-            _ => GL_REPEAT,
-        };
-        Some(TextureRef {
-            image,
-            sampler: Sampler {
-                wrap_s: wrap,
-                wrap_t: wrap,
-                ..Sampler::default()
-            },
-            tex_coord: 0,
-        })
+        let wrap = wrap_of_mode(texture.get("wrapMode").and_then(Value::as_str));
+        Some(TextureRef::on_first_uvs(image, wrap))
     }
 
     pub(crate) fn image(

@@ -28,23 +28,15 @@ use std::path::Path;
 /// Whether a file is CityJSON or CityJSONSeq: by name (`.city.json`, `.jsonl`) or, for a plain
 /// `.json`, by its opening bytes naming the type.
 pub fn is_cityjson(path: &Path) -> bool {
-    let name = path
-        .file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
+    let name = super::lowercase_name(path);
     if name.ends_with(".city.json") || name.ends_with(".jsonl") {
         return true;
     }
     if !name.ends_with(".json") {
         return false;
     }
-    use std::io::Read;
-    let mut head = vec![0u8; 4096];
-    let n = super::open_regular(path)
-        .and_then(|mut f| f.read(&mut head))
-        .unwrap_or(0);
-    let text = String::from_utf8_lossy(&head[..n]);
+    let head = super::file_head(path, 4096);
+    let text = String::from_utf8_lossy(&head);
     // The "type" member may come last (3dfier writes "CityObjects" first).
     text.contains("\"CityJSON\"") || text.contains("\"CityObjects\"")
 }

@@ -13,15 +13,12 @@
 
 use super::interchange::{push_image, revit_element_id, TextureFiles};
 use crate::error::{Error, Result};
+use crate::geometry::unit_normal_or_z;
 use crate::scene::*;
 use glam::DMat4;
 use rustc_hash::FxHashMap;
 use std::collections::HashMap;
 use std::path::Path;
-
-/// glTF sampler wrap modes.
-const GL_REPEAT: u32 = 10497;
-const GL_CLAMP_TO_EDGE: u32 = 33071;
 
 /// Reads one FBX file into a new scene.
 pub fn read_fbx(path: &Path) -> Result<Scene> {
@@ -221,7 +218,7 @@ impl Reader<'_> {
                         prim.positions.push([p.x as f32, p.y as f32, p.z as f32]);
                         if let Some(normals) = prim.normals.as_mut() {
                             let v = mesh.vertex_normal[ix as usize];
-                            normals.push(unit([v.x as f32, v.y as f32, v.z as f32]));
+                            normals.push(unit_normal_or_z([v.x as f32, v.y as f32, v.z as f32]));
                         }
                         if let Some(uvs) = prim.uvs.as_mut() {
                             let v = mesh.vertex_uv[ix as usize];
@@ -298,16 +295,12 @@ impl Reader<'_> {
             }
         }?;
         let wrap = |w: ufbx::WrapMode| match w {
-            ufbx::WrapMode::Clamp => GL_CLAMP_TO_EDGE,
-            _ => GL_REPEAT,
+            ufbx::WrapMode::Clamp => Sampler::CLAMP_TO_EDGE,
+            _ => Sampler::REPEAT,
         };
         Some(TextureRef {
             image,
-            sampler: Sampler {
-                wrap_s: wrap(t.wrap_u),
-                wrap_t: wrap(t.wrap_v),
-                ..Sampler::default()
-            },
+            sampler: Sampler::wrapping(wrap(t.wrap_u), wrap(t.wrap_v)),
             tex_coord: 0,
         })
     }
@@ -342,15 +335,6 @@ fn matrix(m: &ufbx::Matrix) -> DMat4 {
         m.m00, m.m10, m.m20, 0.0, m.m01, m.m11, m.m21, 0.0, m.m02, m.m12, m.m22, 0.0, m.m03, m.m13,
         m.m23, 1.0,
     ])
-}
-
-fn unit(n: [f32; 3]) -> [f32; 3] {
-    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    if l.is_finite() && l > 1e-12 {
-        n.map(|c| c / l)
-    } else {
-        [0.0, 0.0, 1.0]
-    }
 }
 
 #[cfg(test)]

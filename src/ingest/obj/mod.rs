@@ -20,16 +20,13 @@ use super::interchange::{
     revit_element_id, unescape_fbx_name, LengthUnit, MeshFrame, TextureFiles,
 };
 use crate::error::{Error, Result};
+use crate::geometry::unit_normal_or_z;
 use crate::scene::*;
 use glam::{DMat4, DVec3};
 use rustc_hash::FxHashMap;
 use std::collections::{BTreeMap, HashMap};
 use std::io::BufRead;
 use std::path::Path;
-
-/// glTF sampler wrap modes for `-clamp`.
-const GL_REPEAT: u32 = 10497;
-const GL_CLAMP_TO_EDGE: u32 = 33071;
 
 /// Reads one OBJ file (and the MTL libraries it names) into a new scene, in `frame`.
 pub fn read_obj(path: &Path, frame: MeshFrame) -> Result<Scene> {
@@ -338,19 +335,11 @@ impl<'a> Reader<'a> {
         let texture = source.diffuse_map.as_ref().and_then(|map| {
             let image = self.textures.image(&map.file, &mut self.scene)?;
             let wrap = if map.clamp {
-                GL_CLAMP_TO_EDGE
+                Sampler::CLAMP_TO_EDGE
             } else {
-                GL_REPEAT
+                Sampler::REPEAT
             };
-            Some(TextureRef {
-                image,
-                sampler: Sampler {
-                    wrap_s: wrap,
-                    wrap_t: wrap,
-                    ..Sampler::default()
-                },
-                tex_coord: 0,
-            })
+            Some(TextureRef::on_first_uvs(image, wrap))
         });
         let [r, g, b] = source.diffuse;
         let id = MaterialId(self.scene.materials.len() as u32);
@@ -544,7 +533,7 @@ impl<'a> Reader<'a> {
                 .iter()
                 .map(|c| match c[2] {
                     NONE => [f32::NAN; 3],
-                    n => sanitize_normal(self.normals[n as usize]),
+                    n => unit_normal_or_z(self.normals[n as usize]),
                 })
                 .collect();
             if normals.iter().any(|n| n[0].is_nan()) {
@@ -552,7 +541,7 @@ impl<'a> Reader<'a> {
                 crate::geometry::normals_from_faces(&positions, &p.indices, &mut from_faces);
                 for (n, f) in normals.iter_mut().zip(from_faces) {
                     if n[0].is_nan() {
-                        *n = sanitize_normal(f);
+                        *n = unit_normal_or_z(f);
                     }
                 }
             }
@@ -640,16 +629,6 @@ impl<'a> Reader<'a> {
         super::keep_ids_unique(&mut self.scene);
         self.scene.finish();
         Ok(self.scene)
-    }
-}
-
-/// A unit normal, or +z for a zero or non-finite one (exporters write both).
-fn sanitize_normal(n: [f32; 3]) -> [f32; 3] {
-    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    if l.is_finite() && l > 1e-12 {
-        n.map(|c| c / l)
-    } else {
-        [0.0, 0.0, 1.0]
     }
 }
 
