@@ -1,4 +1,4 @@
-//! Entry points for fuzzing (README, "Safety"): each feeds arbitrary bytes to one reader of
+//! Entry points for fuzzing (book: guide/safety.md): each feeds arbitrary bytes to one reader of
 //! untrusted input, the same library function a run calls, and ignores the error it may return.
 //! A panic, an abort or a hang is the defect. The cargo-fuzz targets in `fuzz/` call these, and
 //! `tests/fuzz_corpus.rs` runs every corpus file through them on stable ([`TARGETS`]).

@@ -1,5 +1,5 @@
 //! The output folder, written atomically and never at the cost of a folder the user did not ask
-//! to replace (README, "Safety").
+//! to replace (book: guide/safety.md).
 //!
 //! - A build goes to a temporary folder beside the target (`.NAME.tmp-PID`), files through
 //!   temporary names, so an interrupted or failed run never leaves a tileset that looks complete.

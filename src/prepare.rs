@@ -33,7 +33,8 @@ pub struct InputReport {
     pub materials: usize,
     pub images: usize,
     pub skipped_primitives: usize,
-    /// Elements whose id was numbered or prefixed because it repeated (README, "Element ids").
+    /// Elements whose id was numbered or prefixed because it repeated (book: guide/bim-models.md,
+    /// "Element ids").
     pub renamed_ids: usize,
 }
 
@@ -68,7 +69,7 @@ pub(crate) fn read_scene(inputs: &InputSet, opts: &Settings) -> Result<Scene> {
     Ok(scene)
 }
 
-/// Refuses a scene with a coordinate or transform that is not plausible (README, "Safety"),
+/// Refuses a scene with a coordinate or transform that is not plausible (book: guide/safety.md),
 /// naming the file, the element and the value.
 fn refuse_implausible(scene: &Scene) -> Result<()> {
     match scene.first_implausible() {

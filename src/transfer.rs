@@ -1,11 +1,12 @@
 //! What a client pays to fetch a tileset: the exchange rate between requests and bytes that every
 //! choice between one shared file and copies in the tiles uses (the metadata schema's placement,
 //! texture files, a coarse root above a one-tile model, the root's content inlined in tileset.json;
-//! README, "First view: round trips"). The data URIs (RFC 2397) inlined content travels in are
+//! book: design/first-view.md). The data URIs (RFC 2397) inlined content travels in are
 //! [`crate::uri::data`]'s.
 
 /// What a sequential request costs, in bytes that could be sent instead: one round trip on the
-/// link the browser benchmark throttles to (README, "First view"): 20 Mbit/s x 40 ms = 100 KB.
+/// link the browser benchmark throttles to (book: design/first-view.md): 20 Mbit/s x 40 ms = 100
+/// KB.
 pub const SEQUENTIAL_REQUEST_WORTH_BYTES: usize = 100_000;
 
 /// Whether copying a file of `bytes` into each of the `users` tiles that reference it costs no

@@ -27,8 +27,8 @@ pub fn great_circle_m(lon1_deg: f64, lat1_deg: f64, lon2_deg: f64, lat2_deg: f64
 }
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
 
-/// The largest coordinate, offset or extent taken as plausible, in metres (README, "Safety"): the
-/// Earth's circumference. Every place on Earth is nearer in ECEF (at most 6.4e6 m from the
+/// The largest coordinate, offset or extent taken as plausible, in metres (book: guide/safety.md):
+/// the Earth's circumference. Every place on Earth is nearer in ECEF (at most 6.4e6 m from the
 /// centre) and in any projected CRS (web Mercator reaches 2.0e7 m), and no building model spans
 /// more; a number beyond it is a broken or hostile input (a 1e30 extrusion, a 1e300 offset) that
 /// would give tile boxes no viewer can use. Heights of a place (`--origin`) keep to it too.
@@ -136,8 +136,9 @@ pub struct GeoOrigin {
 
 impl GeoOrigin {
     /// Where a tileset goes when the user gives no `--origin` and the input carries no
-    /// georeference: Karlsruhe Institute of Technology, Germany (documented in the README), so that
-    /// viewers show the model on land, in a known place, rather than in the ocean at 0°,0°.
+    /// georeference: Karlsruhe Institute of Technology, Germany (documented in the book:
+    /// guide/georeferencing.md), so that viewers show the model on land, in a known place, rather
+    /// than in the ocean at 0°,0°.
     pub const DEFAULT: GeoOrigin = GeoOrigin {
         longitude_deg: 8.4116,
         latitude_deg: 49.0124,

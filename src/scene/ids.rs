@@ -1,4 +1,5 @@
-//! Element ids that stay unique whatever the source repeats (README, "Element ids").
+//! Element ids that stay unique whatever the source repeats (book: guide/bim-models.md, "Element
+//! ids").
 //!
 //! glTF lets sibling nodes share a name, and many exporters write `object` several times under
 //! one parent; a model may also repeat a GlobalId, and two input files may hold the same ids.

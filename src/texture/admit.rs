@@ -1,5 +1,5 @@
 //! Admission of a scene's images, before any texture pass allocates for them: limits from the
-//! header alone (the README's "Safety" section), and the dropping of images that cannot be used.
+//! header alone (book: guide/safety.md), and the dropping of images that cannot be used.
 //!
 //! - An image larger than [`MAX_IMAGE_SIDE_PX`] a side (the largest texture GPUs take), or whose
 //!   decoded pixels would need more than a quarter of `--memory-budget` (and at least 64 MiB), is

@@ -36,7 +36,8 @@ pub enum BasisCodec {
     Uastc,
 }
 
-/// The codec written by `--texture-format ktx2`, chosen by measurement (README, "Texture formats").
+/// The codec written by `--texture-format ktx2`, chosen by measurement (book: guide/textures.md,
+/// "Texture formats").
 pub const KTX2_CODEC: BasisCodec = BasisCodec::Etc1s;
 /// ETC1S quality (1-255): basisu's default is 128.
 const ETC1S_QUALITY: u32 = 128;

@@ -14,8 +14,8 @@ use std::path::Path;
 /// CesiumJS keys its resource cache (`ResourceCache`, `ResourceCacheKey`) by the content's URL, one
 /// key per buffer view, accessor, image and texture of a glTF, each looked up as a property name:
 /// with a data URI every lookup hashes the whole GLB in base64. A GLB is inlined only while its
-/// resources times its URI's length stay within this many characters (README, "First view:
-/// round trips", has what it cost).
+/// resources times its URI's length stay within this many characters (the book's
+/// design/first-view.md has what it cost).
 pub const CACHE_KEY_CHARS_MAX: u64 = 10_000_000;
 
 /// The characters CesiumJS's cache keys hash for a glTF (`json`) inlined as a data URI of

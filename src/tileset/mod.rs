@@ -57,8 +57,9 @@ pub enum NumbersError {
     Implausible { what: String, value: String },
 }
 
-/// The last check before a tileset is written (README, "Safety"): every bounding box, transform
-/// and geometric error of `tileset` is a number (`serde_json` writes NaN and infinities as
+/// The last check before a tileset is written (book: guide/safety.md): every bounding box,
+/// transform and geometric error of `tileset` is a number (`serde_json` writes NaN and infinities
+/// as
 /// `null`) and plausible (`geodesy::plausible_m`). `Err`: where the first one that is not sits,
 /// and its value; a tileset that fails this must not be written.
 pub fn check_numbers(tileset: &Value) -> Result<(), NumbersError> {
@@ -109,8 +110,8 @@ pub fn check_numbers(tileset: &Value) -> Result<(), NumbersError> {
     Ok(())
 }
 
-/// Builds the tileset JSON. `records[i]` belongs to `plan.tiles[i]`; `root_transform` maps the scene
-/// frame to ECEF; `extras` is stored under `asset.extras`.
+/// Builds the tileset JSON. `records[i]` belongs to `plan.tiles[i]`; `root_transform` maps the
+/// scene frame to ECEF; `extras` is stored under `asset.extras`.
 pub fn tileset_json(
     plan: &TilePlan,
     records: &[TileRecord],

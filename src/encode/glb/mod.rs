@@ -54,7 +54,7 @@ pub enum Compression {
     Draco,
     /// `Quantized`'s attributes as `EXT_meshopt_compression` streams, vertices reordered for
     /// its codecs: decoded on the client's main thread, without Draco's worker task per
-    /// primitive. The default, by measurement (README "Compression").
+    /// primitive. The default, by measurement (book: guide/compression.md).
     #[default]
     Meshopt,
 }

@@ -525,9 +525,9 @@ const GEOMETRY_UNITS_M: [f64; 6] = [1.0, 0.001, 0.01, 0.3048, 0.0254, 1200.0 / 3
 
 /// A declared project unit that the geometry contradicts: a model in map coordinates (so far from
 /// the origin once read in another length unit that [`choose_anchor`] anchors it at its
-/// footprint) that no CRS can place in the declared unit, but that lands inside the CRS's area of use (and near the site reference, if
-/// any) read in that other unit. The first such unit wins, anchored where its reading puts the
-/// anchor, with the warning that names both readings.
+/// footprint) that no CRS can place in the declared unit, but that lands inside the CRS's area of
+/// use (and near the site reference, if any) read in that other unit. The first such unit wins,
+/// anchored where its reading puts the anchor, with the warning that names both readings.
 fn read_geometry_unit_slip(
     m: &IfcMapConversion,
     path: &Path,
@@ -672,8 +672,8 @@ fn with_vertical_part(u: &mut CrsUse, crs: &str, vertical: Option<&str>) {
     }
 }
 
-/// What makes a map conversion unusable at all, whatever its CRS (README, "Safety"; an error, not
-/// a fallback): a Scale or FactorX/Y/Z that is zero, negative or not plausible
+/// What makes a map conversion unusable at all, whatever its CRS (book: guide/safety.md; an error,
+/// not a fallback): a Scale or FactorX/Y/Z that is zero, negative or not plausible
 /// (`geodesy::plausible_scale`), or Eastings/Northings/OrthogonalHeight that are not plausible
 /// metres in the MapUnit nor in the project unit (an exporter's slip). Absent values read as 1
 /// (scales) and 0.
