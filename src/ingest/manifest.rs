@@ -2,11 +2,11 @@
 //! one octree and one tileset cover all of them.
 //!
 //! A manifest is a JSON file (`schemas/manifest.schema.json`, book, "Campus manifests"): an
-//! optional geographic `origin` (the tileset's east-north-up frame; default
-//! [`GeoOrigin::DEFAULT`]) and a list of `models`, each a file path relative to the manifest's
-//! folder with its placement: a geographic point (`longitude_deg`, `latitude_deg`, `height_m`) or
-//! an offset in metres from the origin (`east_m`, `north_m`, `up_m`), and a `heading_deg`
-//! (clockwise from north, the compass convention). Each model's own anchor (the rule of `convert`: its origin, its footprint centre
+//! optional geographic `origin` (the tileset's east-north-up frame; default [`GeoOrigin::DEFAULT`])
+//! and a list of `models`, each a file path relative to the manifest's folder with its placement: a
+//! geographic point (`longitude_deg`, `latitude_deg`, `height_m`) or an offset in metres from the
+//! origin (`east_m`, `north_m`, `up_m`), and a `heading_deg` (clockwise from north, the compass
+//! convention). Each model's own anchor (the rule of `convert`: its origin, its footprint centre
 //! when it is in projected coordinates, or its IFC site reference point turned to true north) goes
 //! to its placement. Geographic placements are exact rigid transforms into the origin's frame (the
 //! local east-north-up frame of the placement point, expressed in the origin's), so a building
