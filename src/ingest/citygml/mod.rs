@@ -24,9 +24,7 @@ mod parse;
 use crate::error::{Error, Result};
 use crate::geometry::triangulate;
 use crate::ingest::cityjson::appearance::ImageFiles;
-use crate::ingest::cityjson::{
-    object_mesh, push_surface_material, ObjectTriangles, MISSING_IMAGES_NAMED, NO_SEMANTICS,
-};
+use crate::ingest::cityjson::{object_mesh, push_surface_material, ObjectTriangles, NO_SEMANTICS};
 use crate::scene::*;
 use glam::{DMat4, DVec3};
 use parse::{Document, Member};
@@ -360,20 +358,7 @@ impl Builder<'_> {
         let looks =
             doc.appearances
                 .looks(&chosen, &targets, &mut images, &base_dir, &mut self.scene);
-        if !images.missing.is_empty() {
-            let named: Vec<&str> = images
-                .missing
-                .iter()
-                .take(MISSING_IMAGES_NAMED)
-                .map(String::as_str)
-                .collect();
-            let line = format!(
-                "{}: {} texture images are missing or unreadable ({}{}): their surfaces are drawn untextured",
-                self.path.display(),
-                images.missing.len(),
-                named.join(", "),
-                if images.missing.len() > named.len() { ", …" } else { "" }
-            );
+        if let Some(line) = images.missing_warning(self.path) {
             self.scene.reader_warnings.push(line);
         }
         Ok(looks)

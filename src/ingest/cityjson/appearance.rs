@@ -3,12 +3,11 @@
 //! relative to the CityJSON file, never outside its folder), `vertices-texture` the UVs, and a
 //! ring's texture values `[texture, uv, uv…]` give each polygon corner its UV.
 
-use crate::scene::{Image, ImageId, Sampler, Scene, TextureRef};
+use crate::scene::{ImageId, Sampler, Scene, TextureRef};
 use crate::uri::confine;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// The glTF wrap of a CityJSON or CityGML `wrapMode` ("none" and "wrap", the default, both
 /// repeat in glTF terms).
@@ -98,35 +97,45 @@ impl ImageFiles {
         base_dir: &Path,
         scene: &mut Scene,
     ) -> Option<ImageId> {
-        let read = || -> Option<(PathBuf, Vec<u8>, &'static str)> {
-            let path = confine::inside(base_dir, name, &confine::INPUT).ok()?;
-            let bytes = super::super::read_regular(&path).ok()?;
-            let mime = crate::uri::mime::sniff_image(&bytes)?;
-            Some((path, bytes, mime))
-        };
         let key = base_dir.join(name);
         if let Some(&known) = self.loaded.get(&key) {
             return known;
         }
-        let id = match read() {
-            Some((_, bytes, mime)) => {
-                let id = ImageId(scene.images.len() as u32);
-                scene.images.push(Image {
-                    name: Some(name.to_string()),
-                    mime_type: mime.to_string(),
-                    bytes: Arc::new(bytes),
-                });
-                Some(id)
-            }
-            None => {
-                self.missing.push(name.to_string());
-                None
-            }
-        };
+        let id = confine::inside(base_dir, name, &confine::INPUT)
+            .ok()
+            .and_then(|path| super::super::read_regular(&path).ok())
+            .and_then(|bytes| crate::ingest::interchange::push_image(scene, name, bytes));
+        if id.is_none() {
+            self.missing.push(name.to_string());
+        }
         self.loaded.insert(key, id);
         id
     }
+
+    /// The warning for the images that could not be read, naming the first few; `None` when every
+    /// image was read.
+    pub(crate) fn missing_warning(&self, path: &Path) -> Option<String> {
+        if self.missing.is_empty() {
+            return None;
+        }
+        let named: Vec<&str> = self
+            .missing
+            .iter()
+            .take(MISSING_IMAGES_NAMED)
+            .map(String::as_str)
+            .collect();
+        Some(format!(
+            "{}: {} texture images are missing or unreadable ({}{}): their surfaces are drawn untextured",
+            path.display(),
+            self.missing.len(),
+            named.join(", "),
+            if self.missing.len() > named.len() { ", …" } else { "" }
+        ))
+    }
 }
+
+/// How many missing texture images the warning names.
+const MISSING_IMAGES_NAMED: usize = 3;
 
 /// A ring's texture: its texture index and one UV index per vertex (`[t, uv0, uv1…]`), or
 /// `None` for an untextured ring (`[null]`) or values that do not fit the ring.

@@ -54,8 +54,6 @@ pub(crate) const SEMANTIC_COLOURS: &[(&str, [f32; 4])] = &[
 ];
 /// Surfaces without semantics.
 pub(crate) const NO_SEMANTICS: &str = "Surface";
-/// How many missing texture images the warning names.
-pub(crate) const MISSING_IMAGES_NAMED: usize = 3;
 
 /// A CityJSON file read: its scene (in the file's coordinates) and the CRS its
 /// `metadata.referenceSystem` names ("EPSG:7415"), if any.
@@ -559,21 +557,7 @@ impl<'a> Reader<'a> {
                 self.scene.reader_warnings.push(line);
             }
         }
-        if !self.images.missing.is_empty() {
-            let named: Vec<&str> = self
-                .images
-                .missing
-                .iter()
-                .take(MISSING_IMAGES_NAMED)
-                .map(String::as_str)
-                .collect();
-            let line = format!(
-                "{}: {} texture images are missing or unreadable ({}{}): their surfaces are drawn untextured",
-                self.path.display(),
-                self.images.missing.len(),
-                named.join(", "),
-                if self.images.missing.len() > named.len() { ", …" } else { "" }
-            );
+        if let Some(line) = self.images.missing_warning(self.path) {
             self.scene.reader_warnings.push(line);
         }
         for (child, parent) in std::mem::take(&mut self.parents) {
