@@ -192,6 +192,10 @@ fn transform_error(definition: &str) -> impl Fn(String) -> CrsError + '_ {
 /// The CRS of a PROJ definition; of a compound CRS (e.g. RD New + NAP height), its horizontal
 /// part, which places points (heights are taken as ellipsoidal).
 fn horizontal_crs<'c>(ctx: &'c Context, definition: &str) -> Result<proj::Object<'c>, CrsError> {
+    // "AUTH:h+v" is PROJ's compound of the two codes: its horizontal part is the CRS of "AUTH:h",
+    // made without building the compound (a round of database queries of its own).
+    let definition = horizontal_code(definition).unwrap_or_else(|| definition.to_string());
+    let definition = definition.as_str();
     let created = ctx.create(definition).map_err(|why| CrsError::Unknown {
         crs: definition.to_string(),
         // PROJ says "Unknown error (code 4096)" for a code it does not have.
@@ -286,9 +290,37 @@ pub fn projected_unit_m(crs_text: &str) -> Result<f64, CrsError> {
     })
 }
 
-/// Whether PROJ makes a CRS of `definition` (a compound "EPSG:7856+5711", a WKT).
-pub fn proj_knows(definition: &str) -> bool {
-    with_context(definition, |ctx| Ok(ctx.create(definition).is_ok())).unwrap_or(false)
+/// Makes the CRS `definition` names and its operation to WGS 84 in this thread's context, and
+/// ignores failures (whoever uses the CRS reports them): a context's first queries open PROJ's
+/// database, which costs more than placing a small model, and can run while other threads read
+/// the model's geometry.
+pub fn warm_up(definition: &str) {
+    let definition = normalize_crs_text(definition);
+    let _ = with_context(&definition, |ctx| {
+        let crs = horizontal_crs(ctx, &definition)?;
+        ctx.operation_to_wgs84(&crs)
+            .map(drop)
+            .map_err(|e| transform_error(&definition)(e.message))
+    });
+}
+
+/// "AUTH:h" of a compound "AUTH:h+v" given by two codes of one authority.
+fn horizontal_code(definition: &str) -> Option<String> {
+    let (authority, codes) = definition.split_once(':')?;
+    let (h, v) = codes.split_once('+')?;
+    let is_code = |c: &str| !c.is_empty() && c.bytes().all(|b| b.is_ascii_digit());
+    (is_code(h) && is_code(v) && authority.bytes().all(|b| b.is_ascii_alphabetic()))
+        .then(|| format!("{authority}:{h}"))
+}
+
+/// Whether PROJ knows `definition` as a vertical CRS (a height system such as "EPSG:5711").
+pub fn is_vertical_crs(definition: &str) -> bool {
+    with_context(definition, |ctx| {
+        Ok(ctx
+            .create(definition)
+            .is_ok_and(|crs| crs.kind() == proj::PJ_TYPE_VERTICAL_CRS))
+    })
+    .unwrap_or(false)
 }
 
 /// The id and name of `definition` when PROJ makes a compound CRS of it (a projected CRS with a
@@ -562,6 +594,27 @@ mod tests {
         let e = place_map_point("EPSG:2056", 155_000.0, 463_000.0, 0.0).unwrap_err();
         assert!(matches!(e, CrsError::OutsideAreaOfUse { .. }), "{e}");
         assert!(!e.to_string().contains('\n'));
+    }
+
+    #[test]
+    fn compounds_of_two_codes_are_placed_by_their_first() {
+        assert_eq!(
+            horizontal_code("EPSG:25832+7837").as_deref(),
+            Some("EPSG:25832")
+        );
+        for not_two_codes in [
+            "EPSG:25832",
+            "EPSG:+7837",
+            "EPSG:25832+",
+            "EPSG:2a+5",
+            "+proj=utm",
+        ] {
+            assert_eq!(horizontal_code(not_two_codes), None, "{not_two_codes}");
+        }
+        let a = place_map_point("EPSG:25832+7837", 457_300.0, 5_439_400.0, 0.0).unwrap();
+        let b = place_map_point("EPSG:25832", 457_300.0, 5_439_400.0, 0.0).unwrap();
+        assert_eq!(a.place, b.place);
+        assert!(is_vertical_crs("EPSG:7837") && !is_vertical_crs("EPSG:25832"));
     }
 
     #[test]

@@ -41,10 +41,13 @@ struct PjProjInfo {
 
 const PJ_FWD: c_int = 1;
 const PJ_LOG_NONE: c_int = 0;
+/// `PJ_COMPARISON_CRITERION`: same objects, names and identifiers included.
+const PJ_COMP_STRICT: c_int = 0;
 
 /// `PJ_TYPE` values used here (proj.h, PROJ 9).
 pub const PJ_TYPE_GEOGRAPHIC_2D_CRS: i32 = 12;
 pub const PJ_TYPE_GEOGRAPHIC_3D_CRS: i32 = 13;
+pub const PJ_TYPE_VERTICAL_CRS: i32 = 14;
 pub const PJ_TYPE_PROJECTED_CRS: i32 = 15;
 pub const PJ_TYPE_COMPOUND_CRS: i32 = 16;
 pub const PJ_TYPE_BOUND_CRS: i32 = 19;
@@ -58,6 +61,7 @@ extern "C" {
     fn proj_context_errno_string(ctx: *mut PjContext, err: c_int) -> *const c_char;
     fn proj_create(ctx: *mut PjContext, definition: *const c_char) -> *mut Pj;
     fn proj_destroy(p: *mut Pj) -> *mut Pj;
+    fn proj_is_equivalent_to(a: *const Pj, b: *const Pj, criterion: c_int) -> c_int;
     fn proj_get_type(p: *const Pj) -> c_int;
     fn proj_get_name(p: *const Pj) -> *const c_char;
     fn proj_get_id_auth_name(p: *const Pj, index: c_int) -> *const c_char;
@@ -129,8 +133,11 @@ pub struct Context {
     made: RefCell<HashMap<String, Result<*mut Pj, ProjError>>>,
     /// [`Object::sub_crs`] of kept objects, by (object, index).
     parts: RefCell<HashMap<(usize, i32), *mut Pj>>,
-    /// [`Context::operation_to_wgs84`] of kept objects, by source.
-    to_wgs84: RefCell<HashMap<usize, *mut Pj>>,
+    /// [`Context::operation_to_wgs84`] of kept objects: (source, operation). Looked up by
+    /// equivalence, not by pointer, because the horizontal part of a compound CRS is another
+    /// object than the same CRS made from its code, and each search of operations is a round of
+    /// database queries.
+    to_wgs84: RefCell<Vec<(*mut Pj, *mut Pj)>>,
 }
 
 impl Context {
@@ -241,11 +248,22 @@ impl Context {
             let wgs84 = self.create("EPSG:4326")?;
             self.operation(source, &wgs84)
         };
-        if source.kept {
-            self.keep(&self.to_wgs84, source.ptr as usize, make)
-        } else {
-            make()
+        if !source.kept {
+            return make();
         }
+        let known = self.to_wgs84.borrow().iter().find_map(|&(crs, op)| {
+            // SAFETY: both are live objects of this context; comparing reads them only.
+            let same = crs == source.ptr
+                || unsafe { proj_is_equivalent_to(crs, source.ptr, PJ_COMP_STRICT) } != 0;
+            same.then_some(op)
+        });
+        if let Some(op) = known {
+            return Ok(self.kept(op));
+        }
+        let mut op = make()?;
+        op.kept = true;
+        self.to_wgs84.borrow_mut().push((source.ptr, op.ptr));
+        Ok(op)
     }
 }
 
@@ -253,7 +271,7 @@ impl Drop for Context {
     fn drop(&mut self) {
         let made = self.made.get_mut().drain().filter_map(|(_, m)| m.ok());
         let parts = self.parts.get_mut().drain().map(|(_, p)| p);
-        let ops = self.to_wgs84.get_mut().drain().map(|(_, p)| p);
+        let ops = self.to_wgs84.get_mut().drain(..).map(|(_, op)| op);
         for ptr in made.chain(parts).chain(ops).collect::<Vec<_>>() {
             // SAFETY: kept objects are owned by the context alone, each destroyed once.
             unsafe { proj_destroy(ptr) };
@@ -472,5 +490,21 @@ mod tests {
         assert!(desc.contains("RD New"), "{desc}");
         assert!(acc.is_some_and(|a| a > 0.0 && a < 10.0), "{acc:?}");
         assert!(op.forward(f64::NAN, 0.0, 0.0).is_err());
+    }
+
+    #[test]
+    fn a_compound_s_horizontal_part_shares_the_operation_of_its_crs() {
+        let ctx = Context::new().unwrap();
+        let utm = ctx.create("EPSG:25832").unwrap();
+        let compound = ctx.create("EPSG:25832+7837").unwrap();
+        let horizontal = compound.sub_crs(0).unwrap();
+        assert_ne!(utm.ptr, horizontal.ptr);
+        let a = ctx.operation_to_wgs84(&utm).unwrap().ptr;
+        let b = ctx.operation_to_wgs84(&horizontal).unwrap().ptr;
+        assert_eq!(a, b);
+        // Another CRS gets its own.
+        let rd = ctx.create("EPSG:28992").unwrap();
+        assert_ne!(ctx.operation_to_wgs84(&rd).unwrap().ptr, a);
+        assert_eq!(ctx.to_wgs84.borrow().len(), 2);
     }
 }

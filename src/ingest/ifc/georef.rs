@@ -33,7 +33,7 @@
 
 use super::*;
 use crate::geodesy::crs::{
-    compound_crs, epsg_code_of, place_geographic_point, place_map_point, proj_knows,
+    compound_crs, epsg_code_of, is_vertical_crs, place_geographic_point, place_map_point,
     projected_unit_m, CrsError, CrsUse, MapPlace,
 };
 use crate::geodesy::projection::UtmZone;
@@ -285,6 +285,18 @@ fn looks_like_wkt(text: &str) -> bool {
     ]
     .iter()
     .any(|k| upper.starts_with(k))
+}
+
+/// Opens PROJ on this thread for the CRS the map placement names first, so that reading the
+/// georeference later finds it made (see [`crate::geodesy::crs::warm_up`]).
+pub(super) fn warm_up_proj(raw: &engine::RawGeoref, crs_option: Option<&str>) {
+    let first = raw
+        .map_conversion
+        .as_ref()
+        .and_then(|m| crs_candidates(m, crs_option).into_iter().next());
+    if let Some((definition, _)) = first {
+        crate::geodesy::crs::warm_up(&definition);
+    }
 }
 
 /// MapProjection + MapZone + GeodeticDatum → an EPSG code: UTM ("UTM", "32N") on WGS 84, ETRS89,
@@ -654,8 +666,9 @@ fn georef_geographic(
 }
 
 /// Reports a compound CRS the file names as that compound, and `EPSG:h` with a `VerticalDatum`
-/// code `v` as the compound `EPSG:h+v` when PROJ knows it (heights stay ellipsoidal: the vertical
-/// part only names the file's intent).
+/// code `v` of a vertical CRS as the compound `EPSG:h+v` (heights stay ellipsoidal: the vertical
+/// part only names the file's intent). The horizontal CRS is known by now, and PROJ composes any
+/// horizontal CRS with a vertical one, so the compound itself need not be built.
 fn with_vertical_part(u: &mut CrsUse, crs: &str, vertical: Option<&str>) {
     if let Some((id, name)) = compound_crs(crs) {
         u.crs = id;
@@ -666,7 +679,7 @@ fn with_vertical_part(u: &mut CrsUse, crs: &str, vertical: Option<&str>) {
         return;
     };
     let compound = format!("EPSG:{h}+{v}");
-    if u.crs == format!("EPSG:{h}") && proj_knows(&compound) {
+    if u.crs == format!("EPSG:{h}") && is_vertical_crs(&format!("EPSG:{v}")) {
         u.crs_name = format!("{} + EPSG:{v} (vertical, not applied)", u.crs_name);
         u.crs = compound;
     }

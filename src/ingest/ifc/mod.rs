@@ -272,12 +272,29 @@ pub fn read_ifc_bytes_with_crs(
     let check_s = t0.elapsed().as_secs_f64();
 
     let engine = engine::IfcLite;
-    let t1 = Instant::now();
-    let geometry = guarded(IfcStage::Geometry, || {
-        engine::IfcEngine::geometry(&engine, bytes)
-    })
-    .map_err(|e| Error::input_from(path, "", e))?;
-    let geometry_s = t1.elapsed().as_secs_f64();
+    // The geometry is read on a thread of its own while this one reads the georeference and
+    // opens PROJ for its CRS (this thread places the model afterwards, with that context).
+    let (geometry, geometry_s, raw_georef) = std::thread::scope(|scope| {
+        let geometry = scope.spawn(|| {
+            let t1 = Instant::now();
+            let g = guarded(IfcStage::Geometry, || {
+                engine::IfcEngine::geometry(&engine, bytes)
+            });
+            (g, t1.elapsed().as_secs_f64())
+        });
+        let raw_georef = guarded(IfcStage::Georef, || {
+            engine::IfcEngine::georef(&engine, bytes)
+        })
+        .ok();
+        if let Some(raw) = &raw_georef {
+            georef::warm_up_proj(raw, crs_option);
+        }
+        let (g, geometry_s) = geometry
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (g, geometry_s, raw_georef)
+    });
+    let geometry = geometry.map_err(|e| Error::input_from(path, "", e))?;
     let t2 = Instant::now();
     let data = guarded(IfcStage::DataModel, || {
         engine::IfcEngine::data_model(&engine, bytes)
@@ -286,10 +303,6 @@ pub fn read_ifc_bytes_with_crs(
     let data_model_s = t2.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
-    let raw_georef = guarded(IfcStage::Georef, || {
-        engine::IfcEngine::georef(&engine, bytes)
-    })
-    .ok();
     let conversion = raw_georef.as_ref().and_then(|r| r.map_conversion.as_ref());
     if let Some(problem) = conversion.and_then(georef::implausible_map_number) {
         return Err(Error::input(path, problem));
