@@ -2,10 +2,10 @@
 //! 3.0, PLATEAU with its `uro` ADE, SIG3D, citygml4j, OGC examples). Each file is converted once
 //! and the tileset shared between the checks here: every triangle written once, gltf-validator and
 //! the 3D Tiles schemas pass; the gml:ids are in the property tables and PLATEAU's ADE attributes
-//! keep their `uro:` prefix; textured files keep images and UVs through the atlas; `--citygml-lod`
-//! reads one LoD and names those present when asked for one no object has. Element counts,
-//! polygon areas and placement against pyproj are checked independently in
-//! `tests/python/test_citygml_pyproj.py`.
+//! keep their `uro:` prefix; windows and doors are elements with their names; textured files keep
+//! images and UVs through the atlas; `--citygml-lod` reads one LoD and names those present when
+//! asked for one no object has. Element counts, polygon areas and placement against pyproj are
+//! checked independently in `tests/python/test_citygml_pyproj.py`.
 
 use crate::common::*;
 use serde_json::Value;
@@ -106,6 +106,38 @@ fn gml_ids_and_ade_attributes_are_in_the_property_tables() {
         contains("attributes.measuredHeight"),
         "bldg:measuredHeight as a property"
     );
+}
+
+#[test]
+fn windows_and_doors_are_elements_with_their_names() {
+    let Some((path, out, _)) = converted()
+        .iter()
+        .find(|(p, _, _)| p.ends_with("citygml2/Building_LOD3-EPSG25832.gml"))
+    else {
+        return;
+    };
+    let text = std::fs::read_to_string(path).unwrap();
+    let bytes = all_tile_bytes(out);
+    let contains = |needle: &str| bytes.windows(needle.len()).any(|w| w == needle.as_bytes());
+    let mut openings = 0;
+    for class in ["Window", "Door"] {
+        for part in text.split(&format!("<bldg:{class} gml:id=\"")).skip(1) {
+            let id = part.split('"').next().unwrap();
+            let name = part
+                .split("<gml:name>")
+                .nth(1)
+                .and_then(|n| n.split('<').next())
+                .unwrap();
+            assert!(
+                contains(id),
+                "{}: {class} {id} in the tiles",
+                path.display()
+            );
+            assert!(contains(name), "{}: {class} name {name:?}", path.display());
+            openings += 1;
+        }
+    }
+    assert_eq!(openings, 3, "the file's two windows and a door");
 }
 
 #[test]

@@ -42,6 +42,8 @@ CLASSES = {
     "AuxiliaryTrafficSpace", "ReliefFeature", "TINRelief", "MassPointRelief", "BreaklineRelief", "WaterBody",
     "SolitaryVegetationObject", "PlantCover", "CityFurniture", "GenericCityObject", "GenericOccupiedSpace",
     "GenericUnoccupiedSpace", "GenericLogicalSpace", "LandUse", "OtherConstruction",
+    # Openings are city objects too (CityGML 2.0 _Opening, 3.0 filling elements).
+    "Window", "Door",
 }
 SURFACES = {"Polygon", "PolygonPatch", "Triangle"}
 

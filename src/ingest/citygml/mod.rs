@@ -3,11 +3,11 @@
 //!
 //! The document is read as a stream of XML events ([`parse`]). Every city object with geometry
 //! (Building, BuildingPart, BuildingInstallation, Bridge and its parts, Tunnel, Road, Track,
-//! TrafficArea, TINRelief, WaterBody, vegetation, CityFurniture, GenericCityObject…) becomes an
-//! element: its `gml:id` the key, its element name the class, its enclosing city objects the
-//! hierarchy path, its attributes typed properties ([`attributes`]). Thematic surfaces
-//! (WallSurface, RoofSurface…) and openings are the semantic types of their polygons, split per
-//! type as for CityJSON. Surfaces are gml:Polygon, PolygonPatch and Triangle in any GML
+//! TrafficArea, TINRelief, WaterBody, vegetation, CityFurniture, GenericCityObject, and the
+//! openings Window and Door) becomes an element: its `gml:id` the key, its element name the
+//! class, its enclosing city objects the hierarchy path, its attributes typed properties
+//! ([`attributes`]). Thematic surfaces (WallSurface, RoofSurface…) are the semantic types of
+//! their polygons, split per type as for CityJSON. Surfaces are gml:Polygon, PolygonPatch and Triangle in any GML
 //! aggregate (MultiSurface, CompositeSurface, Solid, CompositeSolid, TriangulatedSurface,
 //! OrientableSurface, which turns them over), inline or by `xlink:href` to a gml:id anywhere in
 //! the file; a polygon reached twice (a solid built from its boundary surfaces) is drawn once.

@@ -14,8 +14,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::io::BufRead;
 
 /// City object classes of CityGML 1.0–3.0 (local names in an OGC namespace): each with geometry
-/// becomes an element. Thematic surfaces and openings are not among them: they are the semantic
-/// types of their parent's surfaces.
+/// becomes an element. Thematic surfaces are not among them: they are the semantic types of
+/// their parent's surfaces.
 const CITY_OBJECT_CLASSES: &[&str] = &[
     "Building",
     "BuildingPart",
@@ -67,7 +67,12 @@ const CITY_OBJECT_CLASSES: &[&str] = &[
     "OtherConstruction",
 ];
 
-/// Thematic boundary surfaces and openings: the semantic type of the polygons inside them.
+/// Openings (CityGML 2.0 `_Opening`, 3.0 filling elements): city objects of their own (a window
+/// is picked as the window, with its name), inside the thematic surface of their wall, whose
+/// polygons take the opening's class as their semantic type.
+const OPENING_CLASSES: &[&str] = &["Window", "Door"];
+
+/// Thematic boundary surfaces: the semantic type of the polygons inside them.
 const THEMATIC_SURFACES: &[&str] = &[
     "WallSurface",
     "RoofSurface",
@@ -78,8 +83,6 @@ const THEMATIC_SURFACES: &[&str] = &[
     "FloorSurface",
     "InteriorWallSurface",
     "CeilingSurface",
-    "Window",
-    "Door",
     "WaterSurface",
     "WaterGroundSurface",
     "WaterClosureSurface",
@@ -211,6 +214,9 @@ struct Parser {
     frames: Vec<Open>,
     text: String,
     objects: Vec<usize>,
+    /// The semantic type in effect where each open object starts (an opening's own): text
+    /// read under another one belongs to a thematic surface, not to the object.
+    object_semantics: Vec<Option<usize>>,
     semantic: Option<usize>,
     lod: Option<(u8, Vec<Member>)>,
     reversed: bool,
@@ -240,6 +246,7 @@ pub(super) fn parse(input: impl BufRead) -> Result<Document, ParseError> {
         frames: Vec::new(),
         text: String::new(),
         objects: Vec::new(),
+        object_semantics: Vec::new(),
         semantic: None,
         lod: None,
         reversed: false,
@@ -376,25 +383,16 @@ impl Parser {
         } else if self.in_appearance {
             self.appearance_start(local, e)
         } else if ogc && !is_gml && CITY_OBJECT_CLASSES.contains(&local) {
-            let index = self.doc.objects.len();
-            self.doc.objects.push(CityObject {
-                id: id.unwrap_or_else(|| format!("{local}-{index}")),
-                class: local.to_string(),
-                parent: self.objects.last().copied(),
-                ..CityObject::default()
-            });
-            self.objects.push(index);
-            Frame::Object
+            self.object_start(local, id)
+        } else if ogc && !is_gml && OPENING_CLASSES.contains(&local) {
+            let object = self.object_start(local, id);
+            let thematic = self.thematic_start(local);
+            if let Some(s) = self.object_semantics.last_mut() {
+                *s = self.semantic;
+            }
+            Frame::Both(Box::new(thematic), Box::new(object))
         } else if ogc && !is_gml && THEMATIC_SURFACES.contains(&local) {
-            let name = local.to_string();
-            let index = match self.doc.semantics.iter().position(|s| *s == name) {
-                Some(i) => i,
-                None => {
-                    self.doc.semantics.push(name);
-                    self.doc.semantics.len() - 1
-                }
-            };
-            Frame::Thematic(self.semantic.replace(index))
+            self.thematic_start(local)
         } else if ogc && !is_gml && self.lod.is_none() && lod_of_property(local).is_some() {
             self.lod = Some((lod_of_property(local).unwrap_or(0), Vec::new()));
             if let Some(h) = href {
@@ -422,6 +420,32 @@ impl Parser {
             ns: namespace_of(ns),
         });
         Ok(())
+    }
+
+    /// A city object opens: its polygons and attributes are its own until it ends.
+    fn object_start(&mut self, local: &str, id: Option<String>) -> Frame {
+        let index = self.doc.objects.len();
+        self.doc.objects.push(CityObject {
+            id: id.unwrap_or_else(|| format!("{local}-{index}")),
+            class: local.to_string(),
+            parent: self.objects.last().copied(),
+            ..CityObject::default()
+        });
+        self.objects.push(index);
+        self.object_semantics.push(self.semantic);
+        Frame::Object
+    }
+
+    /// A thematic surface opens: the polygons inside it are of its semantic type.
+    fn thematic_start(&mut self, local: &str) -> Frame {
+        let index = match self.doc.semantics.iter().position(|s| s == local) {
+            Some(i) => i,
+            None => {
+                self.doc.semantics.push(local.to_string());
+                self.doc.semantics.len() - 1
+            }
+        };
+        Frame::Thematic(self.semantic.replace(index))
     }
 
     fn push_member(&mut self, m: Member) {
@@ -549,6 +573,7 @@ impl Parser {
             }
             Frame::Object => {
                 self.objects.pop();
+                self.object_semantics.pop();
             }
             Frame::Thematic(previous) => self.semantic = previous,
             Frame::Lod => {
@@ -697,7 +722,7 @@ impl Parser {
         let Some(&o) = self.objects.last() else {
             return Ok(());
         };
-        if self.semantic.is_some() || self.lod.is_some() {
+        if self.object_semantics.last() != Some(&self.semantic) || self.lod.is_some() {
             return Ok(());
         }
         let object = &mut self.doc.objects[o];
