@@ -119,6 +119,11 @@ test: deps
 # 2026-11-25, were tiny_http leaving a new connection unread: fixed in src/serve/, no retry.)
 BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus ktx2-LoD3_Railway cityjson-3dbag-5907-subset ladder-airport
 INLINED_SETS := shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
+# The BIM tools (viewer/bim.js) in one more browser, on two of the tilesets above
+# (tools/viewer_test.mjs): tree, hide and isolate on duplex; search, colour by class, section
+# box, measure and the URL state on the FZK house; ARIA roles, the element index fetched after the
+# first view, and the tree and search on 100k elements on both.
+VIEWER_SETS := duplex=target/test-out/shared-duplex/tiles fzk=target/test-out/shared-AC20-FZK-Haus/tiles
 test-browser: deps build
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || { echo "browser test: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; \
 	  case " $(INLINED_SETS) " in *" $$s "*) grep -Eq '"uri": *"data:model/gltf-binary;base64,' $$d/tileset.json || { echo "browser test: $$s: the root is not inlined in tileset.json"; exit 1; };; esac; \
@@ -126,6 +131,9 @@ test-browser: deps build
 	  log=target/test-out/$$s.browser.log; \
 	  BIMTILES_SERVE_LOG=1 node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" \
 	    --out target/test-out/$$s.png $$pick > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log; done
+	@echo "viewer test (BIM tools): $(VIEWER_SETS)"; log=target/test-out/viewer.browser.log; \
+	  node tools/viewer_test.mjs --bin $(BIN) $(foreach s,$(VIEWER_SETS),--set $(s)) \
+	    --json target/test-out/viewer.json > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
 
 # The book: the CLI reference is written again from the clap definitions (examples/cli_reference.rs)
 # and must equal the committed page (else it is replaced and make fails: commit the new page), then
@@ -141,14 +149,16 @@ docs: deps-docs build
 	$(BIN) convert --out target/docs/sample --force --quiet
 	python3 tools/check_docs.py --report target/docs/sample/report.json
 
-# The README's and the book's screenshot, taken by the browser test: a shared IFC model converted
-# with the default options, loaded in the viewer at full resolution (a click must pick an element).
+# The README's and the book's screenshots, taken by the browser tests: a shared IFC model converted
+# with the default options, loaded in the viewer at full resolution (a click must pick an element),
+# then its BIM tools (tree and isolate, colour by class, section box).
 SCREENSHOT_MODEL ?= $(SHARED)/data/AC20-FZK-Haus.ifc
 screenshot: deps build
 	mkdir -p target/screenshot
 	$(BIN) convert $(SCREENSHOT_MODEL) --out target/screenshot/tiles --force --quiet
 	node tools/browser_test.mjs --server-cmd "$(BIN) serve target/screenshot/tiles --port 0" \
 	  --query "msaa=4&scale=1" --require-pick --out docs/src/images/viewer.png
+	node tools/viewer_test.mjs --bin $(BIN) --set fzk=target/screenshot/tiles --shots docs/src/images
 
 # Raw model (one-tile tileset) vs our tileset in real CesiumJS, cold and warm (tile cache) loads:
 # load time, bytes, memory, frame cost -> target/bench/browser.json, then the charts

@@ -31,6 +31,9 @@ pub struct OutputReport {
     pub instances: usize,
     /// Bytes of the property tables (EXT_structural_metadata) over all tiles.
     pub metadata_bytes: u64,
+    /// Bytes of the element index (`element-index.json`, for a viewer's model tree and search;
+    /// not in `bytes`, which a first view may load).
+    pub element_index_bytes: u64,
 }
 
 /// One level of detail, as the paper's Table I (LOD level, patches, maximum folding edge length,
@@ -220,6 +223,10 @@ pub(crate) fn make_report(
             instanced_shapes: out_shapes,
             instances: out_instances,
             metadata_bytes: tiles.iter().map(|t| t.content.metadata_bytes).sum(),
+            element_index_bytes: std::fs::metadata(
+                dir.join(crate::tileset::element_index::ELEMENT_INDEX_FILE),
+            )
+            .map_or(0, |m| m.len()),
         },
         levels,
         lod_levels: if opts.lod == LodMode::None {

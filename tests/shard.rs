@@ -1,9 +1,10 @@
 //! Sharded builds (issue 12): `plan` / `build-job` (jobs in reverse order) / `merge` must give the
-//! tileset `convert` gives, byte for byte: every tile, tileset.json and schema.json, and
-//! report.json apart from timings, memory and the texture tallies of the merging process. A job
-//! killed mid-write (simulated by its leftover temporary files) is not accepted by `merge`, and
-//! rerunning only that job completes the build. A tiny `--memory-budget` (geometry spilled to disk
-//! and read back) gives the same tileset too, for a campus of GLBs and for CityJSON districts.
+//! tileset `convert` gives, byte for byte: every tile, tileset.json, schema.json, the element
+//! index, and report.json apart from timings, memory and the texture tallies of the merging
+//! process. A job killed mid-write (simulated by its leftover temporary files) is not accepted by
+//! `merge`, and rerunning only that job completes the build. A tiny `--memory-budget` (geometry
+//! spilled to disk and read back) gives the same tileset too, for a campus of GLBs and for
+//! CityJSON districts.
 
 use crate::common::*;
 use serde_json::Value;
@@ -90,6 +91,7 @@ fn assert_identical(convert: &Path, sharded: &Path) {
         "same files"
     );
     assert!(a.keys().filter(|k| k.starts_with("tiles/")).count() > 1);
+    assert!(a.contains_key("element-index.json"), "the element index");
     for (name, bytes) in &a {
         assert!(
             bytes == &b[name],

@@ -323,7 +323,8 @@ export async function changedShare(page, pngA, pngB) {
   );
 }
 
-async function frames(page, n) {
+/** Waits for `n` rendered frames. */
+export async function frames(page, n) {
   await page.evaluate(
     (n) =>
       new Promise((resolve) => {

@@ -175,6 +175,13 @@ def main(argv=None):
     for cls in schema.get("classes", {}).values():
         documented(os.path.join(src, "reference", "metadata-schema.md"), cls.get("properties", {}),
                    "schema property", problems)
+    index_schema = os.path.join(repo, "schemas", "element-index.schema.json")
+    if os.path.exists(index_schema):
+        with open(index_schema, encoding="utf-8") as f:
+            index = json.load(f)["properties"]
+        documented(os.path.join(src, "reference", "element-index.md"),
+                   {**index, **index["dictionaries"]["properties"], **index["columns"]["properties"]},
+                   "element index key", problems)
     documented(os.path.join(src, "design", "dependencies.md"),
                dependencies(os.path.join(repo, "Cargo.toml")), "dependency", problems)
     for p in problems:

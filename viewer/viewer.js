@@ -11,6 +11,11 @@
 //   debug=1       show tile bounding volumes
 //   dracoWorkers=N  Draco decoding workers (default max(4, cores - 1); 0 = Cesium's cores - 1)
 //   sky=1         sky and ground atmosphere (off by default: costly under software rendering)
+//   bim=0         no BIM tools (bim.js); fly=S  their camera flights' seconds (default 1)
+//
+// BIM tools (bim.js: model tree, search, isolate, colour by property, section, measure, the view in
+// the URL's hash) are loaded once the first view is drawn (all its tiles loaded), or at once when
+// their button is pressed, so the first view does not wait for them or for the element index.
 //
 // Adaptive rendering (paper IV.B, strategy pattern): adaptive.js picks a strategy from the scene's
 // size (tiles in tileset.json) and the device (cores, navigator.deviceMemory), sets the tile cache
@@ -54,6 +59,8 @@
     cache: { serviceWorker: false, reason: null },
     adaptive: null, // the adaptive strategy's state (adaptive.js): strategy, sse, fps, bounds...
     selected: null, // properties shown for the last picked element
+    indexRequests: 0, // the element index (bim.js), not counted as tile requests
+    indexBytes: 0,
   });
 
   // --- console errors, uncaught errors -----------------------------------------------------
@@ -73,7 +80,10 @@
     status.requests++;
     status.bytes += e.encodedBodySize || 0;
     status.transferBytes += e.transferSize || 0;
-    if (status.tilesetUrl && e.name.startsWith(tilesetBase())) {
+    if (/\/element-index\.json(\?|$)/.test(e.name)) {
+      status.indexRequests++;
+      status.indexBytes += e.encodedBodySize || 0;
+    } else if (status.tilesetUrl && e.name.startsWith(tilesetBase())) {
       status.tileRequests++;
       status.tileBytes += e.encodedBodySize || 0;
     }
@@ -309,6 +319,7 @@
 
   let highlighted = null;
   function highlight(feature) {
+    if (window.bimtilesBim && window.bimtilesBim.ready) return window.bimtilesBim.pickedFeature(feature);
     if (highlighted) {
       try {
         highlighted.feature.color = highlighted.color;
@@ -321,6 +332,12 @@
       highlighted = { feature, color: Cesium.Color.clone(feature.color) };
       feature.color = Cesium.Color.YELLOW.withAlpha(0.8);
     }
+  }
+
+  // The properties panel with given rows (bim.js shows an element of the index there).
+  function showRows(title, rows) {
+    showProps({ kind: "feature", rows });
+    document.getElementById("propsTitle").textContent = title;
   }
 
   function showProps(desc) {
@@ -395,7 +412,7 @@
     scene.skyAtmosphere.show = sky;
     scene.globe.showGroundAtmosphere = sky;
     scene.renderError.addEventListener((s, e) => status.consoleErrors.push("render error: " + (e && e.message ? e.message : e)));
-    window.bimtiles = { viewer, tileset: null, pickAt, describe, loadTileset, swStats: () => swMessage({ type: "stats" }) };
+    window.bimtiles = { viewer, tileset: null, pickAt, describe, loadTileset, showRows, loadBimTools, swStats: () => swMessage({ type: "stats" }) };
 
     installFrameHooks(scene);
 
@@ -404,8 +421,13 @@
       if (tileset) viewer.zoomTo(tileset, HOME_OFFSET);
     });
     viewer.screenSpaceEventHandler.setInputAction((click) => {
+      if (window.bimtilesBim && window.bimtilesBim.onClick(click.position)) return;
       pickAt(click.position.x, click.position.y).catch((e) => console.warn("pick failed", e));
     }, Cesium.ScreenSpaceEventType.LEFT_CLICK);
+    document.getElementById("bimToggle").onclick = () => {
+      loadBimTools();
+      document.body.classList.toggle("bim-toggled");
+    };
     document.getElementById("propsClose").onclick = () => {
       highlight(null);
       showProps(null);
@@ -414,6 +436,21 @@
   }
 
   const HOME_OFFSET = new Cesium.HeadingPitchRange(0.6, -0.45, 0);
+
+  // The BIM tools, loaded once (see the header).
+  let bimTools = null;
+  function loadBimTools() {
+    if (bimTools || params.get("bim") === "0" || !tileset) return bimTools;
+    bimTools = new Promise((resolve, reject) => {
+      const el = document.createElement("script");
+      el.src = "bim.js";
+      el.onload = resolve;
+      el.onerror = () => reject(new Error("cannot load bim.js"));
+      document.body.appendChild(el);
+    });
+    document.getElementById("bim").classList.remove("hidden");
+    return bimTools;
+  }
 
   // Loads (or replaces) the tileset and frames it; resets the per-load figures. Used by the page
   // itself and by the benchmark (to compare tilesets in one warmed-up page).
@@ -466,6 +503,11 @@
     });
     viewer.scene.primitives.add(ts);
     await viewer.zoomTo(ts, HOME_OFFSET);
+    // A shared link's camera (bim.js writes it in the hash) is the first view.
+    const cam = new URLSearchParams(location.hash.slice(1)).get("cam");
+    const v = cam ? cam.split(",").map(Number) : [];
+    if (v.length === 6 && v.every(Number.isFinite))
+      viewer.camera.setView({ destination: new Cesium.Cartesian3(v[0], v[1], v[2]), orientation: { heading: v[3], pitch: v[4], roll: v[5] } });
     status.ready = true;
     return true;
   }
@@ -501,7 +543,10 @@
       if (status.firstFrameWithContentMs === null && s.numberOfTrianglesSelected > 0) status.firstFrameWithContentMs = now;
       const loaded = status.ready && tileset.tilesLoaded && s.numberOfPendingRequests === 0 && s.numberOfTilesProcessing === 0 && stillFrames >= 3;
       status.allTilesLoaded = loaded;
-      if (loaded && status.allTilesLoadedMs === null) status.allTilesLoadedMs = now;
+      if (loaded && status.allTilesLoadedMs === null) {
+        status.allTilesLoadedMs = now;
+        setTimeout(loadBimTools, 0);
+      }
       if (hudFrame++ % 10 === 0 || loaded !== status._hudLoaded) {
         status._hudLoaded = loaded;
         updateHud(s, loaded);

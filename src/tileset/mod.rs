@@ -1,6 +1,7 @@
 //! Writes `tileset.json` (3D Tiles 1.1): the tile tree with tight bounding boxes, geometric errors,
 //! refinement and content URIs, and the root transform that georeferences it.
 
+pub mod element_index;
 pub mod inline;
 pub mod metadata;
 pub mod view;

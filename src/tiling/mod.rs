@@ -20,6 +20,7 @@ use crate::partition::{PlannedTile, TilePlan};
 use crate::prepare::Prepared;
 use crate::scene::Scene;
 use crate::texture::single_use::embed_files_cheaper_than_a_request;
+use crate::tileset::element_index::{ElementIndex, ELEMENT_INDEX_FILE};
 use crate::tileset::metadata::{MetadataSchema, SchemaPlacement, TableScope};
 use crate::tileset::{tileset_json, Refine};
 use glam::DVec3;
@@ -348,10 +349,14 @@ impl<'a> TileWriter<'a> {
                 .map_err(|e| Error::output_from(tmp, "cannot serialize schema.json", e))?;
             write_renamed(&tmp.join(SCHEMA_FILE), &schema_json)?;
         }
+        // The element index, for a viewer's model tree and search (fetched after the first view).
+        let index = ElementIndex::from_scene(self.scene);
+        write_renamed(&tmp.join(ELEMENT_INDEX_FILE), &index.to_bytes())?;
         let extras = json!({"bimtiles": {
             "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
             "anchor_m": anchor.to_array(),
             "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
+            "elementIndex": ELEMENT_INDEX_FILE,
         }});
         let refine = match opts.lod {
             LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
