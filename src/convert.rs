@@ -67,6 +67,8 @@ fn build_into(
     let uses = &prep.textures_prepared.uses;
     let texture_levels =
         crate::texture::TextureLevels::new(scene, &opts.texture, uses).shared_in(&tmp);
+    // The HLOD figures from here on are this conversion's.
+    crate::lod::clock::take();
     let result = (|| {
         let t = Instant::now();
         let writer = TileWriter::new(scene, &prep, opts, &tmp, &texture_levels, plan.tiles.len())?;
@@ -91,6 +93,8 @@ fn build_into(
     };
     let mut report = make_report(prep, records, opts, &tmp, timings, texture_levels);
     report.timings_s.total = t0.elapsed().as_secs_f64();
+    let hlod_timings = crate::lod::clock::take();
+    report.hlod_timings_s = (opts.lod == crate::options::LodMode::Hlod).then_some(hlod_timings);
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
     let report_json = serde_json::to_vec_pretty(&report)

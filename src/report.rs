@@ -120,6 +120,9 @@ pub struct Report {
     pub geometric_error_metric: String,
     pub options: serde_json::Value,
     pub timings_s: Timings,
+    /// Seconds per part of the HLOD stage, summed over tiles (absent without HLOD).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hlod_timings_s: Option<crate::lod::clock::HlodTimings>,
     pub peak_memory_bytes: u64,
     /// The memory budget and where the geometry was kept (absent without a budget).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -272,6 +275,7 @@ pub(crate) fn make_report(
             "citygml_theme": opts.citygml_theme,
         }),
         timings_s: timings,
+        hlod_timings_s: None,
         peak_memory_bytes: 0,
         memory: None,
         warnings: prep

@@ -21,6 +21,7 @@
 //! Adding the children's errors to the whole tile's simplification error instead is loose: errors
 //! add only where they coincide (docs/benchmarks.md).
 
+use super::clock::{self, Part};
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::{ComponentId, Scene};
@@ -150,6 +151,8 @@ impl<'a> ErrorReference<'a> {
         let p_bvh = MeshBvh::new(TriMesh::new(&pp, &pi));
         // F -> P: dense samples of each leaf, a running maximum shared by all (a point only needs
         // an exact distance when it could raise it).
+        clock::count_measurement();
+        let t_full = std::time::Instant::now();
         let run = AtomicU64::new(0);
         self.leaves.par_iter().for_each(|items| {
             if f64::from_bits(run.load(Relaxed)) > f2c_limit {
@@ -176,10 +179,13 @@ impl<'a> ErrorReference<'a> {
             );
         });
         let sampled_m = f64::from_bits(run.load(Relaxed));
+        clock::add(Part::FullToCoarse, t_full);
         if sampled_m > f2c_limit {
             return None;
         }
-        let full_to_coarse_m = self.faces_within(&p_bvh, sampled_m, opts.error_floor_m);
+        let full_to_coarse_m = clock::timed(Part::Faces, || {
+            self.faces_within(&p_bvh, sampled_m, opts.error_floor_m)
+        });
         if full_to_coarse_m > f2c_limit {
             return None;
         }
@@ -191,6 +197,7 @@ impl<'a> ErrorReference<'a> {
         // child is only searched below the best term so far: most samples lie in one child, and
         // an exact query on a far one descends much of its tree (most of the full queries here,
         // and most of the measurement's time).
+        let t_coarse = std::time::Instant::now();
         let samples = (pi.len() / 3).clamp(20_000, 250_000);
         let run = AtomicU64::new(0.0f64.to_bits());
         sample_surface_dense(TriMesh::new(&pp, &pi), samples)
@@ -230,6 +237,7 @@ impl<'a> ErrorReference<'a> {
                 },
             );
         let coarse_to_full_m = f64::from_bits(run.load(Relaxed));
+        clock::add(Part::CoarseToFull, t_coarse);
         let error = TileError {
             error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
                 .max(opts.error_safety * coarse_to_full_m)
@@ -256,9 +264,11 @@ impl ErrorReference<'_> {
         type Corner = (DVec3, f64, u32);
         let certified_m = (FULL_TO_COARSE_SAFETY * sampled_m).max(floor_m);
         let run = AtomicU64::new(sampled_m.to_bits());
-        let exact = |x: DVec3| -> Corner {
+        // Exact, searched from the last answer of the same thread (a nearby point): the same
+        // result, sooner.
+        let exact = |x: DVec3, hint: &mut u32| -> Corner {
             coarse
-                .closest(x)
+                .closest_near(x, hint)
                 .map_or((x, f64::INFINITY, u32::MAX), |c| (x, c.0, c.1))
         };
         let bound = |c: &[Corner; 3]| {
@@ -305,17 +315,20 @@ impl ErrorReference<'_> {
             let corners: Vec<Corner> = (0..lp.len() as u32)
                 .into_par_iter()
                 .with_min_len(256)
-                .map(|v| {
-                    if on_large[v as usize] {
-                        exact(point(v))
-                    } else {
-                        (point(v), 0.0, u32::MAX)
-                    }
-                })
+                .map_init(
+                    || u32::MAX,
+                    |hint, v| {
+                        if on_large[v as usize] {
+                            exact(point(v), hint)
+                        } else {
+                            (point(v), 0.0, u32::MAX)
+                        }
+                    },
+                )
                 .collect();
-            li.par_chunks_exact(3)
-                .with_min_len(64)
-                .for_each_init(Vec::new, |stack, t| {
+            li.par_chunks_exact(3).with_min_len(64).for_each_init(
+                || (Vec::new(), u32::MAX),
+                |(stack, hint), t| {
                     if !large(t) {
                         return;
                     }
@@ -324,7 +337,7 @@ impl ErrorReference<'_> {
                         if splits >= FACE_SPLITS || bound(&c) <= certified_m {
                             continue;
                         }
-                        let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5));
+                        let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5, hint));
                         for k in &m {
                             if k.1.is_finite() {
                                 run.fetch_max(k.1.to_bits(), Relaxed);
@@ -335,7 +348,8 @@ impl ErrorReference<'_> {
                         stack.push(([m[2], m[1], c[2]], splits + 1));
                         stack.push((m, splits + 1));
                     }
-                });
+                },
+            );
         }
         f64::from_bits(run.load(Relaxed))
     }
@@ -407,7 +421,7 @@ pub fn simplify_children(
         compute_error_bound: false,
         ..opts.clone()
     };
-    let mut r = simplify(&input, &o)?;
+    let mut r = clock::timed(Part::Simplify, || simplify(&input, &o))?;
     if r.triangle_count() > target_triangles {
         // Angle control and curvature weighting can stall a coarse level (many small closed parts
         // whose every collapse turns a face far): there the budget wins.
@@ -416,7 +430,7 @@ pub fn simplify_children(
             curvature_weight: 0.0,
             ..o.clone()
         };
-        let again = simplify(&input, &relaxed)?;
+        let again = clock::timed(Part::Simplify, || simplify(&input, &relaxed))?;
         if again.triangle_count() < r.triangle_count() {
             r = again;
         }

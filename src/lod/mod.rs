@@ -4,13 +4,15 @@
 //! - [`hlod`]: the HLOD builder, with the ladder of errors between levels, the coarser and finer
 //!   tries, and the position grid of simplified content;
 //! - [`coarse_root`]: a simplified root above a model the budgets keep to one heavy tile;
-//! - [`chain_levels`] and [`chains`]: the paper's discrete LOD chains (`--lod-ratios`).
+//! - [`chain_levels`] and [`chains`]: the paper's discrete LOD chains (`--lod-ratios`);
+//! - [`clock`]: the seconds each part of the HLOD stage took (report.json).
 //!
 //! The stage makes content and records; encoding and writing stay with the caller, which passes
 //! a [`hlod::WriteTile`].
 
 pub mod chain_levels;
 pub mod chains;
+pub mod clock;
 pub mod coarse_root;
 pub mod hlod;
 pub mod hlod_content;

@@ -198,9 +198,21 @@ impl MeshBvh {
     /// Closest point: `(distance, triangle index, point)`; `None` for an empty
     /// mesh. Ties are broken by the smaller triangle index (deterministic).
     pub fn closest(&self, p: DVec3) -> Option<(f64, u32, DVec3)> {
+        let mut from_root = u32::MAX;
+        self.closest_near(p, &mut from_root)
+    }
+
+    /// [`closest`](Self::closest), the same answer, starting from triangle `hint` (the last
+    /// answer for a nearby point), which is updated: its distance prunes the search from the
+    /// start, where a search from the root visits every box nearer than the first leaves it meets.
+    pub fn closest_near(&self, p: DVec3, hint: &mut u32) -> Option<(f64, u32, DVec3)> {
         let bvh = self.bvh.as_ref()?;
         let box_d2 = |a: &Aabb| box_dist2(a, p);
         let mut best = (f64::INFINITY, u32::MAX, p);
+        if let Some(t) = self.tris.get(*hint as usize) {
+            let q = closest_point_on_triangle(p, t[0], t[1], t[2]);
+            best = ((q - p).length_squared(), *hint, q);
+        }
         let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
         stack.push((0, box_d2(&bvh.nodes[0].aabb)));
         while let Some((ni, d2)) = stack.pop() {
@@ -211,6 +223,15 @@ impl MeshBvh {
             if node.prim_count > 0 {
                 let s = node.first_index as usize;
                 for &prim in &bvh.primitive_indices[s..s + node.prim_count as usize] {
+                    // The plane distance, less a slack far above its rounding (which grows with
+                    // the coordinates, not the distance), is a lower bound: a triangle strictly
+                    // beyond the best can neither beat nor tie it.
+                    let (n, d) = self.planes[prim as usize];
+                    let np = n.dot(p);
+                    let h = ((np - d).abs() - 1e-12 * (np.abs() + d.abs())).max(0.0);
+                    if h * h > best.0 {
+                        continue;
+                    }
                     let t = &self.tris[prim as usize];
                     let q = closest_point_on_triangle(p, t[0], t[1], t[2]);
                     let dd = (q - p).length_squared();
@@ -233,6 +254,7 @@ impl MeshBvh {
                 }
             }
         }
+        *hint = best.1;
         (best.1 != u32::MAX).then(|| (best.0.sqrt(), best.1, best.2))
     }
 
@@ -809,8 +831,14 @@ mod tests {
             let brute = (0..idx.len() / 3)
                 .map(|t| m.distance_to_triangle(q, t as u32))
                 .fold(f64::INFINITY, f64::min);
-            let (d, _, _) = m.closest(q).unwrap();
+            let (d, near, _) = m.closest(q).unwrap();
             assert!((d - brute).abs() < 1e-9, "{d} vs {brute}");
+            // From any hint, the same answer (ties to the smaller index included).
+            for start in [0, near, (k * 13) % (idx.len() as u32 / 3), u32::MAX] {
+                let mut hint = start;
+                assert_eq!(m.closest_near(q, &mut hint), m.closest(q));
+                assert_eq!(hint, near);
+            }
             assert!(m.distance_lower_bound(q) <= brute);
             // Within [thr, cap): exact; below thr: some value below thr; at or above cap: cap.
             for (thr, cap) in [(0.0, f64::INFINITY), (0.05, 0.3), (0.2, 0.25), (0.0, 0.01)] {
