@@ -74,7 +74,7 @@ pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Upda
     // The output is locked and checked before the input is read: a second run to the same
     // output, or a folder that may not be replaced, fails at once.
     let staging = StagingDir::beside(&opts.out_dir, opts.force || live)?;
-    let mut update = None;
+    let mut update = UpdateReport::default();
     let mut hashed = Vec::new();
     if opts.update {
         let verdict = match live {
@@ -94,32 +94,32 @@ pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Upda
                 changed,
                 hashed: h,
             } => {
-                update = Some(UpdateReport {
+                update = UpdateReport {
                     mode: "rebuilt",
                     full_build_reason: Some(reason),
                     changed_inputs: changed,
                     inputs_hashed: h.len(),
                     input_bytes_hashed: h.iter().map(|i| i.bytes).sum(),
                     ..UpdateReport::default()
-                });
+                };
                 hashed = h;
             }
         }
     }
     let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
-    // The bundled sample is part of the binary: its version covers it.
-    let sources = match inputs {
-        InputSet::Sample => Vec::new(),
-        _ => scene.sources.iter().map(|s| s.path.clone()).collect(),
-    };
-    let tracked = Tracked {
-        sources,
+    // Only an update leaves the state for the next one: a plain build's output stays the
+    // tileset and its report. The bundled sample is part of the binary: its version covers it.
+    let tracked = opts.update.then(|| Tracked {
+        sources: match inputs {
+            InputSet::Sample => Vec::new(),
+            _ => scene.sources.iter().map(|s| s.path.clone()).collect(),
+        },
         given,
         hashed,
         update,
-    };
-    let report = build_into(staging, &mut scene, opts, t0, t_ingest, Some(tracked))?;
+    });
+    let report = build_into(staging, &mut scene, opts, t0, t_ingest, tracked)?;
     Ok(Updated::Built(Box::new(report)))
 }
 
@@ -161,22 +161,21 @@ fn up_to_date(
     Ok(update)
 }
 
-/// What a build from files records for later updates.
+/// What an update's build records for the next one.
 struct Tracked {
     given: Vec<PathBuf>,
     /// The models read.
     sources: Vec<PathBuf>,
     /// Inputs the update's check hashed already.
     hashed: Vec<InputHash>,
-    /// The update's report, to be completed (`None`: not an update).
-    update: Option<UpdateReport>,
+    /// The update's report, to be completed.
+    update: UpdateReport,
 }
 
 impl Tracked {
-    /// Writes the update state into the build folder `dir` and, for an update, prepares the
-    /// folder to replace the live tileset (its unchanged files linked in); returns the update's
-    /// report.
-    fn record(mut self, dir: &Path, opts: &Settings, t0: Instant) -> Result<Option<UpdateReport>> {
+    /// Writes the update state into the build folder `dir` and prepares the folder to replace the
+    /// live tileset (its unchanged files linked in); returns the update's report.
+    fn record(mut self, dir: &Path, opts: &Settings, t0: Instant) -> Result<UpdateReport> {
         let inputs = match update::input_files(&self.given, &self.sources) {
             Some(files) => {
                 let known: std::collections::BTreeMap<&Path, &InputHash> =
@@ -198,15 +197,13 @@ impl Tracked {
             None => None,
         };
         let state = update::state_of(dir, opts, &self.given, inputs)?;
-        if let Some(u) = self.update.as_mut() {
-            update::reuse_unchanged_files(dir, &opts.out_dir, opts.keep_stale, u)?;
-        }
+        update::reuse_unchanged_files(dir, &opts.out_dir, opts.keep_stale, &mut self.update)?;
         let state_bytes = state.write_into(dir)?;
-        Ok(self.update.map(|u| UpdateReport {
+        Ok(UpdateReport {
             state_bytes,
             seconds: t0.elapsed().as_secs_f64(),
-            ..u
-        }))
+            ..self.update
+        })
     }
 }
 
@@ -266,9 +263,8 @@ fn build_into(
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
     if let Some(t) = tracked {
-        report.update = t
-            .record(&tmp, opts, t0)
-            .map_err(|e| e.relocated(&tmp, &opts.out_dir))?;
+        let update = t.record(&tmp, opts, t0);
+        report.update = Some(update.map_err(|e| e.relocated(&tmp, &opts.out_dir))?);
     }
     let report_json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::output_from(&tmp, "cannot serialize report.json", e))?;

@@ -182,7 +182,7 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     campus.add("d", &fzk_ifc, "d.ifc", 120.0, 120.0);
     let out = campus.dir.join("out");
     let full = campus.dir.join("full");
-    campus.convert(&out, &["--quiet"]);
+    campus.convert(&out, &["--update", "--quiet"]);
 
     // Unchanged: nothing built, no file touched, one line says so.
     let ids = identities(&out);
@@ -282,6 +282,10 @@ fn a_missing_or_corrupt_cache_is_a_full_build_with_one_line_note() {
     };
     assert!(note(&o).ends_with("full build: no tileset at the output yet"));
     campus.convert(&full, &["--quiet"]);
+    assert!(
+        !full.join(".bimtiles").exists(),
+        "a plain build leaves no cache"
+    );
     let expected = tileset_files(&full);
     let cases: [Spoiled; 4] = [
         (
@@ -359,7 +363,7 @@ fn killed_updates_leave_the_old_or_the_new_tileset() {
     campus.add("b", &fzk, "b.glb", 100.0, 0.0);
     campus.add("c", &sample(), "a.glb", 0.0, 100.0);
     let pristine = campus.dir.join("pristine");
-    campus.convert(&pristine, &["--quiet"]);
+    campus.convert(&pristine, &["--update", "--quiet"]);
     let old = tileset_files(&pristine);
     campus.models[1]["east_m"] = json!(150.0);
     let full = campus.dir.join("full");

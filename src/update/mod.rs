@@ -8,8 +8,9 @@
 //! version, the tool version, a fingerprint of the options that shape the output, the SHA-256 of
 //! every input file the build read (the inputs given, every model a manifest placed, and the files
 //! beside a model that it may reference: buffers, images, materials), and the name and size of
-//! every file of the tileset. It is written into the build folder before that folder is put in
-//! place, so it always describes the tileset it sits in.
+//! every file of the tileset. Every `--update` writes it into its build folder before that folder
+//! is put in place, so it always describes the tileset it sits in; a plain `convert` writes none
+//! (its output is the tileset and its report), so the first update after one is a full build.
 //!
 //! An update whose inputs, options and tool version match the state, over a tileset whose files
 //! are all there, reads no model: it only hashes the inputs and rewrites report.json. Otherwise it
