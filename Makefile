@@ -188,9 +188,11 @@ bench: deps build
 	mkdir -p target/bench
 	set -o pipefail; PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(CARGO) run --release --quiet --example bench_tiler -- $(SHARED)/data | tee target/bench/tiler.txt
 	set -o pipefail; $(CARGO) run --release --quiet --example bench_textures -- $(SHARED)/data | tee target/bench/textures.txt
+	set -o pipefail; $(CARGO) run --release --quiet --example bench_update -- $(SHARED)/data | tee target/bench/update.txt
 	python3 tools/bench_page.py docs/src/benchmarks.md \
 	  --run "cargo run --release --example bench_tiler -- ../shared/data" target/bench/tiler.txt \
-	  --run "cargo run --release --example bench_textures -- ../shared/data" target/bench/textures.txt
+	  --run "cargo run --release --example bench_textures -- ../shared/data" target/bench/textures.txt \
+	  --run "cargo run --release --example bench_update -- ../shared/data" target/bench/update.txt
 
 # Issue 12's scale measurements (not in `make test`; about 25 minutes on 2 cores, most of it the 100M campuses):
 # campuses of about 1M, 8.2M, 32M and 100M triangles from make_campus.py --bake, exact and jittered

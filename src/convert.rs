@@ -1,6 +1,9 @@
 //! The end-to-end conversion: ingest → place → dedup → partition → (HLOD) → encode → tileset →
 //! report.
 //!
+//! With `--update` (`crate::update`), an output whose inputs, options and tool did not change is
+//! left as it is, and a new build is published over the old tileset, its unchanged files kept.
+//!
 //! Output is built in a temporary folder beside the target and renamed into place at the end, so an
 //! interrupted or failed run never leaves a tileset that looks complete. Tiles are encoded in
 //! parallel, each written and freed at once; file names and contents depend only on the input and
@@ -14,6 +17,7 @@ use crate::prepare::{prepare, read_scene};
 use crate::scene::Scene;
 use crate::simplify::model::{simplify_scene, SimplifiedModel};
 use crate::tiling::TileWriter;
+use crate::update::{self, InputHash, UpdateReport, UpdateState, Verdict};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -27,16 +31,180 @@ pub fn convert(inputs: &[PathBuf], opts: &ConvertOptions) -> Result<Report> {
     convert_input_set(&InputSet::new(inputs, None), opts)
 }
 
-/// Reads an input set (sample, model files or a manifest of many models) and converts it.
+/// Reads an input set (sample, model files or a manifest of many models) and converts it. With
+/// `opts.update`, use [`update_input_set`], which may find nothing to build.
 pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
+    match update_input_set(inputs, opts)? {
+        Updated::Built(report) => Ok(*report),
+        Updated::UpToDate(_) => Err(Error::output(
+            &opts.out_dir,
+            "the tileset is up to date: nothing was built (report.json says so)",
+        )),
+    }
+}
+
+/// What a run with `--update` did.
+#[derive(Debug)]
+pub enum Updated {
+    /// The inputs, options and tool are those of the tileset: no model read, only report.json
+    /// rewritten.
+    UpToDate(UpdateReport),
+    /// A tileset was built (a full build; with `--update`, published over the old one).
+    Built(Box<Report>),
+}
+
+/// The inputs as given, as the update state records them.
+fn given_paths(inputs: &InputSet) -> Vec<PathBuf> {
+    match inputs {
+        InputSet::Sample => Vec::new(),
+        InputSet::Files(f) => f.clone(),
+        InputSet::Manifest(m) => vec![m.clone()],
+    }
+}
+
+/// Converts an input set, or with `opts.update` brings the tileset at the output up to date
+/// (`crate::update`): nothing to build when the inputs, options and tool are those of the
+/// tileset, else a full build published over it, its unchanged files kept as they are.
+pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Updated> {
     let t0 = Instant::now();
     let opts = &opts.resolve();
+    let given = given_paths(inputs);
+    // An update replaces a tileset (never another folder: the lock's check still applies).
+    let live = opts.update && opts.out_dir.join("tileset.json").is_file();
     // The output is locked and checked before the input is read: a second run to the same
     // output, or a folder that may not be replaced, fails at once.
-    let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
+    let staging = StagingDir::beside(&opts.out_dir, opts.force || live)?;
+    let mut update = UpdateReport::default();
+    let mut hashed = Vec::new();
+    if opts.update {
+        let verdict = match live {
+            true => update::check(&opts.out_dir, &given, opts),
+            false => Verdict::Rebuild {
+                reason: "no tileset at the output yet".into(),
+                changed: Vec::new(),
+                hashed: Vec::new(),
+            },
+        };
+        match verdict {
+            Verdict::Unchanged { state, hashed } => {
+                return up_to_date(staging, opts, &state, &hashed, t0).map(Updated::UpToDate)
+            }
+            Verdict::Rebuild {
+                reason,
+                changed,
+                hashed: h,
+            } => {
+                update = UpdateReport {
+                    mode: "rebuilt",
+                    full_build_reason: Some(reason),
+                    changed_inputs: changed,
+                    inputs_hashed: h.len(),
+                    input_bytes_hashed: h.iter().map(|i| i.bytes).sum(),
+                    ..UpdateReport::default()
+                };
+                hashed = h;
+            }
+        }
+    }
     let mut scene = read_scene(inputs, opts)?;
     let t_ingest = t0.elapsed().as_secs_f64();
-    build_into(staging, &mut scene, opts, t0, t_ingest)
+    // Only an update leaves the state for the next one: a plain build's output stays the
+    // tileset and its report. The bundled sample is part of the binary: its version covers it.
+    let tracked = opts.update.then(|| Tracked {
+        sources: match inputs {
+            InputSet::Sample => Vec::new(),
+            _ => scene.sources.iter().map(|s| s.path.clone()).collect(),
+        },
+        given,
+        hashed,
+        update,
+    });
+    let report = build_into(staging, &mut scene, opts, t0, t_ingest, tracked)?;
+    Ok(Updated::Built(Box::new(report)))
+}
+
+/// An update with nothing to build: report.json (the last build's) gets the update's figures.
+fn up_to_date(
+    staging: StagingDir,
+    opts: &Settings,
+    state: &UpdateState,
+    hashed: &[InputHash],
+    t0: Instant,
+) -> Result<UpdateReport> {
+    let out = &opts.out_dir;
+    let report_path = out.join("report.json");
+    let mut report: serde_json::Value = std::fs::read(&report_path)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .ok_or_else(|| Error::output(&report_path, "cannot read the last build's report"))?;
+    let stale = update::settle_stale_files(out, &state.files, opts.keep_stale)?;
+    let update = UpdateReport {
+        mode: "unchanged",
+        files_removed: stale.removed,
+        bytes_removed: stale.removed_bytes,
+        files_kept_stale: stale.kept,
+        inputs_hashed: hashed.len(),
+        input_bytes_hashed: hashed.iter().map(|i| i.bytes).sum(),
+        files_reused: state.files.len(),
+        bytes_reused: state.files.iter().map(|f| f.bytes).sum(),
+        state_bytes: std::fs::metadata(out.join(update::STATE_FILE)).map_or(0, |m| m.len()),
+        seconds: t0.elapsed().as_secs_f64(),
+        ..UpdateReport::default()
+    };
+    report["update"] = serde_json::to_value(&update)
+        .map_err(|e| Error::output_from(&report_path, "cannot serialize", e))?;
+    let bytes = serde_json::to_vec_pretty(&report)
+        .map_err(|e| Error::output_from(&report_path, "cannot serialize", e))?;
+    crate::output_dir::write_renamed(&report_path, &bytes)?;
+    // Dropped unused: its empty folder goes, the lock is released.
+    drop(staging);
+    Ok(update)
+}
+
+/// What an update's build records for the next one.
+struct Tracked {
+    given: Vec<PathBuf>,
+    /// The models read.
+    sources: Vec<PathBuf>,
+    /// Inputs the update's check hashed already.
+    hashed: Vec<InputHash>,
+    /// The update's report, to be completed.
+    update: UpdateReport,
+}
+
+impl Tracked {
+    /// Writes the update state into the build folder `dir` and prepares the folder to replace the
+    /// live tileset (its unchanged files linked in); returns the update's report.
+    fn record(mut self, dir: &Path, opts: &Settings, t0: Instant) -> Result<UpdateReport> {
+        let inputs = match update::input_files(&self.given, &self.sources) {
+            Some(files) => {
+                let known: std::collections::BTreeMap<&Path, &InputHash> =
+                    self.hashed.iter().map(|h| (h.path.as_path(), h)).collect();
+                let unknown: Vec<PathBuf> = files
+                    .iter()
+                    .filter(|f| !known.contains_key(f.as_path()))
+                    .cloned()
+                    .collect();
+                let mut all = update::hash_inputs(&unknown)?;
+                all.extend(
+                    files
+                        .iter()
+                        .filter_map(|f| known.get(f.as_path()).map(|h| (*h).clone())),
+                );
+                all.sort_by(|a, b| a.path.cmp(&b.path));
+                Some(all)
+            }
+            None => None,
+        };
+        let state = update::state_of(dir, opts, &self.given, inputs)?;
+        update::reuse_unchanged_files(dir, &opts.out_dir, opts.keep_stale, &mut self.update)?;
+        let state_bytes = state.write_into(dir)?;
+        Ok(UpdateReport {
+            state_bytes,
+            seconds: t0.elapsed().as_secs_f64(),
+            ..self.update
+        })
+    }
 }
 
 /// Converts an already-read scene (used by `convert` and by tests that build scenes in memory).
@@ -50,7 +218,7 @@ pub fn convert_scene(
 ) -> Result<Report> {
     let opts = &opts.resolve();
     let staging = StagingDir::beside(&opts.out_dir, opts.force)?;
-    build_into(staging, scene, opts, t0, t_ingest)
+    build_into(staging, scene, opts, t0, t_ingest, None)
 }
 
 /// Prepares `scene` and builds its tileset in `staging`, which is then put in place.
@@ -60,6 +228,7 @@ fn build_into(
     opts: &Settings,
     t0: Instant,
     t_ingest: f64,
+    tracked: Option<Tracked>,
 ) -> Result<Report> {
     let prep = prepare(scene, opts)?;
     let plan = &prep.plan;
@@ -97,6 +266,10 @@ fn build_into(
     report.hlod_timings_s = (opts.lod == crate::options::LodMode::Hlod).then_some(hlod_timings);
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
+    if let Some(t) = tracked {
+        let update = t.record(&tmp, opts, t0);
+        report.update = Some(update.map_err(|e| e.relocated(&tmp, &opts.out_dir))?);
+    }
     let report_json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::output_from(&tmp, "cannot serialize report.json", e))?;
     staging.commit(&[("report.json", &report_json)])?;

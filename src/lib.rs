@@ -34,6 +34,7 @@ pub mod texture;
 pub mod tileset;
 pub mod tiling;
 pub mod transfer;
+pub mod update;
 pub mod uri;
 
 pub use error::{Error, Result};
@@ -62,6 +63,7 @@ pub const LAYERS: &[&[&str]] = &[
     &["encode"],
     &["tileset"],
     &["options"],
+    &["update"],
     &["lod"],
     &["prepare"],
     &["tiling"],

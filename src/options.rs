@@ -68,6 +68,11 @@ pub struct ConvertOptions {
     pub progress: bool,
     /// Texture elimination, pyramids and level matching (paper III.D–III.F).
     pub texture: crate::texture::TextureOptions,
+    /// Bring the tileset at `out_dir` up to date (`crate::update`) instead of building it anew.
+    pub update: bool,
+    /// With `update`: keep the files the new tileset no longer has, for clients that still hold
+    /// the old tileset.json.
+    pub keep_stale: bool,
 }
 
 impl ConvertOptions {
@@ -97,6 +102,8 @@ impl ConvertOptions {
             merge_plain_materials: None,
             progress: false,
             texture: Default::default(),
+            update: false,
+            keep_stale: false,
         }
     }
 }

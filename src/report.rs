@@ -134,6 +134,10 @@ pub struct Report {
     /// each; the CLI prints them on stderr unless `--quiet`.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
+    /// What `--update` reused, rebuilt and removed, and why it built anew (absent without
+    /// `--update`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub update: Option<crate::update::UpdateReport>,
 }
 
 pub use crate::memory::peak_memory_bytes;
@@ -292,6 +296,7 @@ pub(crate) fn make_report(
             .collect(),
         textures: (prep.textures_prepared.images_bound > 0)
             .then(|| texture_levels.report(prep.textures_prepared)),
+        update: None,
     }
 }
 

@@ -18,6 +18,9 @@ mod cli;
 mod fuzz_corpus;
 /// The user's folders are never lost or clobbered: locks, `--force`, killed runs.
 mod output_safety;
+/// `convert --update`: every update equals a full build; killed updates leave the old or the new
+/// tileset; a missing or corrupt cache is a full build with one line saying why.
+mod update;
 /// Every shared model converts to a tileset that gltf-validator and the 3D Tiles schemas accept.
 mod valid_tilesets;
 

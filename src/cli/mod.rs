@@ -1,9 +1,7 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{
-    convert_input_set, CoarseTileProperties, ConvertOptions, ErrorMetric, LodMode,
-};
+use bimtiles::convert::{CoarseTileProperties, ConvertOptions, ErrorMetric, LodMode, Updated};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
 use bimtiles::geodesy::GeoOrigin;
@@ -172,6 +170,16 @@ struct ConvertArgs {
     /// Replace an existing output folder that holds a tileset.
     #[arg(long)]
     force: bool,
+    /// Bring the tileset in --out up to date with the inputs and options: nothing is built when
+    /// they, and the tool, are those it was built from (no model is read); otherwise it is built
+    /// again and published over the old one, whose unchanged files stay as they are (the book's
+    /// "Updating a tileset"). The old tileset stays complete until the switch.
+    #[arg(long)]
+    update: bool,
+    /// With --update: keep the files the new tileset no longer has, for clients that still hold
+    /// the old tileset.json.
+    #[arg(long, requires = "update")]
+    keep_stale: bool,
     /// Geographic place of the model's anchor: LON,LAT[,HEIGHT] (degrees, degrees, metres on WGS84).
     #[arg(long, value_parser = GeoOrigin::parse, allow_hyphen_values = true)]
     origin: Option<GeoOrigin>,
@@ -619,6 +627,9 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 /// `bimtiles plan`: the arguments after `plan` are kept in plan.json (with the working folder), so
 /// that build-job and merge re-create the same inputs and options.
 fn run_plan(a: PlanArgs) -> Result<()> {
+    if a.convert.update {
+        anyhow::bail!("--update is not supported by sharded builds yet: use convert --update");
+    }
     set_threads(a.convert.threads)?;
     set_budget(&a.convert, &a.convert.out)?;
     let opts = convert_options(&a.convert)?;
@@ -680,10 +691,28 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
     set_budget(&a, &a.out)?;
     let opts = convert_options(&a)?;
     let inputs = InputSet::new(&a.inputs, a.manifest.as_deref());
-    let r = convert_input_set(&inputs, &opts)?;
+    let r = match bimtiles::convert::update_input_set(&inputs, &opts)? {
+        Updated::Built(r) => r,
+        Updated::UpToDate(u) => {
+            if !a.quiet {
+                emit(&format!(
+                    "{}: up to date, nothing built\n{}\n",
+                    a.out.display(),
+                    u.summary()
+                ))?;
+            }
+            return Ok(());
+        }
+    };
     if !a.quiet {
+        if let Some(reason) = r.update.as_ref().and_then(|u| u.full_build_reason.as_ref()) {
+            eprintln!("note: update: full build: {reason}");
+        }
         print_warnings(&r);
         print_summary(&a, &r)?;
+        if let Some(u) = &r.update {
+            emit(&format!("{}\n", u.summary()))?;
+        }
     }
     Ok(())
 }
@@ -740,6 +769,8 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         min_instanced_triangles_saved: a.min_instanced_triangles_saved,
         merge_plain_materials: a.keep_materials.then_some(false),
         progress: !a.quiet,
+        update: a.update,
+        keep_stale: a.keep_stale,
         texture: TextureOptions {
             lod: a.texture_lod == OnOff::On,
             crop: a.texture_crop == OnOff::On,

@@ -568,6 +568,23 @@ mod tests {
     }
 
     #[test]
+    fn the_update_cache_is_never_served() {
+        let f = fixture();
+        let state = f._t.path().join("tileset").join(crate::update::STATE_FILE);
+        std::fs::create_dir_all(state.parent().unwrap()).unwrap();
+        std::fs::write(&state, b"{}").unwrap();
+        for path in [
+            "/tileset/.bimtiles/update-state.json",
+            "/tileset/%2ebimtiles/update-state.json",
+            "/tileset/.bimtiles/",
+        ] {
+            assert_eq!(f.h.handle("GET", path, NONE).status, 403, "{path}");
+            assert_eq!(f.h.handle("HEAD", path, NONE).status, 403, "{path}");
+        }
+        assert_eq!(f.h.handle("GET", "/tileset/tileset.json", NONE).status, 200);
+    }
+
+    #[test]
     fn errors() {
         let f = fixture();
         assert_eq!(f.h.handle("POST", "/", NONE).status, 405);

@@ -1,0 +1,253 @@
+//! `make bench`: `convert --update` on a campus of about 100 buildings (a manifest over the shared
+//! IFC and GLB models, each building its own file), against a full build: wall time, and files
+//! and bytes written again, for an unchanged manifest, one building's file replaced by another
+//! model, one building moved 50 m, one property value renamed in an IFC file, and one building
+//! removed. Each update starts from the tileset the previous one left. Also writes
+//! `target/bench/update.json`.
+//!
+//! Usage: cargo run --release --example bench_update -- [DATA_DIR] [--buildings N]
+
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+/// The models the campus cycles through (file names in the data folder), IFC and GLB mixed.
+const MODELS: &[&str] = &[
+    "AC20-FZK-Haus.glb",
+    "duplex.glb",
+    "IfcOpenHouse_IFC4.glb",
+    "AC20-FZK-Haus.ifc",
+    "ISSUE_021_Mini_Project.glb",
+    "IfcOpenHouse_IFC4.ifc",
+    "duplex.glb",
+    "AC20-FZK-Haus.glb",
+];
+/// Distance between neighbouring buildings (metres).
+const SPACING_M: f64 = 60.0;
+/// The property value renamed (an IfcLabel of one element's property set in AC20-FZK-Haus.ifc).
+const PROPERTY: (&str, &str) = ("IFCLABEL('Wendeltreppe')", "IFCLABEL('Spiral stair')");
+
+/// A change made to the campus before an update, and its name.
+type Change = (&'static str, Box<dyn Fn(&mut Campus)>);
+
+struct Campus {
+    dir: PathBuf,
+    models: Vec<Value>,
+}
+
+impl Campus {
+    fn write(&self) -> PathBuf {
+        let m = self.dir.join("campus.json");
+        let text = json!({
+            "origin": {"longitude_deg": 8.4116, "latitude_deg": 49.0124, "height_m": 115.0},
+            "models": self.models,
+        });
+        std::fs::write(&m, serde_json::to_vec_pretty(&text).unwrap()).unwrap();
+        m
+    }
+}
+
+/// Copies `from` to `to` as a file of its own (writable, so it can be edited).
+fn copy(from: &Path, to: &Path) {
+    let _ = std::fs::remove_file(to);
+    std::fs::copy(from, to).unwrap();
+    let mut perms = std::fs::metadata(to).unwrap().permissions();
+    #[allow(clippy::permissions_set_readonly_false)]
+    perms.set_readonly(false);
+    std::fs::set_permissions(to, perms).unwrap();
+}
+
+/// Runs `bimtiles convert --manifest` with `extra`; the wall time and the report.
+fn convert(bin: &Path, manifest: &Path, out: &Path, extra: &[&str]) -> (f64, Value) {
+    let t = Instant::now();
+    let o = Command::new(bin)
+        .args(["convert", "--manifest"])
+        .arg(manifest)
+        .arg("--out")
+        .arg(out)
+        .arg("--quiet")
+        .args(extra)
+        .output()
+        .expect("run bimtiles");
+    let seconds = t.elapsed().as_secs_f64();
+    assert!(
+        o.status.success(),
+        "convert: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let report = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    (seconds, report)
+}
+
+/// Files of the tileset in `dir` (all but report.json and the cache), and those under tiles/.
+fn count_files(dir: &Path) -> (usize, usize) {
+    let files = bimtiles::update::tileset_files(dir).unwrap();
+    let tiles = files
+        .iter()
+        .filter(|f| f.path.starts_with("tiles/"))
+        .count();
+    (files.len(), tiles)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut data = PathBuf::from("../shared/data");
+    let mut buildings = 100usize;
+    let mut i = 0;
+    while i < args.len() {
+        match args[i].as_str() {
+            "--buildings" => {
+                buildings = args[i + 1].parse().expect("--buildings N");
+                i += 1;
+            }
+            a => data = PathBuf::from(a),
+        }
+        i += 1;
+    }
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let bin = repo.join("target/release/bimtiles");
+    let root = repo.join("target/bench/update");
+    let _ = std::fs::remove_dir_all(&root);
+    let dir = root.join("campus");
+    std::fs::create_dir_all(&dir).unwrap();
+    let side = (buildings as f64).sqrt().ceil() as usize;
+    let mut campus = Campus {
+        dir: dir.clone(),
+        models: Vec::new(),
+    };
+    for b in 0..buildings {
+        let model = MODELS[b % MODELS.len()];
+        let ext = Path::new(model).extension().unwrap().to_str().unwrap();
+        let file = format!("b{b:03}.{ext}");
+        copy(&data.join(model), &dir.join(&file));
+        campus.models.push(json!({
+            "name": format!("b{b:03}"),
+            "path": file,
+            "east_m": (b % side) as f64 * SPACING_M,
+            "north_m": (b / side) as f64 * SPACING_M,
+        }));
+    }
+    let manifest = campus.write();
+    let out = root.join("tiles");
+    // The first build with --update (a full build that leaves the update cache).
+    let (full_s, report) = convert(&bin, &manifest, &out, &["--update"]);
+    let (files, tiles) = count_files(&out);
+    println!(
+        "Campus: {buildings} buildings ({} triangles read, {} files), {files} tileset files ({tiles} tiles), {} bytes; full build {full_s:.1} s\n",
+        report["input"]["triangles"],
+        report["input"]["files"].as_array().map_or(0, Vec::len),
+        report["output"]["bytes"],
+    );
+    println!("| change | update (s) | of a full build | files written | of all files | tiles written | bytes written | reused | removed | full build because |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let mut rows = Vec::new();
+    let middle = buildings / 2;
+    let ifc = (0..buildings)
+        .find(|b| MODELS[b % MODELS.len()] == "AC20-FZK-Haus.ifc")
+        .expect("an AC20-FZK-Haus.ifc building");
+    let changes: [Change; 5] = [
+        ("unchanged manifest", Box::new(|_| {})),
+        (
+            "one building's file replaced",
+            Box::new(move |c: &mut Campus| {
+                let file = c.models[middle]["path"].as_str().unwrap().to_string();
+                let other = if file.ends_with(".glb") {
+                    "duplex.glb"
+                } else {
+                    "duplex.ifc"
+                };
+                let current = MODELS[middle % MODELS.len()];
+                let other = if current == other {
+                    "AC20-FZK-Haus.glb"
+                } else {
+                    other
+                };
+                let ext = Path::new(other).extension().unwrap().to_str().unwrap();
+                let new_file = format!("b{middle:03}-new.{ext}");
+                copy(&data.join(other), &c.dir.join(&new_file));
+                c.models[middle]["path"] = json!(new_file);
+            }),
+        ),
+        (
+            "one building moved 50 m",
+            Box::new(move |c: &mut Campus| {
+                let east = c.models[middle + 1]["east_m"].as_f64().unwrap();
+                c.models[middle + 1]["east_m"] = json!(east + 50.0);
+            }),
+        ),
+        (
+            "one IFC property value renamed",
+            Box::new(move |c: &mut Campus| {
+                let f = c.dir.join(c.models[ifc]["path"].as_str().unwrap());
+                let text = std::fs::read_to_string(&f).unwrap();
+                assert!(text.contains(PROPERTY.0));
+                std::fs::write(&f, text.replacen(PROPERTY.0, PROPERTY.1, 1)).unwrap();
+            }),
+        ),
+        (
+            "one building removed",
+            Box::new(move |c: &mut Campus| {
+                c.models.remove(middle + 2);
+            }),
+        ),
+    ];
+    for (name, change) in changes.iter() {
+        change(&mut campus);
+        let manifest = campus.write();
+        let before = inodes(&out);
+        let (seconds, report) = convert(&bin, &manifest, &out, &["--update"]);
+        let u = &report["update"];
+        let after = inodes(&out);
+        // A tile written again has a new inode; a reused one kept its own.
+        let tiles_written = after
+            .iter()
+            .filter(|(path, ino)| path.starts_with("tiles/") && before.get(*path) != Some(ino))
+            .count();
+        let written = u["files_written"].as_u64().unwrap_or(0) as usize;
+        let row = json!({
+            "change": name,
+            "seconds": seconds,
+            "of_full_build": seconds / full_s,
+            "files_written": written,
+            "files": after.len(),
+            "tiles_written": tiles_written,
+            "tiles": after.keys().filter(|p| p.starts_with("tiles/")).count(),
+            "bytes_written": u["bytes_written"],
+            "files_reused": u["files_reused"],
+            "files_removed": u["files_removed"],
+            "reason": u["full_build_reason"],
+        });
+        println!(
+            "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} |",
+            100.0 * seconds / full_s,
+            100.0 * written as f64 / after.len().max(1) as f64,
+            row["tiles_written"],
+            row["tiles"],
+            row["bytes_written"],
+            row["files_reused"],
+            row["files_removed"],
+            u["full_build_reason"].as_str().unwrap_or("-"),
+        );
+        rows.push(row);
+    }
+    let json = json!({"buildings": buildings, "full_build_s": full_s, "files": files, "tiles": tiles, "updates": rows});
+    std::fs::write(
+        repo.join("target/bench/update.json"),
+        serde_json::to_vec_pretty(&json).unwrap(),
+    )
+    .unwrap();
+}
+
+/// The inode of each file of the tileset in `dir`, by path.
+fn inodes(dir: &Path) -> std::collections::BTreeMap<String, u64> {
+    use std::os::unix::fs::MetadataExt;
+    bimtiles::update::tileset_files(dir)
+        .unwrap()
+        .into_iter()
+        .map(|f| {
+            let ino = std::fs::metadata(dir.join(&f.path)).unwrap().ino();
+            (f.path, ino)
+        })
+        .collect()
+}

@@ -1,0 +1,419 @@
+//! `convert --update` (the book's "Updating a tileset"): every update of a campus equals a full
+//! build of the new manifest, file for file and byte for byte; the files whose bytes did not
+//! change stay the same files; an unchanged manifest reads no model; a missing or corrupt cache is
+//! a full build with one line saying why; a killed update leaves the old tileset or the new one.
+
+use crate::common::*;
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+const STATE: &str = bimtiles::update::STATE_FILE;
+
+/// A campus manifest in its own folder, its models copied in (so they can be edited).
+struct Campus {
+    dir: PathBuf,
+    models: Vec<Value>,
+}
+
+impl Campus {
+    fn new(name: &str) -> Campus {
+        Campus {
+            dir: tmpdir(name),
+            models: Vec::new(),
+        }
+    }
+
+    /// Adds `model` (copied in under `file`) placed at (east, north) metres.
+    fn add(&mut self, name: &str, model: &Path, file: &str, east_m: f64, north_m: f64) {
+        let to = self.dir.join(file);
+        if !to.exists() {
+            std::fs::copy(model, &to).unwrap();
+            let mut perms = std::fs::metadata(&to).unwrap().permissions();
+            #[allow(clippy::permissions_set_readonly_false)]
+            perms.set_readonly(false);
+            std::fs::set_permissions(&to, perms).unwrap();
+        }
+        self.models
+            .push(json!({"name": name, "path": file, "east_m": east_m, "north_m": north_m}));
+    }
+
+    fn manifest(&self) -> PathBuf {
+        let m = self.dir.join("campus.json");
+        let text = json!({
+            "origin": {"longitude_deg": 8.4116, "latitude_deg": 49.0124, "height_m": 115.0},
+            "models": self.models,
+        });
+        std::fs::write(&m, text.to_string()).unwrap();
+        m
+    }
+
+    /// The arguments of `convert --manifest` into `out` with `extra` options.
+    fn args(&self, out: &Path, extra: &[&str]) -> Vec<String> {
+        let m = self.manifest();
+        let mut args: Vec<String> = ["convert", "--manifest"].map(String::from).to_vec();
+        args.push(m.to_string_lossy().to_string());
+        args.extend(["--out".to_string(), out.to_string_lossy().to_string()]);
+        args.extend(["--max-tile-triangles", "4000"].map(String::from));
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args
+    }
+
+    /// Runs `convert --manifest` into `out` with `extra` options.
+    fn try_convert(&self, out: &Path, extra: &[&str]) -> std::process::Output {
+        let args = self.args(out, extra);
+        run(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    }
+
+    /// [`Campus::try_convert`], which must succeed.
+    fn convert(&self, out: &Path, extra: &[&str]) -> std::process::Output {
+        let o = self.try_convert(out, extra);
+        assert!(
+            o.status.success(),
+            "convert failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        o
+    }
+}
+
+/// Every file of the tileset in `dir` (all but report.json and the update cache), by path.
+fn tileset_files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(dir: &Path, prefix: &str, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let e = e.unwrap();
+            let name = e.file_name().to_string_lossy().to_string();
+            if prefix.is_empty() && (name == "report.json" || name == ".bimtiles") {
+                continue;
+            }
+            let rel = format!("{prefix}{name}");
+            if e.file_type().unwrap().is_dir() {
+                walk(&e.path(), &format!("{rel}/"), out);
+            } else {
+                out.insert(rel, std::fs::read(e.path()).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, "", &mut out);
+    out
+}
+
+/// Inode and modification time of each file of the tileset in `dir`.
+fn identities(dir: &Path) -> BTreeMap<String, (u64, i64, i64)> {
+    tileset_files(dir)
+        .into_keys()
+        .map(|f| {
+            let m = std::fs::metadata(dir.join(&f)).unwrap();
+            (f, (m.ino(), m.mtime(), m.mtime_nsec()))
+        })
+        .collect()
+}
+
+fn report(dir: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap()
+}
+
+/// Updates `out` to the campus as it is now and checks the result against a full build of it
+/// (`full`): the same files with the same bytes; the files whose bytes did not change are the
+/// same files as before; the report's counts are those files. Returns the update's report.
+fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) -> Value {
+    let before = tileset_files(out);
+    let ids_before = identities(out);
+    let mut args = vec!["--update", "--quiet"];
+    args.extend_from_slice(extra);
+    campus.convert(out, &args);
+    let _ = std::fs::remove_dir_all(full);
+    campus.convert(full, &["--quiet"]);
+    let after = tileset_files(out);
+    let expected = tileset_files(full);
+    assert_eq!(
+        after.keys().collect::<Vec<_>>(),
+        expected.keys().collect::<Vec<_>>(),
+        "the update has the full build's files"
+    );
+    for (name, bytes) in &expected {
+        assert!(
+            after[name] == *bytes,
+            "{name} differs from the full build's"
+        );
+    }
+    let ids_after = identities(out);
+    let u = report(out)["update"].clone();
+    let mut reused = 0;
+    for (name, bytes) in &after {
+        if before.get(name) == Some(bytes) {
+            reused += 1;
+            assert_eq!(ids_after[name], ids_before[name], "{name} kept as it was");
+        }
+    }
+    let removed = before.keys().filter(|k| !after.contains_key(*k)).count();
+    assert_eq!(u["files_reused"], reused, "{u}");
+    assert_eq!(u["files_written"], after.len() - reused, "{u}");
+    assert_eq!(u["files_removed"], removed, "{u}");
+    assert_eq!(u["mode"], "rebuilt", "{u}");
+    let state_bytes = std::fs::metadata(out.join(STATE)).unwrap().len();
+    let tileset_bytes: usize = after.values().map(Vec::len).sum();
+    assert!(
+        state_bytes as f64 <= 0.1 * tileset_bytes as f64,
+        "the cache ({state_bytes} bytes) is at most 10 % of the tileset ({tileset_bytes})"
+    );
+    u
+}
+
+/// Replace a model, move one, remove one, rename one element's property: each update equals a
+/// full build of the new manifest; an unchanged manifest builds nothing and touches no file.
+#[test]
+fn every_update_equals_a_full_build_of_the_new_manifest() {
+    let (Some(fzk_glb), Some(duplex), Some(fzk_ifc)) = (
+        shared_file("AC20-FZK-Haus.glb"),
+        shared_file("duplex.glb"),
+        shared_file("AC20-FZK-Haus.ifc"),
+    ) else {
+        return;
+    };
+    let mut campus = Campus::new("update-campus");
+    campus.add("a", &sample(), "a.glb", 0.0, 0.0);
+    campus.add("b", &duplex, "b.glb", 120.0, 0.0);
+    campus.add("c", &sample(), "a.glb", 0.0, 120.0);
+    campus.add("d", &fzk_ifc, "d.ifc", 120.0, 120.0);
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    campus.convert(&out, &["--update", "--quiet"]);
+
+    // Unchanged: nothing built, no file touched, one line says so.
+    let ids = identities(&out);
+    let o = campus.convert(&out, &["--update"]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("up to date, nothing built"), "{said}");
+    assert_eq!(identities(&out), ids);
+    let u = &report(&out)["update"];
+    assert_eq!(u["mode"], "unchanged", "{u}");
+    assert_eq!(
+        (u["files_written"].as_u64(), u["files_reused"].as_u64()),
+        (Some(0), Some(ids.len() as u64))
+    );
+
+    // A new model under the same file name, with the old file's modification time: the content
+    // hash sees it.
+    let b = campus.dir.join("b.glb");
+    let mtime = std::fs::metadata(&b).unwrap().modified().unwrap();
+    std::fs::copy(&fzk_glb, &b).unwrap();
+    std::fs::File::options()
+        .write(true)
+        .open(&b)
+        .unwrap()
+        .set_modified(mtime)
+        .unwrap();
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(
+        u["changed_inputs"][0].as_str().unwrap().ends_with("b.glb"),
+        "{u}"
+    );
+
+    // One building moved 50 m.
+    campus.models[2]["east_m"] = json!(50.0);
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
+
+    // One element's property value renamed in the IFC file.
+    let d = campus.dir.join("d.ifc");
+    let text = std::fs::read_to_string(&d).unwrap();
+    let old = "IFCLABEL('Wendeltreppe')";
+    assert!(text.contains(old), "the IFC file has the property");
+    std::fs::write(&d, text.replacen(old, "IFCLABEL('Spiral stair')", 1)).unwrap();
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
+
+    // One building removed, the old files kept for clients that hold the old tileset.json; the
+    // next update, without --keep-stale, removes them.
+    let before = tileset_files(&out);
+    campus.models.remove(1);
+    campus.convert(&out, &["--update", "--quiet", "--keep-stale"]);
+    let _ = std::fs::remove_dir_all(&full);
+    campus.convert(&full, &["--quiet"]);
+    let (kept, expected) = (tileset_files(&out), tileset_files(&full));
+    let stale: Vec<&String> = before
+        .keys()
+        .filter(|k| !expected.contains_key(*k))
+        .collect();
+    assert!(!stale.is_empty(), "removing a building removes some tile");
+    assert_eq!(report(&out)["update"]["files_kept_stale"], stale.len());
+    for (name, bytes) in &kept {
+        assert!(
+            expected.get(name).or(before.get(name)) == Some(bytes),
+            "{name}: the new build's file, or a stale one as it was"
+        );
+    }
+    assert_eq!(kept.len(), expected.len() + stale.len());
+    campus.convert(&out, &["--update", "--quiet"]);
+    assert_eq!(tileset_files(&out), expected, "stale files removed");
+    let u = &report(&out)["update"];
+    assert_eq!(
+        (u["mode"].as_str(), u["files_removed"].as_u64()),
+        (Some("unchanged"), Some(stale.len() as u64))
+    );
+}
+
+/// The reason an update must give, what spoils the cache before it, and the update's options.
+type Spoiled<'a> = (&'a str, &'a dyn Fn(), &'a [&'a str]);
+
+/// A missing, corrupt or foreign cache, changed options, or no tileset yet: a full build, one
+/// line saying why (stderr and report.json), and the result a full build gives.
+#[test]
+fn a_missing_or_corrupt_cache_is_a_full_build_with_one_line_note() {
+    let mut campus = Campus::new("update-fallbacks");
+    campus.add("a", &sample(), "a.glb", 0.0, 0.0);
+    campus.add("b", &sample(), "a.glb", 80.0, 0.0);
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    let o = campus.convert(&out, &["--update"]);
+    let note = |o: &std::process::Output| {
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        let notes: Vec<&str> = err
+            .lines()
+            .filter(|l| l.starts_with("note: update:"))
+            .collect();
+        assert_eq!(notes.len(), 1, "{err}");
+        notes[0].to_string()
+    };
+    assert!(note(&o).ends_with("full build: no tileset at the output yet"));
+    campus.convert(&full, &["--quiet"]);
+    assert!(
+        !full.join(".bimtiles").exists(),
+        "a plain build leaves no cache"
+    );
+    let expected = tileset_files(&full);
+    let cases: [Spoiled; 4] = [
+        (
+            "no update cache",
+            &|| std::fs::remove_file(out.join(STATE)).unwrap(),
+            &[],
+        ),
+        (
+            "the update cache is corrupt",
+            &|| std::fs::write(out.join(STATE), b"{\"format\": 1, \"tool").unwrap(),
+            &[],
+        ),
+        (
+            "the update cache has format 99",
+            &|| {
+                let mut s: Value =
+                    serde_json::from_slice(&std::fs::read(out.join(STATE)).unwrap()).unwrap();
+                s["format"] = json!(99);
+                std::fs::write(out.join(STATE), s.to_string()).unwrap();
+            },
+            &[],
+        ),
+        ("the options changed", &|| {}, &["--compression", "draco"]),
+    ];
+    for (reason, spoil, extra) in cases {
+        spoil();
+        let mut args = vec!["--update"];
+        args.extend_from_slice(extra);
+        let line = note(&campus.convert(&out, &args));
+        assert!(line.contains(reason), "{line}");
+        let r = report(&out);
+        assert!(r["update"]["full_build_reason"]
+            .as_str()
+            .unwrap()
+            .contains(reason));
+        if extra.is_empty() {
+            assert_eq!(tileset_files(&out), expected);
+        }
+        assert!(out.join(STATE).is_file(), "the cache is written again");
+    }
+    // The bundled sample (no input given) is updated too.
+    let sample_out = campus.dir.join("sample");
+    for mode in ["rebuilt", "unchanged"] {
+        let o = run(&[
+            "convert",
+            "--out",
+            sample_out.to_str().unwrap(),
+            "--update",
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(report(&sample_out)["update"]["mode"], mode);
+    }
+    // A foreign folder is never taken for a tileset to update.
+    let mine = campus.dir.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("notes.txt"), "user data").unwrap();
+    let o = campus.try_convert(&mine, &["--update"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(
+        std::fs::read_to_string(mine.join("notes.txt")).unwrap(),
+        "user data"
+    );
+}
+
+/// An update killed (SIGKILL) at spread-out moments leaves the old tileset or the new one, never
+/// a mix; the next update finishes the job and removes the killed run's folder.
+#[test]
+fn killed_updates_leave_the_old_or_the_new_tileset() {
+    let Some(fzk) = shared_file("AC20-FZK-Haus.glb") else {
+        return;
+    };
+    let mut campus = Campus::new("update-killed");
+    campus.add("a", &sample(), "a.glb", 0.0, 0.0);
+    campus.add("b", &fzk, "b.glb", 100.0, 0.0);
+    campus.add("c", &sample(), "a.glb", 0.0, 100.0);
+    let pristine = campus.dir.join("pristine");
+    campus.convert(&pristine, &["--update", "--quiet"]);
+    let old = tileset_files(&pristine);
+    campus.models[1]["east_m"] = json!(150.0);
+    let full = campus.dir.join("full");
+    let t = Instant::now();
+    campus.convert(&full, &["--quiet"]);
+    let build = t.elapsed();
+    let new = tileset_files(&full);
+    assert_ne!(old, new);
+    let out = campus.dir.join("out");
+    // Moments spread over a build's time, in a fixed pseudo-random order.
+    let mut x: u32 = 2_463_534_242;
+    let mut outcomes = BTreeMap::new();
+    for round in 0..8 {
+        let _ = std::fs::remove_dir_all(&out);
+        let cp = Command::new("cp")
+            .arg("-a")
+            .arg(&pristine)
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(cp.success());
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        let delay = build.mul_f64(f64::from(x % 1000) / 1000.0 * 1.2);
+        let mut child = Command::new(bin())
+            .args(campus.args(&out, &["--update", "--quiet"]))
+            .spawn()
+            .unwrap();
+        std::thread::sleep(delay);
+        let _ = child.kill();
+        child.wait().unwrap();
+        let now = tileset_files(&out);
+        let which = if now == old {
+            "old"
+        } else if now == new {
+            "new"
+        } else {
+            panic!("round {round}: killed after {delay:?}, the output is neither tileset")
+        };
+        *outcomes.entry(which).or_insert(0) += 1;
+    }
+    eprintln!("killed updates left: {outcomes:?}");
+    campus.convert(&out, &["--update", "--quiet"]);
+    assert_eq!(tileset_files(&out), new);
+    let leftovers: Vec<String> = std::fs::read_dir(&campus.dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .filter(|n| n.starts_with(".out."))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    assert!(build > Duration::ZERO);
+}
