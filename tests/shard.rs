@@ -65,6 +65,7 @@ fn report_content(dir: &Path) -> Value {
         serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
     let o = r.as_object_mut().unwrap();
     o.remove("timings_s");
+    o.remove("hlod_timings_s");
     o.remove("peak_memory_bytes");
     o.remove("memory");
     if let Some(d) = o.get_mut("dedup").and_then(Value::as_object_mut) {
