@@ -36,8 +36,13 @@ REPO = pathlib.Path(__file__).resolve().parents[2]
 SCHEMA = json.loads((REPO / "schemas" / "element-index.schema.json").read_text())
 # The boxes are whole millimetres rounded outwards; vertices are f32 (or 16-bit) in a tile.
 TOLERANCE_M = 2e-4
+# What meshopt and Draco positions may differ from the scene's (the encoder's default bound).
+COMPRESSED_POSITION_BOUND_M = 1e-3
 # Share of the tileset's bytes the index may take (gzip, as served).
 MAX_SHARE = 0.05
+# Below this, the index's fixed part (format, frame, dictionaries) and one GlobalId per element
+# outweigh a few kilobytes of tiles: such tilesets are printed, not held to the share.
+MIN_ASSERTED_TILESET_BYTES = 256 * 1024
 
 DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
@@ -150,11 +155,16 @@ def index_rows(ix):
 SHARED_DATA = pathlib.Path(os.environ.get("BIMTILES_SHARED", REPO.parent / "shared")) / "data"
 
 
-def inputs_are_shared_models(report):
-    """Whether every input of a conversion is a file of the shared data (a manifest's models too)."""
+BIM_SUFFIXES = {".ifc", ".glb", ".gltf"}
+
+
+def inputs_are_shared_bim_models(report):
+    """Whether every input of a conversion is a BIM model (IFC or glTF) of the shared data, alone
+    or placed by a manifest. City models (CityJSON, CityGML) hold a few hundred bytes of tiles per
+    building, so ids and boxes are a larger share there: their figure is printed, not asserted."""
     files = [pathlib.Path(f) for f in report["input"]["files"]]
-    return bool(files) and all(f.resolve().is_relative_to(SHARED_DATA.resolve()) or
-                               f.suffix == ".json" for f in files)
+    return bool(files) and all(f.resolve().is_relative_to(SHARED_DATA.resolve()) and
+                               f.suffix.lower() in BIM_SUFFIXES for f in files)
 
 
 def indexed_dirs():
@@ -222,8 +232,13 @@ def test_index_matches_the_tiles():
                 continue
             ids, points, n_skipped = feature_vertices(doc, blob)
             skipped += n_skipped
+            # Dedup draws a shape congruent within its tolerance in place of an element's own, and
+            # compressed positions are written within the encoder's bound (meshopt's exponent
+            # filter takes the fewest mantissa bits that keep it).
+            dedup_m = (report.get("dedup") or {}).get("tolerance_m") or 0.0
+            encoded_m = COMPRESSED_POSITION_BOUND_M if report["options"]["compression"] != "none" else 0.0
             for fids, (pos, step) in zip(ids, points):
-                tol = TOLERANCE_M + step
+                tol = TOLERANCE_M + max(step, encoded_m) + dedup_m
                 for f in np.unique(fids):
                     r = rows[by_id[table[f]["id"]]]
                     p = pos[fids == f]
@@ -245,7 +260,8 @@ def test_index_matches_the_tiles():
         print(f"{d}: {ix['count']} elements, index {len(raw)} B ({packed} B gzip) = "
               f"{100 * len(raw) / total:.2f} % ({100 * packed / total:.2f} % gzip) of {total} B; "
               f"{measured} vertices inside their boxes, {skipped} primitives not measured")
-        # The size target holds for real models (the shared ones, alone or placed by a manifest);
-        # the suite's synthetic scenes (thousands of instances of one tiny shape) are only printed.
-        if inputs_are_shared_models(report):
+        # The size target holds for real BIM models (the shared ones, alone or placed by a
+        # manifest) of a quarter megabyte or more; the suite's synthetic scenes (thousands of
+        # instances of one tiny shape), city models and tiny tilesets are only printed.
+        if inputs_are_shared_bim_models(report) and total >= MIN_ASSERTED_TILESET_BYTES:
             assert packed <= MAX_SHARE * total, f"{d}: the index is {packed} B gzip, over 5 % of {total} B"
