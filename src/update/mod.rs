@@ -23,7 +23,6 @@ use crate::options::Settings;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeSet;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// The state's folder in the output (hidden: never served, never referenced by the tileset).
@@ -154,20 +153,10 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// SHA-256 of a file's bytes, read in blocks.
+/// SHA-256 of a file's bytes, streamed through the hasher.
 fn hash_file(path: &Path) -> std::io::Result<InputHash> {
-    let mut f = std::fs::File::open(path)?;
     let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 20];
-    let mut bytes = 0u64;
-    loop {
-        let n = f.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-        bytes += n as u64;
-    }
+    let bytes = std::io::copy(&mut std::fs::File::open(path)?, &mut h)?;
     Ok(InputHash {
         path: path.to_path_buf(),
         bytes,
