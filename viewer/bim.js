@@ -42,7 +42,7 @@
 
   // --- the element index --------------------------------------------------------------------
   function decodeIndex(json) {
-    if (json.format !== "bimtiles-element-index/1") throw new Error("unknown element index format " + json.format);
+    if (json.format !== "bimtiles-element-index/2") throw new Error("unknown element index format " + json.format);
     const c = json.columns;
     const d = json.dictionaries;
     const n = json.count;
@@ -58,8 +58,9 @@
   }
   function path(ix, i) {
     const parent = ix.d.pathParent[ix.c.pathParent[i]];
-    const leaf = ix.c.pathLeaf[i];
-    return parent !== null ? parent + "/" + (leaf !== null ? leaf : ix.c.name[i] || "") : leaf || "";
+    // A null leaf is the element's label (its name, else its id); "" under no parent is no path.
+    const leaf = ix.c.pathLeaf[i] ?? (ix.c.name[i] || ix.c.id[i]);
+    return parent !== null ? parent + "/" + leaf : leaf;
   }
   function value(i, level) {
     return state.index.d[level][state.index.c[level][i]];

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 /// The index file, in the tileset's folder (named in tileset.json's `asset.extras.bimtiles`).
 pub const ELEMENT_INDEX_FILE: &str = "element-index.json";
 /// The `format` field: a reader refuses a version it does not know.
-pub const ELEMENT_INDEX_FORMAT: &str = "bimtiles-element-index/1";
+pub const ELEMENT_INDEX_FORMAT: &str = "bimtiles-element-index/2";
 
 /// Texts written once, referenced by code (index; 0 is `null`, no value).
 #[derive(Debug, Default, Serialize, PartialEq)]
@@ -42,8 +42,8 @@ pub struct Columns {
     pub class: Vec<u32>,
     #[serde(rename = "pathParent")]
     pub path_parent: Vec<u32>,
-    /// The path's last segment; `null` when it is the element's name under a parent (the usual
-    /// case), or when the element has no path (then `pathParent` is 0 too).
+    /// The path's last segment; `null` when it is the element's label (its name, else its id:
+    /// the usual case), `""` when the element has no path (then `pathParent` is 0 too).
     #[serde(rename = "pathLeaf")]
     pub path_leaf: Vec<Option<String>>,
     /// Six integers a row: the box's minimum corner x, y, z and its size x, y, z (millimetres).
@@ -175,12 +175,14 @@ impl ElementIndex {
             columns.storey.push(r.key.2);
             columns.class.push(r.key.3);
             columns.path_parent.push(code_of(&d.path_parent, parent));
-            // Left out when it is the name, under a parent: a path of one segment is kept, so
-            // that no leaf and no parent still means no path.
-            let elided = parent.is_some() && leaf == r.name.as_deref();
-            columns
-                .path_leaf
-                .push(leaf.filter(|_| !elided).map(String::from));
+            // Left out when it is the label a reader already has (the name, else the id); a
+            // missing path is an empty leaf under no parent, so that it stays apart.
+            let label = r.name.as_deref().unwrap_or(&r.id);
+            columns.path_leaf.push(match leaf {
+                Some(leaf) if leaf == label => None,
+                Some(leaf) => Some(leaf.to_string()),
+                None => Some(String::new()),
+            });
             columns.name.push(r.name.clone());
             columns.box_mm.extend(box_mm(&r.bounds));
             columns.drawn_by.push(
@@ -214,8 +216,19 @@ mod tests {
     /// Id, storey, class and offset of a test element.
     type Placed<'a> = (&'a str, Option<&'a str>, Option<&'a str>, [f64; 3]);
 
-    /// A scene of unit triangles at the given offsets, each an element with these semantics.
+    /// A scene of unit triangles at the given offsets, each an element with these semantics,
+    /// named `n<i>` under a site node.
     fn scene(elements: &[Placed]) -> Scene {
+        scene_with(elements, |i, _| {
+            (Some(format!("n{i}")), Some(format!("n{i}")))
+        })
+    }
+
+    /// The same, each element's name and node name (no node: no path) chosen by `names`.
+    fn scene_with(
+        elements: &[Placed],
+        names: impl Fn(usize, &str) -> (Option<String>, Option<String>),
+    ) -> Scene {
         let mut s = Scene::default();
         let mesh = s.meshes.push(Mesh {
             name: None,
@@ -234,16 +247,19 @@ mod tests {
             ..Node::default()
         });
         for (i, (key, storey, class, at)) in elements.iter().enumerate() {
-            s.nodes.push(Node {
-                name: Some(format!("n{i}")),
-                parent: Some(NodeId(0)),
-                ..Node::default()
-            });
+            let (name, node_name) = names(i, key);
             let mut c = Component::new(mesh, DMat4::from_translation(DVec3::from_array(*at)));
-            c.node = Some(NodeId(i as u32 + 1));
+            if let Some(node_name) = node_name {
+                c.node = Some(NodeId(s.nodes.len() as u32));
+                s.nodes.push(Node {
+                    name: Some(node_name),
+                    parent: Some(NodeId(0)),
+                    ..Node::default()
+                });
+            }
             let info = ElementInfo {
                 key: key.to_string(),
-                name: Some(format!("n{i}")),
+                name,
                 storey: storey.map(Into::into),
                 class: class.map(Into::into),
                 ..ElementInfo::default()
@@ -279,11 +295,40 @@ mod tests {
         );
         assert!(b[0] + b[3] >= 11_000 && b[1] + b[4] >= 2_000 && b[2] + b[5] >= 3_500);
         assert!(b[3] <= 1_002 && b[4] <= 2_002 && b[5] <= 502, "{b:?}");
-        // The path's leaf is the name: not repeated; its parent is in the dictionary.
+        // The path's leaf is the label (the name, else the id): not repeated; its parent is in
+        // the dictionary.
         assert_eq!(ix.columns.path_leaf, [None, None, None, None]);
         assert_eq!(ix.dictionaries.path_parent, [None, Some("Site".into())]);
         assert!(ix.columns.path_parent.iter().all(|&p| p == 1));
         assert_eq!(ix.columns.drawn_by, [-1, -1, -1, -1]);
+    }
+
+    #[test]
+    fn a_leaf_that_is_the_label_is_left_out_and_no_path_is_an_empty_leaf() {
+        let s = scene_with(
+            &[
+                ("guid-a", None, None, [0.0, 0.0, 0.0]),
+                ("guid-b", None, None, [1.0, 0.0, 0.0]),
+                ("guid-c", None, None, [2.0, 0.0, 0.0]),
+                ("guid-d", None, None, [3.0, 0.0, 0.0]),
+            ],
+            |i, key| match i {
+                // No name: the id is the label.
+                0 => (None, Some(key.to_string())),
+                // A name the node does not carry.
+                1 => (Some("Wall".into()), Some(key.to_string())),
+                // No node, so no path.
+                2 => (Some("Door".into()), None),
+                _ => (Some("Slab".into()), Some("Slab".into())),
+            },
+        );
+        let ix = ElementIndex::from_scene(&s);
+        assert_eq!(ix.columns.id, ["guid-a", "guid-b", "guid-c", "guid-d"]);
+        assert_eq!(
+            ix.columns.path_leaf,
+            [None, Some("guid-b".into()), Some(String::new()), None]
+        );
+        assert_eq!(ix.columns.path_parent, [1, 1, 0, 1]);
     }
 
     #[test]

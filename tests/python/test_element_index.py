@@ -139,8 +139,8 @@ def index_rows(ix):
     rows = []
     for i in range(ix["count"]):
         parent, leaf = d["pathParent"][c["pathParent"][i]], c["pathLeaf"][i]
-        leaf = leaf if leaf is not None else c["name"][i]
-        path = f"{parent}/{leaf}" if parent is not None else c["pathLeaf"][i]
+        leaf = leaf if leaf is not None else (c["name"][i] or c["id"][i])
+        path = f"{parent}/{leaf}" if parent is not None else (leaf or None)
         b = c["box_mm"][6 * i:6 * i + 6]
         rows.append({
             "id": c["id"][i], "name": c["name"][i], "site": d["site"][c["site"][i]],
@@ -181,7 +181,7 @@ def indexed_dirs():
 
 def test_schema_refuses_a_broken_index():
     v = jsonschema.Draft202012Validator(SCHEMA)
-    good = {"format": "bimtiles-element-index/1", "frame": "f", "count": 0,
+    good = {"format": "bimtiles-element-index/2", "frame": "f", "count": 0,
             "dictionaries": {k: [None] for k in ("site", "building", "storey", "class", "pathParent")},
             "columns": {k: [] for k in ("id", "name", "site", "building", "storey", "class", "pathParent",
                                         "pathLeaf", "box_mm", "drawnBy")}}
