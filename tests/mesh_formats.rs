@@ -472,14 +472,8 @@ fn manifest_entries_place_obj_and_fbx_with_their_own_unit() {
         return;
     };
     let dir = tmpdir("mesh-formats-manifest");
-    for (name, from) in [("block", &obj), ("wall", &fbx)] {
-        let folder = dir.join(name);
-        std::fs::create_dir_all(&folder).unwrap();
-        for f in std::fs::read_dir(from.parent().unwrap()).unwrap() {
-            let f = f.unwrap().path();
-            std::fs::copy(&f, folder.join(f.file_name().unwrap())).unwrap();
-        }
-    }
+    put_folder_in(&obj, &dir, "block");
+    put_folder_in(&fbx, &dir, "wall");
     let obj_name = obj.file_name().unwrap().to_string_lossy();
     let fbx_name = fbx.file_name().unwrap().to_string_lossy();
     let manifest = dir.join("campus.json");

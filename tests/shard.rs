@@ -3,8 +3,8 @@
 //! index, and report.json apart from timings, memory and the texture tallies of the merging
 //! process. A job killed mid-write (simulated by its leftover temporary files) is not accepted by
 //! `merge`, and rerunning only that job completes the build. A tiny `--memory-budget` (geometry
-//! spilled to disk and read back) gives the same tileset too, for a campus of GLBs and for
-//! CityJSON districts.
+//! spilled to disk and read back) gives the same tileset too, for a campus of GLBs, for
+//! CityJSON districts and for textured OBJ, FBX and CityGML models side by side.
 
 use crate::common::*;
 use serde_json::Value;
@@ -448,5 +448,54 @@ fn cityjson_manifest_sharded_and_spilled_is_byte_identical() {
         spilled > 20 * resident,
         "{spilled} bytes spilled, {resident} kept"
     );
+    assert_identical(&conv, &tiny);
+}
+
+/// Textured OBJ, FBX and CityGML models, each read by its own reader with its side files, go
+/// through a manifest, sharded builds and the memory budget as a GLB campus does.
+#[test]
+fn textured_obj_fbx_and_citygml_sharded_and_spilled_are_byte_identical() {
+    let (Some(obj), Some(fbx), Some(gml)) = (
+        shared_file("obj/squareblock-building-textured/SquareBlock.obj"),
+        shared_file("fbx/triangleblock-textured-binary/TriangleBlock.FBX"),
+        shared_file("citygml/citygml4j-lod3-building-textured/lod3_building_v2.gml"),
+    ) else {
+        return;
+    };
+    let dir = tmpdir("shard-mesh-formats");
+    let models: Vec<Value> = [("block", &obj), ("triangle", &fbx), ("gml", &gml)]
+        .iter()
+        .enumerate()
+        .map(|(i, (name, model))| {
+            let placed = put_folder_in(model, &dir, name);
+            let file = placed.file_name().unwrap().to_string_lossy();
+            serde_json::json!({"name": name, "path": format!("{name}/{file}"),
+                "east_m": 80.0 * i as f64, "heading_deg": 15.0 * i as f64})
+        })
+        .collect();
+    let m = dir.join("district.json");
+    std::fs::write(&m, serde_json::json!({ "models": models }).to_string()).unwrap();
+    let m = m.to_str().unwrap();
+    let extra = ["--max-tile-triangles", "2000"];
+
+    let conv = dir.join("convert");
+    convert_manifest(m, &conv, &extra);
+    let report = report_content(&conv);
+    assert_eq!(report["input"]["files"].as_array().unwrap().len(), 3);
+    // The three readers' textures: the block's facades, the FBX's and the CityGML appearances.
+    assert!(
+        report["textures"]["images_bound"].as_u64().unwrap_or(0) >= 3,
+        "{}",
+        report["textures"]
+    );
+
+    let out = dir.join("shard");
+    sharded(&["--manifest", m], &out, 3, &extra);
+    assert_identical(&conv, &out);
+
+    let tiny = dir.join("tiny-budget");
+    convert_manifest(m, &tiny, &[extra[0], extra[1], "--memory-budget", "64K"]);
+    let (spilled, _) = spilled_bytes(&tiny);
+    assert!(spilled > 0, "nothing spilled");
     assert_identical(&conv, &tiny);
 }

@@ -146,6 +146,26 @@ pub fn put_model_in(model: &Path, dir: &Path) -> PathBuf {
     to
 }
 
+/// Copies the folder holding `model` (its side files: materials, textures, sub-folders) into
+/// `dir/<name>`; returns the model's path there.
+pub fn put_folder_in(model: &Path, dir: &Path, name: &str) -> PathBuf {
+    fn copy_tree(from: &Path, to: &Path) {
+        std::fs::create_dir_all(to).unwrap();
+        for e in std::fs::read_dir(from).unwrap() {
+            let p = e.unwrap().path();
+            let target = to.join(p.file_name().unwrap());
+            if p.is_dir() {
+                copy_tree(&p, &target);
+            } else {
+                std::fs::copy(&p, &target).unwrap();
+            }
+        }
+    }
+    let folder = dir.join(name);
+    copy_tree(model.parent().unwrap(), &folder);
+    folder.join(model.file_name().unwrap())
+}
+
 /// An empty scratch folder `target/test-out/<name>`.
 pub fn tmpdir(name: &str) -> PathBuf {
     let d = repo().join("target/test-out").join(name);
