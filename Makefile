@@ -122,8 +122,8 @@ BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_
 INLINED_SETS := shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
 # The BIM tools (viewer/bim.js) in one more browser, on two of the tilesets above
 # (tools/viewer_test.mjs): tree, hide and isolate on duplex; search, colour by class, section
-# box and the URL state on the FZK house; ARIA roles, the element index fetched after the
-# first view, and the tree and search on 100k elements on both.
+# box, plan cut and the URL state on the FZK house; ARIA roles, the element index fetched after
+# the first view, and the tree and search on 100k elements on both.
 VIEWER_SETS := duplex=target/test-out/shared-duplex/tiles fzk=target/test-out/shared-AC20-FZK-Haus/tiles
 test-browser: deps build
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || { echo "browser test: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; \

@@ -6,7 +6,7 @@
 //     --set duplex=target/test-out/shared-duplex/tiles --set fzk=target/test-out/ifc-AC20-FZK-Haus/tiles \
 //     [--shots docs/src/images] [--json FILE]
 //
-// A set named `duplex` gets the tree checks, `fzk` the search, colour, section and URL
+// A set named `duplex` gets the tree checks, `fzk` the search, colour, section box, plan cut and URL
 // checks; every set: the ARIA roles, the element index fetched only after the first view, the
 // 100k-element budgets (the set's own index repeated to 100k rows), and no request leaves loopback,
 // no console error (browser_test.mjs's watch). --shots writes the README's screenshots from `fzk`.
@@ -336,6 +336,41 @@ async function checkFzk(page, context, url, failures, timeoutMs, shots) {
   if (shots) await page.screenshot({ path: `${shots}/viewer-section-box.png` });
   await page.evaluate(() => window.bimtilesBim.setSection(null));
   await settle(page, timeoutMs);
+
+  // Plan cut at the lowest named storey, from its tree node: the plane lies at the storey's elevation
+  // plus the cut height, and no element lying wholly above it can be picked any more (some were
+  // picked before, on the same grid).
+  step("fzk: plan cut");
+  const above = (grid, z) => grid.filter((p) => p.boxMinZ > z);
+  const withBoxes = (grid) => page.evaluate((g) => {
+    const B = window.bimtilesBim;
+    const rowOf = new Map(B.state.index.c.id.map((id, i) => [id, i]));
+    return g.map((p) => ({ ...p, boxMinZ: rowOf.has(p.id) ? B.rowBox(rowOf.get(p.id)).min[2] : -Infinity }));
+  }, grid);
+  const storeyCut = await page.evaluate(() => {
+    const B = window.bimtilesBim;
+    const storeys = B.nodes().filter((n) => n.what === "storey" && n.label !== "(no storey)").sort((a, b) => a.elevationM - b.elevationM);
+    return storeys.length ? { key: storeys[0].key, label: storeys[0].label, elevationM: storeys[0].elevationM } : null;
+  });
+  if (!storeyCut) failures.push("fzk: no storey node for a plan cut");
+  else {
+    const before = await withBoxes(await pickGrid(page, 16));
+    const z = await page.evaluate((key) => {
+      const B = window.bimtilesBim;
+      B.planCut(key);
+      return B.state.section.z;
+    }, storeyCut.key);
+    await settle(page, timeoutMs);
+    const after = await withBoxes(await pickGrid(page, 16));
+    const aboveBefore = above(before, z), aboveAfter = above(after, z);
+    out.planCut = { storey: storeyCut.label, elevationM: storeyCut.elevationM, cutZ: z, pickedAboveBefore: aboveBefore.length, pickedAboveAfter: aboveAfter.length, pickedAfter: after.length };
+    if (Math.abs(z - (storeyCut.elevationM + 1.2)) > 0.001) failures.push(`fzk: the plan cut is at ${z} m, not 1.2 m above the storey's ${storeyCut.elevationM} m`);
+    if (aboveBefore.length < 5) failures.push(`fzk: only ${aboveBefore.length} grid points picked elements above the cut before it (the check could not fail)`);
+    if (aboveAfter.length) failures.push(`fzk: the plan cut left ${aboveAfter.length} elements above it pickable: ${[...new Set(aboveAfter.map((p) => p.id))].slice(0, 3)}`);
+    if (!after.length) failures.push("fzk: the plan cut hid the whole model");
+    await page.evaluate(() => window.bimtilesBim.setSection(null));
+    await settle(page, timeoutMs);
+  }
 
   // URL: a state set here, opened in a new page from the URL alone.
   step("fzk: URL");
