@@ -2,7 +2,7 @@
 // Browser benchmark: each model as a single-tile tileset (the original GLB as the one content)
 // against bimtiles' tileset, in real CesiumJS (Debian Chromium, SwiftShader WebGL).
 //
-//   node tools/bench_browser.mjs [--runs 3] [--throttle 20:40] [--json out.json] MODEL.glb|MODEL.ifc...
+//   node tools/bench_browser.mjs [--runs 3] [--throttle 20:40] [--json out.json] MODEL.glb|.ifc|.gml|.obj|.fbx|.json...
 //
 // Options:
 //   --runs N           measured loads per variant (default 3), interleaved A/B, B/A, ...
@@ -32,9 +32,10 @@
 //                      tileset request to all tiles loaded. Sampling slows the page a little: use
 //                      it to see where a load's time goes, not for the figures
 //
-// An .ifc model has no raw GLB: its raw variant is bimtiles' own single-tile GLB of it (one
-// octree cell: --max-tile-triangles and --max-tile-bytes at their largest, no coarse root above it,
-// Draco whatever our default, the GLB a file as a raw model is, not inlined in tileset.json).
+// A model that is no GLB (IFC, CityGML, CityJSON, OBJ, FBX) has no raw GLB: its raw variant is
+// bimtiles' own single-tile GLB of it (one octree cell: --max-tile-triangles and --max-tile-bytes
+// at their largest, no coarse root above it, Draco whatever our default, images embedded, the GLB a
+// file as a raw model is, not inlined in tileset.json).
 //
 // Fly-in (each run, each variant, after the cold load): the tileset is loaded again at a new URL
 // (nothing cached) with the camera at the first stop, then moved to each stop in turn (heading 0.6,
@@ -137,16 +138,17 @@ function rawTileset(ours, glbName) {
 }
 
 /**
- * bimtiles' own GLB of `ifc` as one tile (one octree cell): the raw file an IFC lacks. The metadata
- * schema its properties refer to goes inline into the GLB (EXT_structural_metadata `schema`), so
- * the file stands alone as a raw GLB does (two requests with its tileset JSON).
+ * bimtiles' own GLB of `model` as one tile (one octree cell): the raw file a model that is no GLB
+ * (IFC, CityGML, CityJSON, OBJ, FBX) lacks. The metadata schema its properties refer to goes
+ * inline into the GLB (EXT_structural_metadata `schema`) and its images are embedded, so the file
+ * stands alone as a raw GLB does (two requests with its tileset JSON).
  */
-function singleTileGlb(bimtiles, ifc, outDir) {
+function singleTileGlb(bimtiles, model, outDir) {
   const most = String(2 ** 32 - 1);
-  execFileSync(bimtiles, ["convert", ifc, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--no-coarse-root", "--no-inline-root"], { stdio: "inherit" });
+  execFileSync(bimtiles, ["convert", model, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--no-coarse-root", "--no-inline-root", "--embed-textures"], { stdio: "inherit" });
   const ts = JSON.parse(readFileSync(join(outDir, "tileset.json")));
   if (!ts.root.content || (ts.root.children && ts.root.children.length))
-    throw new Error(`${ifc}: the single-tile conversion has more than one tile`);
+    throw new Error(`${model}: the single-tile conversion has more than one tile`);
   const glbPath = join(outDir, ts.root.content.uri);
   const { json: gltf, bin } = readGlb(readFileSync(glbPath));
   const metadata = gltf.extensions && gltf.extensions.EXT_structural_metadata;
@@ -476,8 +478,8 @@ async function main() {
       const t = Date.now();
       execFileSync(opts.bimtiles, ["convert", model, "--out", oursDir, "--quiet", ...extra], { stdio: "inherit" });
       entry.convertMs = Date.now() - t;
-      // The raw variant: a given GLB, else an IFC file as our own one-tile GLB, else the model itself.
-      const rawModel = opts.rawGlb[name] || (/\.ifc$/i.test(model) ? singleTileGlb(opts.bimtiles, model, join(dir, "single")) : model);
+      // The raw variant: a given GLB, else the model itself when it is a GLB, else our own one-tile GLB.
+      const rawModel = opts.rawGlb[name] || (/\.glb$/i.test(model) ? model : singleTileGlb(opts.bimtiles, model, join(dir, "single")));
       const ours = JSON.parse(readFileSync(join(oursDir, "tileset.json")));
       cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
       const rawDir = join(dir, "raw");

@@ -15,6 +15,8 @@
 //   --timeout S          seconds to wait for all tiles (default 120)
 //   --width W --height H viewport (default 1280x720)
 //   --require-pick       fail if clicking the centre of the view picks nothing
+//   --require-texture S  fail unless at least the share S of neighbouring pixels on one face
+//                        differ in colour (texturedShare): a textured model not drawn untextured
 //   --min-drawn-pct P    the share of pixels the tileset must change (default 1; a wide, sparse
 //                        scene framed whole covers less)
 //   --check-adaptive     also check the adaptive strategy (checkAdaptive): SSE up for ?fps=1000,
@@ -60,7 +62,7 @@ function parseArgs(argv) {
       o[k] = argv[++i];
     }
   }
-  for (const k of ["timeout", "width", "height", "min-drawn-pct"]) o[k] = Number(o[k]);
+  for (const k of ["timeout", "width", "height", "min-drawn-pct", "require-texture"]) if (k in o) o[k] = Number(o[k]);
   return o;
 }
 
@@ -299,28 +301,43 @@ export async function collect(page) {
   return s;
 }
 
-/** Share of pixels (0..1) that differ between two PNG screenshots, decoded by the page itself. */
-export async function changedShare(page, pngA, pngB) {
+/** A screenshot of the canvas alone (panels hidden). */
+export async function canvasShot(page) {
+  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "hidden")));
+  await frames(page, 3);
+  const png = await page.screenshot();
+  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "")));
+  return png;
+}
+
+/** Runs `analyse(images, arg)` in the page on PNG screenshots decoded there (RGBA arrays), and
+ * returns its (small) result: the pixels never cross the wire. */
+export async function pixels(page, pngs, analyse, arg = null) {
   return page.evaluate(
-    async ([a, b]) => {
-      const decode = async (b64) => {
+    async ([list, source, arg]) => {
+      const images = [];
+      for (const b64 of list) {
         const blob = await (await fetch("data:image/png;base64," + b64)).blob();
         const bmp = await createImageBitmap(blob);
         const c = new OffscreenCanvas(bmp.width, bmp.height);
         const ctx = c.getContext("2d");
         ctx.drawImage(bmp, 0, 0);
-        return ctx.getImageData(0, 0, bmp.width, bmp.height).data;
-      };
-      const [da, db] = await Promise.all([decode(a), decode(b)]);
-      let changed = 0;
-      for (let i = 0; i < da.length; i += 4) {
-        const d = Math.abs(da[i] - db[i]) + Math.abs(da[i + 1] - db[i + 1]) + Math.abs(da[i + 2] - db[i + 2]);
-        if (d > 24) changed++;
+        images.push(ctx.getImageData(0, 0, bmp.width, bmp.height).data);
       }
-      return changed / (da.length / 4);
+      const differs = (a, b, i) => Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2]) > 24;
+      return new Function("images", "arg", "differs", `return (${source})(images, arg, differs);`)(images, arg, differs);
     },
-    [pngA.toString("base64"), pngB.toString("base64")],
+    [pngs.map((p) => p.toString("base64")), analyse.toString(), arg],
   );
+}
+
+/** Share of pixels (0..1) that differ between two PNG screenshots, decoded by the page itself. */
+export async function changedShare(page, pngA, pngB) {
+  return pixels(page, [pngA, pngB], ([a, b], _, differs) => {
+    let changed = 0;
+    for (let i = 0; i < a.length; i += 4) if (differs(a, b, i)) changed++;
+    return changed / (a.length / 4);
+  });
 }
 
 /** Waits for `n` rendered frames. */
@@ -343,16 +360,48 @@ export async function frames(page, n) {
 
 /** Screenshot with and without the tileset (overlays hidden): share of changed pixels. */
 export async function notBlank(page) {
-  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "hidden")));
-  await frames(page, 3);
-  const shown = await page.screenshot();
+  const shown = await canvasShot(page);
   await page.evaluate(() => (window.bimtiles.tileset.show = false));
-  await frames(page, 3);
-  const hidden = await page.screenshot();
+  const hidden = await canvasShot(page);
   await page.evaluate(() => (window.bimtiles.tileset.show = true));
-  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "")));
   await frames(page, 3);
   return changedShare(page, shown, hidden);
+}
+
+/** How textured the drawn model looks. The frame is drawn again with every surface's colour set
+ * to white: two neighbouring pixels alike there lie on one face under the same light, so where
+ * they differ in the real frame, the surface's own colour changes within the face: a texture. A
+ * flat material changes only at element borders. Returns the share of such neighbour pairs (of
+ * the model's pixels, right and down neighbours) whose colours differ. */
+export async function texturedShare(page) {
+  const shown = await canvasShot(page);
+  await page.evaluate(() => {
+    window.bimtiles.tileset.customShader = new Cesium.CustomShader({
+      fragmentShaderText: "void fragmentMain(FragmentInput fsInput, inout czm_modelMaterial material) { material.diffuse = vec3(1.0); }",
+    });
+  });
+  await frames(page, 10);
+  const white = await canvasShot(page);
+  await page.evaluate(() => (window.bimtiles.tileset.show = false));
+  const background = await canvasShot(page);
+  await page.evaluate(() => {
+    window.bimtiles.tileset.show = true;
+    window.bimtiles.tileset.customShader = undefined;
+  });
+  await frames(page, 10);
+  return pixels(page, [shown, white, background], ([s, w, b], width, differs) => {
+    const alike = (a, i, j, tol) => Math.abs(a[i] - a[j]) + Math.abs(a[i + 1] - a[j + 1]) + Math.abs(a[i + 2] - a[j + 2]) <= tol;
+    let pairs = 0, textured = 0;
+    for (let i = 0; i < s.length; i += 4) {
+      if (!differs(w, b, i)) continue;
+      for (const j of [i + 4, i + 4 * width]) {
+        if (j >= s.length || !differs(w, b, j) || !alike(w, i, j, 3)) continue;
+        pairs++;
+        if (!alike(s, i, j, 12)) textured++;
+      }
+    }
+    return { pairs, share: pairs ? +(textured / pairs).toFixed(4) : 0 };
+  }, await page.evaluate(() => window.bimtiles.viewer.canvas.width));
 }
 
 /** The adaptive strategy's state (viewer/adaptive.js) and the status line's text. */
@@ -498,6 +547,9 @@ async function main() {
         [Math.round(opts.width / 2), Math.round(opts.height / 2)],
       );
       if (opts["require-pick"] && !summary.pick) failures.push("clicking the centre of the view picked nothing");
+      summary.textured = await texturedShare(page);
+      if (opts["require-texture"] && !(summary.textured.share >= opts["require-texture"]))
+        failures.push(`the model looks untextured: ${summary.textured.share} of ${summary.textured.pairs} neighbouring pixel pairs on one face differ in colour, below ${opts["require-texture"]}`);
       summary.adaptive = await adaptiveState(page);
       if (!summary.adaptive.strategy || !summary.adaptive.line) failures.push("no adaptive strategy status line");
     }

@@ -13,7 +13,7 @@
 // Prints a JSON summary; exits 1 on failure.
 
 import { existsSync, rmSync, writeFileSync } from "node:fs";
-import { frames, launch, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
+import { canvasShot, frames, launch, pixels, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
 
 const WIDTH = 1280;
 const HEIGHT = 720;
@@ -46,36 +46,6 @@ async function settle(page, timeoutMs) {
   const w = await waitLoaded(page, timeoutMs);
   if (!w.ok) throw new Error(w.reason);
   await frames(page, 3);
-}
-
-/** A screenshot of the canvas alone (panels hidden). */
-async function canvasShot(page) {
-  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "hidden")));
-  await frames(page, 3);
-  const png = await page.screenshot();
-  await page.evaluate(() => document.querySelectorAll(".panel").forEach((e) => (e.style.visibility = "")));
-  return png;
-}
-
-/** Runs `analyse(images, arg)` in the page on PNG screenshots decoded there (RGBA arrays), and
- * returns its (small) result: the pixels never cross the wire. */
-async function pixels(page, pngs, analyse, arg = null) {
-  return page.evaluate(
-    async ([list, source, arg]) => {
-      const images = [];
-      for (const b64 of list) {
-        const blob = await (await fetch("data:image/png;base64," + b64)).blob();
-        const bmp = await createImageBitmap(blob);
-        const c = new OffscreenCanvas(bmp.width, bmp.height);
-        const ctx = c.getContext("2d");
-        ctx.drawImage(bmp, 0, 0);
-        images.push(ctx.getImageData(0, 0, bmp.width, bmp.height).data);
-      }
-      const differs = (a, b, i) => Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2]) > 24;
-            return new Function("images", "arg", "differs", `return (${source})(images, arg, differs);`)(images, arg, differs);
-    },
-    [pngs.map((p) => p.toString("base64")), analyse.toString(), arg],
-  );
 }
 
 /** Picks a grid of points: [{x, y, id, class, storey, local: [x,y,z] | null}]. */
