@@ -41,10 +41,11 @@ export function startStaticServer(mounts, pages = {}) {
     };
     if (path === "/favicon.ico") return send(204, "");
     if (pages[path] !== undefined) return send(200, pages[path], TYPES[extname(path)] || "text/plain");
-    for (const [prefix, dir] of Object.entries(mounts)) {
+    for (const [prefix, d] of Object.entries(mounts)) {
       if (!path.startsWith(prefix)) continue;
+      const dir = resolve(d);
       const file = normalize(join(dir, path.slice(prefix.length)));
-      if (!file.startsWith(resolve(dir) + sep) && file !== resolve(dir)) return send(403, "outside");
+      if (!file.startsWith(dir + sep)) return send(403, "outside");
       if (!existsSync(file) || !statSync(file).isFile()) return send(404, "not found");
       res.writeHead(200, {
         "content-type": TYPES[extname(file).toLowerCase()] || "application/octet-stream",
@@ -94,6 +95,8 @@ export async function launchBrowser(width, height) {
     args: CHROME_ARGS,
     viewport: { width, height },
   });
+  // Nothing leaves loopback: such a request is aborted (and reported by openPage as external).
+  await context.route((url) => !isLocal(url.toString()), (route) => route.abort());
   return {
     context,
     close: async () => {

@@ -17,7 +17,8 @@ export async function run(context, server, s, { timeoutMs }) {
   let timedOut = false;
   for (;;) {
     const st = await page.evaluate(() => window.client && { framed: window.client.state.framed, models: window.client.state.models, busy: window.client.busy(), errors: window.client.state.errors.length });
-    if (st && st.framed && (st.models > 0 || st.errors > 0) && st.busy === 0) quiet++;
+    // (A tileset.json that fails to load leaves nothing to frame: done too.)
+    if (st && (st.framed || st.errors > 0) && (st.models > 0 || st.errors > 0) && st.busy === 0) quiet++;
     else quiet = 0;
     if (quiet >= 4) break;
     if (Date.now() - t0 > timeoutMs) { timedOut = true; break; }

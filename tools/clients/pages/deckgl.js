@@ -30,6 +30,8 @@ const layer = () =>
         "draco_decoder.wasm": `${lib}/@loaders.gl/draco/dist/libs/draco_decoder.wasm`,
         "basis_transcoder.js": `${lib}/@loaders.gl/textures/dist/libs/basis_transcoder.js`,
         "basis_transcoder.wasm": `${lib}/@loaders.gl/textures/dist/libs/basis_transcoder.wasm`,
+        "basis_encoder.js": `${lib}/@loaders.gl/textures/dist/libs/basis_encoder.js`,
+        "basis_encoder.wasm": `${lib}/@loaders.gl/textures/dist/libs/basis_encoder.wasm`,
       },
       tileset: { maximumScreenSpaceError: Number(q.get("sse") || 1), throttleRequests: false },
     },
