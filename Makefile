@@ -169,7 +169,7 @@ test-clients: deps build
 	    THREE) opts="$(CLIENTS_PROFILE_THREE)";; PORTABLE) opts="$(CLIENTS_PROFILE_PORTABLE)";; *) echo "bad variant $$v"; exit 1;; esac; \
 	  d=target/test-out/clients-$$name/tiles; $(BIN) convert $(SHARED)/data/$$model --out $$d --force --quiet --max-tile-triangles 5000 $$opts; \
 	  args="$$args $$name=$$d"; done; \
-	log=target/test-out/clients.log; echo "client matrix: three, deckgl, loadersgl on$$(echo $$args | sed 's/=[^ ]*//g')"; \
+	log=target/test-out/clients.log; echo "client matrix: three, deckgl, loadersgl on $$(echo $$args | sed 's/=[^ ]*//g')"; \
 	node tools/clients/run.mjs --json target/test-out/clients.json $$args > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
 
 # The book: the CLI reference is written again from the clap definitions (examples/cli_reference.rs)

@@ -43,7 +43,7 @@ export function checks(client, set, f, r) {
   const out = [];
   const check = (name, ok, detail, limitation) => out.push({ name, ok: !!ok, detail, ...(limitation ? { limitation } : {}) });
   const schemaInline = (g) => g.schemaInline || (SCHEMA_INLINE_IN_DECKGL_PROFILE && (profile === "deckgl" || profile === "portable"));
-  check("no request leaves loopback", !(r.external || []).length, (r.external || []).slice(0, 3).join(" "));
+  check("loads: no request leaves loopback", !(r.external || []).length, (r.external || []).slice(0, 3).join(" "));
 
   if (client === "three") {
     check("loads: every requested tile loads, none fails", !r.timedOut && r.loaded > 0 && !r.errors.length, `${r.loaded} tiles; ${r.errors.slice(0, 3).join(" | ")}`);
@@ -58,7 +58,7 @@ export function checks(client, set, f, r) {
     check("instances: every instanced copy is drawn", uris.every((u) => f.byUri[u]) && got === want, `${got} of ${want} copies in ${uris.length} tiles`);
     if (r.instancePick?.found)
       check(
-        "instance metadata: copies of an instanced mesh are told apart",
+        "metadata of instanced copies: two copies of an instanced mesh are told apart",
         r.instancePick.hitBoth && r.instancePick.result !== "distinct",
         JSON.stringify(r.instancePick).slice(0, 200),
         "no EXT_instance_features: picking an instanced copy gives no feature (MeshFeatures is not attached to InstancedMesh)",
@@ -66,7 +66,7 @@ export function checks(client, set, f, r) {
     const withUri = loadedGlbs(f, uris).filter((g) => g.schemaUri).length;
     if (withUri > 1)
       check(
-        "schema.json fetched once",
+        "metadata: schema.json fetched once",
         r.schemaFetches > 1,
         `${r.schemaFetches} requests for ${withUri} tiles with schemaUri`,
         "GLTFStructuralMetadataExtension fetches schemaUri again for each tile (no cache; only concurrent loads share a request)",
@@ -104,12 +104,9 @@ export function checks(client, set, f, r) {
   if (client === "deckgl") {
     if (f.inlinedRoot) {
       // The root's content is a data: URI: the tile type is taken from the text after the last '.'.
-      check(
-        "loads (root inlined as a data: URI)",
-        r.errors.some((e) => /Failed to render layer of type/.test(e)) && r.pixels.drawn < DRAWN,
-        `${r.loaded} tiles, drawn ${r.pixels.drawn.toFixed(3)}; ${r.errors.slice(0, 2).join(" | ")}`,
-        "a root inlined as a data: URI breaks the whole layer (tile type read after the URI's last '.')",
-      );
+      const why = "a root inlined as a data: URI breaks the whole layer (tile type read after the URI's last '.')";
+      check("loads (root inlined as a data: URI)", r.errors.some((e) => /Failed to render layer of type/.test(e)), `${r.loaded} tiles; ${r.errors.slice(0, 2).join(" | ")}`, why);
+      check("drawn (root inlined as a data: URI)", r.pixels.drawn < DRAWN, `drawn ${r.pixels.drawn.toFixed(3)}`, why);
       return out;
     }
     const dracoFail = (e) => f.draco && /assert failed: gltf/.test(e);
