@@ -73,7 +73,6 @@ export function tilesetFacts(dir) {
     glbs: [],
     inlinedRoot: false,
     dataUris: 0,
-    schemaJson: false,
   };
   const walk = (file) => {
     const ts = JSON.parse(readFileSync(file, "utf8"));

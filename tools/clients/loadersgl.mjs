@@ -7,14 +7,28 @@ import { load } from "@loaders.gl/core";
 import { Tiles3DLoader } from "@loaders.gl/3d-tiles";
 import draco3d from "draco3d";
 import { sampleGltf } from "./pages/gltf_sample.js";
+import { isLocal } from "../browser_test.mjs";
 
 export const name = "loadersgl";
 export const page = null; // Node only
 
 const OPTIONS = { worker: false, modules: { draco3d }, gltf: { loadImages: false } };
 
+// Every fetch loaders.gl makes goes through here: a URL off loopback is recorded and refused.
+const external = [];
+const realFetch = globalThis.fetch;
+globalThis.fetch = (input, init) => {
+  const url = String(input?.url ?? input);
+  if (!isLocal(url)) {
+    external.push(url);
+    return Promise.reject(new Error(`refused: ${url} is not on loopback`));
+  }
+  return realFetch(input, init);
+};
+
 export async function run(_context, _server, s) {
   const t0 = Date.now();
+  external.length = 0;
   const base = s.url + "/";
   const rel = (u) => (u.startsWith("data:") ? "data:" : u.startsWith(base) ? u.slice(base.length) : u);
   const errors = [];
@@ -25,7 +39,7 @@ export async function run(_context, _server, s) {
   try {
     ts = await load(`${s.url}/tileset.json`, Tiles3DLoader, OPTIONS);
   } catch (e) {
-    return { ms: Date.now() - t0, loaded, errors: [`tileset.json: ${e.message}`], sample, types };
+    return { ms: Date.now() - t0, loaded, errors: [`tileset.json: ${e.message}`], sample, types, external: [...external] };
   }
   const tiles = [];
   const walk = (t) => {
@@ -49,5 +63,5 @@ export async function run(_context, _server, s) {
       errors.push(`${uri}: ${String(e.message).slice(0, 300)}`);
     }
   }
-  return { ms: Date.now() - t0, loaded, tiles: tiles.length, errors, sample, types };
+  return { ms: Date.now() - t0, loaded, tiles: tiles.length, errors, sample, types, external: [...external] };
 }
