@@ -43,6 +43,7 @@ export function checks(client, set, f, r) {
   const out = [];
   const check = (name, ok, detail, limitation) => out.push({ name, ok: !!ok, detail, ...(limitation ? { limitation } : {}) });
   const schemaInline = (g) => g.schemaInline || (SCHEMA_INLINE_IN_DECKGL_PROFILE && (profile === "deckgl" || profile === "portable"));
+  check("loads: the tileset's own files read (facts.mjs)", !f.unreadable.length, f.unreadable.slice(0, 3).join(" | "));
   check("loads: no request leaves loopback", Array.isArray(r.external) && !r.external.length, (r.external || ["not followed"]).slice(0, 3).join(" "));
 
   if (client === "three") {

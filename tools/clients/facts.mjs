@@ -73,30 +73,31 @@ export function tilesetFacts(dir) {
     glbs: [],
     inlinedRoot: false,
     dataUris: 0,
+    unreadable: [], // contents that could not be read: the set fails every client
   };
   const walk = (file) => {
     const ts = JSON.parse(readFileSync(file, "utf8"));
     for (const ref of tileContentRefs(ts)) {
       const uri = ref.holder[ref.key];
-      out.contents++;
       const d = parseDataUri(uri);
-      let bytes;
+      const path = d ? null : join(dirname(file), decodeURI(uri.split("?")[0]));
+      if (path && path.endsWith(".json")) {
+        walk(path); // an external tileset: its own contents are counted
+        continue;
+      }
+      out.contents++;
       if (d) {
         out.dataUris++;
         if (ref.pointer === "/root/content/uri") out.inlinedRoot = true;
-        bytes = Buffer.from(decodeURIComponent(d.payload), d.base64 ? "base64" : "utf8");
-      } else {
-        const p = join(dirname(file), decodeURI(uri.split("?")[0]));
-        if (p.endsWith(".json")) {
-          out.contents--; // an external tileset: its own contents are counted
-          walk(p);
-          continue;
-        }
-        bytes = readFileSync(p);
       }
-      const g = glbFacts(new Uint8Array(bytes.buffer, bytes.byteOffset, bytes.byteLength));
-      g.uri = d ? "data:" : uri;
-      out.glbs.push(g);
+      try {
+        const bytes = d ? Buffer.from(decodeURIComponent(d.payload), d.base64 ? "base64" : "utf8") : readFileSync(path);
+        const g = glbFacts(new Uint8Array(bytes.buffer, bytes.byteOffset, bytes.byteLength));
+        g.uri = d ? "data:" : uri;
+        out.glbs.push(g);
+      } catch (e) {
+        out.unreadable.push(`${uri.slice(0, 60)}: ${e.message}`);
+      }
     }
   };
   walk(join(dir, "tileset.json"));
