@@ -18,7 +18,7 @@ APT_BUILD_PKGS := pkg-config g++ libdraco-dev libproj-dev proj-data
 APT_TEST_PKGS  := nodejs npm python3 python3-venv chromium fonts-dejavu-core assimp-utils
 APT_PKGS := $(APT_BUILD_PKGS) $(APT_TEST_PKGS)
 
-.PHONY: run test lint fuzz deps-fuzz test-browser bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python deps-docs docs screenshot build bench clean
+.PHONY: run test lint fuzz deps-fuzz test-browser test-clients bench-browser bench-scale serve deps deps-build deps-system deps-node deps-python deps-docs docs screenshot build bench clean
 
 run: deps-build build
 	$(BIN) convert $(SAMPLE) --out out/sample --force --max-tile-triangles 4000
@@ -106,6 +106,7 @@ test: deps
 	BIMTILES_TILESET_DIRS=$$(find target/test-out -name tileset.json -printf '%h:' | sed 's/:$$//') \
 	  $(PY) -m pytest -q tests/python
 	$(MAKE) --no-print-directory test-browser
+	$(MAKE) --no-print-directory test-clients
 	$(MAKE) --no-print-directory docs
 
 # Real CesiumJS in headless Chromium (software WebGL) loads each tileset the suite wrote: every
@@ -137,6 +138,41 @@ test-browser: deps build
 	@echo "viewer test (BIM tools): $(VIEWER_SETS)"; log=target/test-out/viewer.browser.log; \
 	  node tools/viewer_test.mjs --bin $(BIN) $(foreach s,$(VIEWER_SETS),--set $(s)) \
 	    --json target/test-out/viewer.json > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
+
+# Client compatibility matrix (issue 51; tools/clients/): the tilesets of CLIENTS_SETS, which the
+# cargo tests wrote (IFC, GLB, textured, CityJSON and KTX2 models with the default options), and
+# the variants of CLIENTS_VARIANTS converted here (a Draco one, and each client's profile on a few
+# models), loaded in 3DTilesRendererJS (three.js) and deck.gl's Tile3DLayer in one headless
+# Chromium (a page per set, everything served from loopback, the pages bundled by esbuild), and in
+# loaders.gl in Node. For each client and set: every tile loads and none fails, the frame is drawn
+# (pixels), the metadata of a picked (three) or sampled (deck.gl, loaders.gl) feature is read,
+# every instanced copy is drawn (counted against the GLBs' EXT_mesh_gpu_instancing) and the colours
+# are there (non-grey pixels). What a client cannot do is asserted as its documented limitation
+# (tools/clients/expectations.mjs), so a newer client that can fails the check and the table is
+# updated. One JSON line per (client, set) in target/test-out/clients.log, all in clients.json.
+# Profiles: one variable each; swap in `--client deckgl|three|portable` once the option exists
+# (and flip SCHEMA_INLINE_IN_DECKGL_PROFILE in expectations.mjs when deckgl inlines the schema).
+CLIENTS_SETS := shared-duplex shared-AC20-FZK-Haus shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus cityjson-3dbag-5907-subset ktx2-LoD3_Railway
+CLIENTS_PROFILE_DRACO    := --compression draco --no-inline-root
+CLIENTS_PROFILE_DECKGL   := --no-inline-root --keep-materials --no-instancing --compression meshopt
+CLIENTS_PROFILE_THREE    := --no-instancing
+CLIENTS_PROFILE_PORTABLE := --no-inline-root --keep-materials --no-instancing --compression meshopt
+# NAME=MODEL:PROFILE, MODEL from $(SHARED)/data, converted like the shared sets (5000 triangles a tile).
+CLIENTS_VARIANTS := draco-duplex=duplex.glb:DRACO deckgl-ISSUE_021_Mini_Project=ISSUE_021_Mini_Project.glb:DECKGL \
+  deckgl-duplex=duplex.glb:DECKGL three-ISSUE_021_Mini_Project=ISSUE_021_Mini_Project.glb:THREE \
+  portable-LoD3_Railway=LoD3_Railway.glb:PORTABLE
+# Where the cargo tests' tilesets are (make test-clients CLIENTS_FROM=... to reuse another checkout's).
+CLIENTS_FROM ?= target/test-out
+test-clients: deps build
+	@set -e; args=""; for s in $(CLIENTS_SETS); do d=$(CLIENTS_FROM)/$$s/tiles; \
+	  [ -f $$d/tileset.json ] || { echo "client matrix: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; args="$$args $$s=$$d"; done; \
+	for v in $(CLIENTS_VARIANTS); do name=$${v%%=*}; rest=$${v#*=}; model=$${rest%%:*}; \
+	  case $${rest##*:} in DRACO) opts="$(CLIENTS_PROFILE_DRACO)";; DECKGL) opts="$(CLIENTS_PROFILE_DECKGL)";; \
+	    THREE) opts="$(CLIENTS_PROFILE_THREE)";; PORTABLE) opts="$(CLIENTS_PROFILE_PORTABLE)";; *) echo "bad variant $$v"; exit 1;; esac; \
+	  d=target/test-out/clients-$$name/tiles; $(BIN) convert $(SHARED)/data/$$model --out $$d --force --quiet --max-tile-triangles 5000 $$opts; \
+	  args="$$args $$name=$$d"; done; \
+	log=target/test-out/clients.log; echo "client matrix: three, deckgl, loadersgl on $$(echo $$args | sed 's/=[^ ]*//g')"; \
+	node tools/clients/run.mjs --json target/test-out/clients.json $$args > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
 
 # The book: the CLI reference is written again from the clap definitions (examples/cli_reference.rs)
 # and must equal the committed page (else it is replaced and make fails: commit the new page), then
