@@ -139,7 +139,7 @@ test-browser: deps build
 	  node tools/viewer_test.mjs --bin $(BIN) $(foreach s,$(VIEWER_SETS),--set $(s)) \
 	    --json target/test-out/viewer.json > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
 
-# Client compatibility matrix (issue 51; tools/clients/): the tilesets of CLIENTS_SETS, which the
+# Client compatibility matrix (tools/clients/): the tilesets of CLIENTS_SETS, which the
 # cargo tests wrote (IFC, GLB, textured, CityJSON and KTX2 models with the default options), and
 # the variants of CLIENTS_VARIANTS converted here (a Draco one, and each client's profile on a few
 # models), loaded in 3DTilesRendererJS (three.js) and deck.gl's Tile3DLayer in one headless
@@ -232,7 +232,7 @@ bench: deps build
 	  --run "cargo run --release --example bench_textures -- ../shared/data" target/bench/textures.txt \
 	  --run "cargo run --release --example bench_update -- ../shared/data" target/bench/update.txt
 
-# Issue 12's scale measurements (not in `make test`; about 25 minutes on 2 cores, most of it the 100M campuses):
+# The scale measurements (not in `make test`; about 25 minutes on 2 cores, most of it the 100M campuses):
 # campuses of about 1M, 8.2M, 32M and 100M triangles from make_campus.py --bake, exact and jittered
 # (cached in target/bench/scale/, about 7 GB), each converted with the default options (seconds, peak
 # memory, output bytes, tiles), the growth exponents, and a sharded build: its jobs one after another

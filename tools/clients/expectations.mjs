@@ -1,4 +1,4 @@
-// What each client must do with each tileset: the one table of the client matrix (issue 51).
+// What each client must do with each tileset: the one table of the client matrix.
 //
 // Every entry is a check on a client's measured result against the tileset's facts (facts.mjs,
 // read from the files). A check marked `limitation` asserts a documented shortcoming of the

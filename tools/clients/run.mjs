@@ -1,5 +1,5 @@
 #!/usr/bin/env node
-// The client compatibility matrix (issue 51): the same tilesets in 3DTilesRendererJS (three.js)
+// The client compatibility matrix: the same tilesets in 3DTilesRendererJS (three.js)
 // and deck.gl's Tile3DLayer in one headless Chromium (one page per set), and in loaders.gl in
 // Node. Prints one JSON line per (client, set) and exits 1 when any check of
 // expectations.mjs fails (a documented limitation that no longer holds included).
