@@ -6,11 +6,11 @@
 //     --set duplex=target/test-out/shared-duplex/tiles --set fzk=target/test-out/ifc-AC20-FZK-Haus/tiles \
 //     [--shots docs/src/images] [--json FILE]
 //
-// A set named `duplex` gets the tree checks, `fzk` the search, colour, section box, plan cut and URL
-// checks; every set: the ARIA roles, the element index fetched only after the first view, the
-// 100k-element budgets (the set's own index repeated to 100k rows), and no request leaves loopback,
-// no console error (browser_test.mjs's watch). --shots writes the README's screenshots from `fzk`.
-// Prints a JSON summary; exits 1 on failure.
+// A set named `duplex` gets the tree checks, `fzk` the search, colour, section box, plan cut,
+// measure and URL checks; every set: the ARIA roles, the element index fetched only after the
+// first view, the 100k-element budgets (the set's own index repeated to 100k rows), and no
+// request leaves loopback, no console error (browser_test.mjs's watch). --shots writes the
+// README's screenshots from `fzk`. Prints a JSON summary; exits 1 on failure.
 
 import { existsSync, rmSync, writeFileSync } from "node:fs";
 import { canvasShot, frames, launch, pixels, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
@@ -324,20 +324,21 @@ async function checkFzk(page, context, url, failures, timeoutMs, shots) {
   });
   if (!storeyCut) failures.push("fzk: no storey node for a plan cut");
   else {
-    const before = await withBoxes(await pickGrid(page, 16));
+    const before = await withBoxes(await pickGrid(page, 32));
     const z = await page.evaluate((key) => {
       const B = window.bimtilesBim;
       B.planCut(key);
       return B.state.section.z;
     }, storeyCut.key);
     await settle(page, timeoutMs);
-    const after = await withBoxes(await pickGrid(page, 16));
+    const after = await withBoxes(await pickGrid(page, 32));
     const aboveBefore = above(before, z), aboveAfter = above(after, z);
     out.planCut = { storey: storeyCut.label, elevationM: storeyCut.elevationM, cutZ: z, pickedAboveBefore: aboveBefore.length, pickedAboveAfter: aboveAfter.length, pickedAfter: after.length };
     if (Math.abs(z - (storeyCut.elevationM + 1.2)) > 0.001) failures.push(`fzk: the plan cut is at ${z} m, not 1.2 m above the storey's ${storeyCut.elevationM} m`);
     if (aboveBefore.length < 5) failures.push(`fzk: only ${aboveBefore.length} grid points picked elements above the cut before it (the check could not fail)`);
     if (aboveAfter.length) failures.push(`fzk: the plan cut left ${aboveAfter.length} elements above it pickable: ${[...new Set(aboveAfter.map((p) => p.id))].slice(0, 3)}`);
     if (!after.length) failures.push("fzk: the plan cut hid the whole model");
+    out.measure = await checkMeasure(page, failures, timeoutMs);
     await page.evaluate(() => window.bimtilesBim.setSection(null));
     await settle(page, timeoutMs);
   }
@@ -390,6 +391,60 @@ async function checkFzk(page, context, url, failures, timeoutMs, shots) {
     await page2.screenshot({ path: `${shots}/viewer-tree-isolate.png` });
   }
   await page2.close();
+  return out;
+}
+
+/** Measure, on the cut-open storey seen from above: two points clicked on one slab's top face
+ * lie on that face (its box's top), and the distance shown is the one between the points where
+ * the two pixels' rays meet that plane (computed here from the camera alone), to the millimetre,
+ * with three decimals. The section's cut-away roof lies in front of both points. */
+async function checkMeasure(page, failures, timeoutMs) {
+  step("fzk: measure");
+  const TOLERANCE_M = 0.002;
+  await page.evaluate(() => window.bimtiles.viewer.zoomTo(window.bimtiles.tileset, new Cesium.HeadingPitchRange(0.3, -1.2, 0)));
+  await settle(page, timeoutMs);
+  const grid = await page.evaluate((g) => {
+    const B = window.bimtilesBim;
+    const rowOf = new Map(B.state.index.c.id.map((id, i) => [id, i]));
+    return g.filter((p) => p.class === "IfcSlab" && p.local && rowOf.has(p.id)).map((p) => ({ ...p, topZ: B.rowBox(rowOf.get(p.id)).max[2] }));
+  }, await pickGrid(page, 24));
+  const onTop = grid.filter((p) => Math.abs(p.local[2] - p.topZ) < 0.05);
+  const byId = new Map();
+  for (const p of onTop) byId.set(p.id, [...(byId.get(p.id) || []), p]);
+  const points = [...byId.values()].sort((a, b) => b.length - a.length)[0] || [];
+  if (points.length < 2) {
+    failures.push(`fzk: measure: no slab top face in view from above (${onTop.length} points)`);
+    return null;
+  }
+  const [a, b] = [points[0], points[points.length - 1]];
+  const r = await page.evaluate(([a, b]) => {
+    const B = window.bimtilesBim;
+    const { viewer } = window.bimtiles;
+    const plane = (() => {
+      const o = B.toWorld([0, 0, a.topZ]);
+      const n = Cesium.Cartesian3.normalize(Cesium.Cartesian3.subtract(B.toWorld([0, 0, a.topZ + 1]), o, new Cesium.Cartesian3()), new Cesium.Cartesian3());
+      return Cesium.Plane.fromPointNormal(o, n);
+    })();
+    const onPlane = (p) => Cesium.IntersectionTests.rayPlane(viewer.camera.getPickRay(new Cesium.Cartesian2(p.x, p.y)), plane);
+    const [ea, eb] = [onPlane(a), onPlane(b)];
+    const depthGapM = Math.max(...[a, b].map((p, k) => Cesium.Cartesian3.distance(viewer.scene.pickPosition(new Cesium.Cartesian2(p.x, p.y)), [ea, eb][k])));
+    B.startMeasure("distance");
+    B.measureClick(new Cesium.Cartesian2(a.x, a.y));
+    B.measureClick(new Cesium.Cartesian2(b.x, b.y));
+    const m = B.state.measure;
+    const zs = m.points.map((p) => B.toLocal(p)[2]);
+    const shown = document.getElementById("bimMeasureOut").textContent;
+    B.startMeasure(null);
+    return { expectedM: Cesium.Cartesian3.distance(ea, eb), measuredM: m.distanceM, shown, offPlaneM: zs.map((z) => Math.abs(z - a.topZ)), depthGapM, points: m.points.length };
+  }, [a, b]);
+  const out = { slab: a.id, topZ: a.topZ, pixels: [[a.x, a.y], [b.x, b.y]], ...r };
+  if (r.points !== 2) failures.push(`fzk: measure: ${r.points} points taken from two clicks`);
+  else {
+    if (Math.abs(r.measuredM - r.expectedM) > TOLERANCE_M) failures.push(`fzk: measure: ${r.measuredM.toFixed(4)} m shown for ${r.expectedM.toFixed(4)} m on the slab`);
+    if (Math.max(...r.offPlaneM) > TOLERANCE_M) failures.push(`fzk: measure: a point lies ${Math.max(...r.offPlaneM).toFixed(4)} m off the slab's top face`);
+    if (r.shown !== `distance ${r.measuredM.toFixed(3)} m`) failures.push(`fzk: measure: the panel shows "${r.shown}"`);
+    if (r.expectedM < 1) failures.push(`fzk: measure: the two points are only ${r.expectedM.toFixed(3)} m apart (the check could not tell much)`);
+  }
   return out;
 }
 

@@ -694,10 +694,41 @@
     document.getElementById("bimMeasureOut").textContent = mode ? "pick two points on the model" : "";
     status.measure = null;
   }
+  // The depth buffer places a picked point within centimetres (its precision at the camera's
+  // distance); CesiumJS's ray cast on the drawn tiles' triangles (Cesium3DTileset.pick) places it
+  // on a triangle. The ray cast also meets what is not drawn there: faces seen from behind,
+  // hidden elements, what the section cuts away. So hits are stepped over, nearest first, until
+  // one agrees with the depth buffer's point (the surface drawn there); if none does, the depth
+  // buffer's point stands. Without depth picking, the first hit the section keeps is taken.
+  const SNAP_AGREEMENT = 0.01; // of the distance from the camera
+  const SNAP_STEPS = 64;
+  function cutAway(local) {
+    const sec = state.section;
+    if (!sec) return false;
+    if (sec.kind === "plan") return local[2] > sec.z;
+    return local.some((v, k) => v < sec.min[k] || v > sec.max[k]);
+  }
+  function surfacePoint(position) {
+    const scene = viewer.scene;
+    const drawn = scene.pickPositionSupported ? scene.pickPosition(position) : undefined;
+    if (scene.pickPositionSupported && !drawn) return undefined;
+    const ray = viewer.camera.getPickRay(position);
+    const tolerance = drawn && SNAP_AGREEMENT * Cesium.Cartesian3.distance(ray.origin, drawn);
+    const beyond = drawn && Cesium.Cartesian3.distance(ray.origin, drawn) + tolerance;
+    const start = Cesium.Cartesian3.clone(ray.origin);
+    for (let k = 0; k < SNAP_STEPS; k++) {
+      const hit = tileset.pick(ray, scene.frameState);
+      if (!hit || (drawn && Cesium.Cartesian3.distance(start, hit) > beyond)) break;
+      if (!cutAway(toLocal(hit)) && (!drawn || Cesium.Cartesian3.distance(hit, drawn) <= tolerance)) return hit;
+      // On past this hit, by a millimetre.
+      Cesium.Cartesian3.add(hit, Cesium.Cartesian3.multiplyByScalar(ray.direction, 0.001, new Cesium.Cartesian3()), ray.origin);
+    }
+    return drawn;
+  }
   function measureClick(position) {
     const m = state.measure;
-    if (!m || !viewer.scene.pickPositionSupported) return false;
-    const p = viewer.scene.pickPosition(position);
+    if (!m) return false;
+    const p = surfacePoint(position);
     if (!p) return true;
     if (m.points.length === 2) {
       m.points = [];
@@ -900,6 +931,7 @@
     planCut: (key) => planCut(nodeByKey(key)),
     startMeasure,
     measureClick,
+    surfacePoint,
     restoreUrl,
     saveUrl,
     nodeByKey,
