@@ -64,6 +64,12 @@ pub struct ConvertOptions {
     /// the colours in `COLOR_0` ([`AppearanceClasses`]); off, one primitive per material;
     /// `None`: [`default_merge_plain_materials`] of the compression.
     pub merge_plain_materials: Option<bool>,
+    /// The 3D Tiles client the packaging is chosen for (`--client`; [`Client::apply`]).
+    pub client: Client,
+    /// Every tile carries the schema of its own property table inline (only the properties and
+    /// enums it uses) instead of sharing one `schema.json`, for clients that never fetch
+    /// `schemaUri`. Off: the tileset decides by cost (`tileset::metadata::SchemaPlacement`).
+    pub schema_in_every_tile: bool,
     /// Show progress bars on stderr.
     pub progress: bool,
     /// Texture elimination, pyramids and level matching (paper III.D–III.F).
@@ -100,6 +106,8 @@ impl ConvertOptions {
             instancing: true,
             min_instanced_triangles_saved: None,
             merge_plain_materials: None,
+            client: Client::default(),
+            schema_in_every_tile: false,
             progress: false,
             texture: Default::default(),
             update: false,
@@ -164,6 +172,101 @@ pub fn default_min_instanced_triangles_saved(compression: Compression) -> usize 
 /// bytes a vertex, more than merging saves, so without compression materials stay apart.
 pub fn default_merge_plain_materials(compression: Compression) -> bool {
     matches!(compression, Compression::Draco | Compression::Meshopt)
+}
+
+/// The 3D Tiles client a tileset is packaged for. A profile chooses only how geometry and
+/// metadata are packaged (inlined root, materials, instancing, compression, schema placement),
+/// never what they are: every profile gives the same elements, triangles and properties.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Client {
+    /// CesiumJS (and the default output): every packaging that makes its first view fastest.
+    #[default]
+    Cesium,
+    /// three.js with 3DTilesRendererJS, which picks elements through per-vertex feature ids and
+    /// reads no `EXT_instance_features`: no GPU instancing.
+    Three,
+    /// deck.gl / loaders.gl `Tile3DLayer`: no root inlined as a data URI (it takes the content
+    /// type from the text after the URI's last '.'), materials kept apart (its shader ignores
+    /// `COLOR_0`), no GPU instancing (it draws one copy), the schema inline in every tile (it
+    /// never fetches `schemaUri`), never Draco (feature ids come back under another name).
+    Deckgl,
+    /// Every client above loads and picks it completely: deck.gl's choices, which include three's.
+    Portable,
+}
+
+/// An option asked for on the command line that the chosen client cannot load.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--client {client} cannot load {option}: {why}; leave it out, or use --client cesium or three"
+)]
+pub struct ClientConflict {
+    pub client: &'static str,
+    pub option: &'static str,
+    pub why: &'static str,
+}
+
+impl Client {
+    /// Every profile, in the order the documentation lists them.
+    pub const ALL: [Client; 4] = [
+        Client::Cesium,
+        Client::Three,
+        Client::Deckgl,
+        Client::Portable,
+    ];
+
+    /// The one spelling of this profile: the CLI's value and the report's.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Client::Cesium => "cesium",
+            Client::Three => "three",
+            Client::Deckgl => "deckgl",
+            Client::Portable => "portable",
+        }
+    }
+
+    /// Sets `opts` to what this client loads: the profile's choices override the defaults and
+    /// agree with every flag that only turns a packaging off (`--no-inline-root`,
+    /// `--keep-materials`, `--no-instancing`). `compression_asked`: the compression given
+    /// explicitly, if any (`None`: the profile keeps `opts.compression`, the default meshopt); an
+    /// explicit Draco with a profile that cannot read its feature ids is an error, not silently
+    /// changed.
+    pub fn apply(
+        self,
+        opts: &mut ConvertOptions,
+        compression_asked: Option<Compression>,
+    ) -> Result<(), ClientConflict> {
+        opts.client = self;
+        if let Some(c) = compression_asked {
+            opts.compression = c;
+        }
+        if self == Client::Cesium {
+            return Ok(());
+        }
+        opts.instancing = false;
+        if self == Client::Three {
+            return Ok(());
+        }
+        if opts.compression == Compression::Draco {
+            if compression_asked.is_some() {
+                return Err(ClientConflict {
+                    client: self.name(),
+                    option: "--compression draco",
+                    why: "loaders.gl decodes the feature ids of Draco tiles as a custom attribute",
+                });
+            }
+            opts.compression = Compression::Meshopt;
+        }
+        opts.inline_root = false;
+        opts.merge_plain_materials = Some(false);
+        opts.schema_in_every_tile = true;
+        Ok(())
+    }
+}
+
+impl Serialize for Client {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
 }
 
 /// Which properties the tables of simplified tiles carry.
@@ -248,6 +351,69 @@ pub const DEFAULT_HLOD_ERROR_FRACTION: f64 = 0.8;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each profile turns off what its client cannot load and leaves the rest as asked.
+    #[test]
+    fn client_profiles_choose_packaging_only() {
+        let packaging = |client: Client, asked: Option<Compression>| {
+            let mut o = ConvertOptions::new("out");
+            client.apply(&mut o, asked).map(|()| {
+                (
+                    o.inline_root,
+                    o.merge_plain_materials,
+                    o.instancing,
+                    o.compression,
+                    o.schema_in_every_tile,
+                    o.client,
+                )
+            })
+        };
+        let default = ConvertOptions::new("out");
+        assert_eq!(
+            packaging(Client::Cesium, None),
+            Ok((
+                default.inline_root,
+                default.merge_plain_materials,
+                default.instancing,
+                default.compression,
+                default.schema_in_every_tile,
+                Client::Cesium
+            ))
+        );
+        let draco = Some(Compression::Draco);
+        assert_eq!(
+            packaging(Client::Cesium, draco).unwrap().3,
+            Compression::Draco
+        );
+        let three = packaging(Client::Three, draco).unwrap();
+        assert_eq!(three.3, Compression::Draco);
+        assert!(!three.2 && three.0 == default.inline_root && !three.4);
+        for client in [Client::Deckgl, Client::Portable] {
+            assert_eq!(
+                packaging(client, None),
+                Ok((
+                    false,
+                    Some(false),
+                    false,
+                    Compression::Meshopt,
+                    true,
+                    client
+                ))
+            );
+            let quantized = packaging(client, Some(Compression::Quantized)).unwrap();
+            assert_eq!(quantized.3, Compression::Quantized);
+            let err = packaging(client, draco).unwrap_err().to_string();
+            assert!(
+                err.contains(client.name()) && err.contains("--compression draco"),
+                "{err}"
+            );
+        }
+        // A Draco default (library callers) becomes meshopt rather than an error.
+        let mut o = ConvertOptions::new("out");
+        o.compression = Compression::Draco;
+        Client::Portable.apply(&mut o, None).unwrap();
+        assert_eq!(o.compression, Compression::Meshopt);
+    }
 
     /// Serializing an error metric writes its one name.
     #[test]

@@ -262,6 +262,8 @@ pub(crate) fn make_report(
             "max_tile_triangles": opts.octree.max_tile_triangles,
             "max_tile_bytes": opts.octree.max_tile_bytes,
             "max_depth": opts.octree.max_depth,
+            "client": opts.client,
+            "schema_in_every_tile": opts.schema_in_every_tile,
             "compression": format!("{:?}", opts.compression).to_lowercase(),
             "lod": opts.lod.name(),
             "lod_ratios": match &opts.lod { LodMode::Ratios(r) => json!(r), _ => json!(null) },

@@ -291,9 +291,18 @@ fn cityjson_lod_reads_one_lod_and_an_unknown_one_names_those_present() {
     assert!(!missing.exists(), "nothing written");
 }
 
+/// An image's size and decoded RGBA8 pixels: what a client draws (a tile may carry an input PNG
+/// without the colour-space chunks glTF clients ignore).
+fn pixels(bytes: &[u8]) -> Vec<u8> {
+    let img = image::load_from_memory(bytes).unwrap().to_rgba8();
+    let mut out = [img.width(), img.height()].map(u32::to_le_bytes).concat();
+    out.extend_from_slice(img.as_raw());
+    out
+}
+
 /// Per input image (its bytes), the UVs (glTF convention: v from the top) the file's surfaces
 /// give it, read here from the JSON: `appearance.textures`, `vertices-texture`, and each
-/// geometry's ring texture values `[texture, uv…]`.
+/// geometry's ring texture values `[texture, uv…]`. Images are keyed by their [`pixels`].
 fn input_texture_uvs(path: &Path) -> BTreeMap<Vec<u8>, Vec<[f64; 2]>> {
     fn rings<'v>(v: &'v Value, out: &mut Vec<&'v Vec<Value>>) {
         if let Some(a) = v.as_array() {
@@ -318,6 +327,7 @@ fn input_texture_uvs(path: &Path) -> BTreeMap<Vec<u8>, Vec<[f64; 2]>> {
             .into_iter()
             .flatten()
             .map(|t| std::fs::read(path.parent().unwrap().join(t["image"].as_str().unwrap())).ok())
+            .map(|b| b.map(|b| pixels(&b)))
             .collect();
         for object in doc["CityObjects"].as_object().unwrap().values() {
             for g in object["geometry"].as_array().into_iter().flatten() {
@@ -380,7 +390,7 @@ fn cityjson_textures_reach_the_tiles_with_their_images_and_uvs() {
         for uri in tiles.iter().filter_map(|t| t.uri.as_ref()) {
             for t in read_textured(&plain, uri) {
                 let allowed = expected_uvs
-                    .get(&t.image)
+                    .get(&pixels(&t.image))
                     .unwrap_or_else(|| panic!("{name}: a tile image that is no input image"));
                 for uv in &t.uvs {
                     let nearest = allowed
@@ -393,7 +403,7 @@ fn cityjson_textures_reach_the_tiles_with_their_images_and_uvs() {
                     );
                 }
                 textured_triangles += t.indices.len() / 3;
-                images_seen.insert(t.image);
+                images_seen.insert(pixels(&t.image));
             }
         }
         assert_eq!(

@@ -14,6 +14,8 @@ mod bad_input;
 /// The command line: help with examples, the version's commit, completions, man pages, and
 /// summaries that end with a newline.
 mod cli;
+/// `--client` profiles: each loads in its client, with the same elements, triangles and properties.
+mod clients;
 /// The fuzz corpora replayed on stable: every input returns, none panics.
 mod fuzz_corpus;
 /// The user's folders are never lost or clobbered: locks, `--force`, killed runs.

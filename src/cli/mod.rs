@@ -1,7 +1,9 @@
 //! Command-line interface: parses arguments, calls the library, prints. Nothing else lives here.
 
 use anyhow::{Context, Result};
-use bimtiles::convert::{CoarseTileProperties, ConvertOptions, ErrorMetric, LodMode, Updated};
+use bimtiles::convert::{
+    Client, CoarseTileProperties, ConvertOptions, ErrorMetric, LodMode, Updated,
+};
 use bimtiles::dedup::DedupOptions;
 use bimtiles::encode::Compression;
 use bimtiles::geodesy::GeoOrigin;
@@ -223,8 +225,19 @@ struct ConvertArgs {
     /// view), draco (KHR_draco_mesh_compression: the smallest files, decoded in a worker one
     /// primitive at a time), quantized (KHR_mesh_quantization: 16-bit positions within 1 mm, 8-bit
     /// normals, 16-bit UVs) or none (32-bit floats).
-    #[arg(long, value_enum, default_value = "meshopt")]
-    compression: CompressionArg,
+    /// Default: meshopt.
+    #[arg(long, value_enum)]
+    compression: Option<CompressionArg>,
+    /// The 3D Tiles client the tileset is packaged for: cesium (CesiumJS; the default, every
+    /// packaging that makes its first view fastest), three (three.js with 3DTilesRendererJS: no
+    /// GPU instancing, so every element is pickable), deckgl (deck.gl / loaders.gl Tile3DLayer:
+    /// no root inlined in tileset.json, materials kept apart instead of merged into vertex
+    /// colours, no GPU instancing, the schema inline in every tile, meshopt) or portable (what
+    /// every one of these clients loads and picks in: deckgl's choices). A profile never changes
+    /// geometry or metadata, only how they are packaged. Flags that turn a packaging off agree
+    /// with any profile; --compression draco with deckgl or portable is an error.
+    #[arg(long, value_enum, default_value = "cesium")]
+    client: ClientArg,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
     /// refine REPLACE) or none (internal tiles hold only what is too big for their children,
     /// refine ADD).
@@ -370,6 +383,14 @@ enum TextureFormatArg {
     Png,
     Jpeg,
     Ktx2,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum ClientArg {
+    Cesium,
+    Three,
+    Deckgl,
+    Portable,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -718,7 +739,13 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
 }
 
 fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
-    let opts = ConvertOptions {
+    let compression_asked = a.compression.map(|c| match c {
+        CompressionArg::Draco => Compression::Draco,
+        CompressionArg::Quantized => Compression::Quantized,
+        CompressionArg::Meshopt => Compression::Meshopt,
+        CompressionArg::None => Compression::None,
+    });
+    let mut opts = ConvertOptions {
         out_dir: a.out.clone(),
         force: a.force,
         origin: a.origin,
@@ -736,12 +763,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             max_tile_bytes: a.max_tile_bytes.max(1),
             ..OctreeOptions::default()
         },
-        compression: match a.compression {
-            CompressionArg::Draco => Compression::Draco,
-            CompressionArg::Quantized => Compression::Quantized,
-            CompressionArg::Meshopt => Compression::Meshopt,
-            CompressionArg::None => Compression::None,
-        },
+        compression: compression_asked.unwrap_or_default(),
         lod: match (&a.lod_ratios, a.lod) {
             (Some(r), _) => LodMode::Ratios(
                 bimtiles::lod::chain_levels::chain_ratios(r).context("--lod-ratios")?,
@@ -768,6 +790,8 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         instancing: !a.no_instancing,
         min_instanced_triangles_saved: a.min_instanced_triangles_saved,
         merge_plain_materials: a.keep_materials.then_some(false),
+        client: Client::default(),
+        schema_in_every_tile: false,
         progress: !a.quiet,
         update: a.update,
         keep_stale: a.keep_stale,
@@ -786,6 +810,13 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             atlas: a.texture_atlas == OnOff::On,
         },
     };
+    let client = match a.client {
+        ClientArg::Cesium => Client::Cesium,
+        ClientArg::Three => Client::Three,
+        ClientArg::Deckgl => Client::Deckgl,
+        ClientArg::Portable => Client::Portable,
+    };
+    client.apply(&mut opts, compression_asked)?;
     if opts.lod == LodMode::None && opts.error_metric == ErrorMetric::PaperSse {
         anyhow::bail!(
             "--error-metric paper-sse needs simplified tiles: use --lod hlod or --lod-ratios"

@@ -1,7 +1,8 @@
 //! Textures (paper III.D–III.F): redundant texture elimination, a Haar wavelet pyramid per image,
 //! and the pyramid level matched to each tile's level of detail.
 //!
-//! Before tiling, [`prepare`] runs three passes over the scene, in order:
+//! Before tiling, [`prepare`] runs four passes over the scene, in order:
+//! 0. PNG colour-space chunks, which glTF clients ignore, dropped ([`png_chunks`]);
 //! 1. identical images stored once ([`identical`]);
 //! 2. classification into repeated / shared / standalone ([`classify`]);
 //! 3. cropping of the area no UV reaches, UVs remapped ([`crop`]).
@@ -12,8 +13,8 @@
 //! needs a coarser level, and kept encoded. Level 0 is decoded row by row into it, so a worker
 //! thread holds the coarser levels in 8 bits (a third of the image's RGBA bytes), not the image
 //! (JPEG and WebP, which have no row decoder, are decoded whole in their own colour type). Level
-//! 0 is the image as the scene holds it: the input's own bytes unless it was cropped, never
-//! re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
+//! 0 is the image as the scene holds it: the input's own bytes (less ignored chunks) unless it
+//! was cropped, never re-encoded. Each level a tile uses is written once under `<tileset>/textures/` and referenced
 //! by the tiles ([`external`]), or embedded in every tile GLB with `embed`; once every tile is
 //! written, a file whose copies cost less than a request moves into the tiles that reference it
 //! ([`single_use`]). With `atlas`, a tile's small non-repeating images are packed into one image
@@ -30,6 +31,7 @@ pub mod external;
 pub mod haar;
 pub mod identical;
 pub mod lod;
+pub mod png_chunks;
 pub mod single_use;
 
 pub use codec::{TextureFormat, DEFAULT_JPEG_QUALITY};
@@ -117,7 +119,8 @@ pub struct Prepared {
 }
 
 /// Images admitted under `limits` (an image over them is refused, with its input file; an
-/// undecodable one dropped), identical images merged, images classified, unused areas cropped
+/// undecodable one dropped), PNG colour-space chunks dropped ([`png_chunks`]), identical images
+/// merged, images classified, unused areas cropped
 /// (with `opts.crop`).
 pub fn prepare(
     scene: &mut Scene,
@@ -130,6 +133,9 @@ pub fn prepare(
         .map(|i| scene.images[i.index()].bytes.len() as u64)
         .sum();
     let mut dropped_images = admit::admit_images(scene, limits)?;
+    // Before the identical-image pass: two files that differ only in colour-space chunks are the
+    // same image to a glTF client.
+    png_chunks::clean_images(scene);
     let identical = identical::merge_identical(scene);
     dropped_images.extend(admit::drop_images(scene, &identical.undecodable_images));
     let uses = classify::classify(scene);

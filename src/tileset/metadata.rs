@@ -52,6 +52,19 @@ impl SchemaPlacement {
     }
 }
 
+/// Whether a table that shares the tileset's schema file writes a property of this type even when
+/// none of its features has a value (all `noData`). The spec lets a table leave out any property
+/// that is not `required`, but the official 3d-tiles-validator (0.6.1) stops with an internal
+/// error on a table that leaves out an ENUM or numeric property of its class (it reads their
+/// values to check enum codes and ranges), which teams that run it in CI read as an invalid
+/// tileset. Tables are cheap to fill: columns of only `noData` are the same bytes and share one
+/// buffer view per type. STRING properties stay out: it does not read them, and an all-empty
+/// column would need a zero-length buffer view, which glTF forbids. An inline schema only
+/// defines what its table holds, so there is nothing to fill.
+fn fills_absent(placement: &SchemaPlacement, value_type: &ValueType) -> bool {
+    matches!(placement, SchemaPlacement::File(_)) && *value_type != ValueType::Text
+}
+
 /// Where a property's values come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Column {
@@ -452,11 +465,14 @@ impl MetadataSchema {
         }
     }
 
-    /// The property table of one tile's features: only the properties some feature has a value
-    /// for; the schema as `placement` says (the tileset's file, or inline with just the
-    /// properties and enums of this table). With [`TableScope::Identity`] only what names an
-    /// element (id, name unless the id ends with it, class, storey, building, site, material,
-    /// source, and the duplicates it stands for).
+    /// The property table of one tile's features: the properties some feature has a value for;
+    /// the schema as `placement` says (the tileset's file, or inline with just the properties and
+    /// enums of this table). With [`TableScope::Identity`] only what names an element (id, name
+    /// unless the id ends with it, class, storey, building, site, material, source, and the
+    /// duplicates it stands for).
+    ///
+    /// With the shared file, every ENUM and FLOAT64 property of the schema is in every table,
+    /// with its `noData` where no feature has a value ([`fills_absent`]).
     pub fn property_table(
         &self,
         scene: &Scene,
@@ -472,17 +488,20 @@ impl MetadataSchema {
         let mut present = Vec::new();
         for (p, def) in self.properties.iter().enumerate() {
             let identity = scope == TableScope::Identity;
-            if identity && matches!(def.column, Column::Pset(_) | Column::Path) {
+            let fill = fills_absent(placement, &def.value_type);
+            let left_out = identity && matches!(def.column, Column::Pset(_) | Column::Path);
+            if left_out && !fill {
                 continue;
             }
             let values: Vec<Option<MetaValue>> = elements
                 .iter()
                 .map(|(comp, info)| match def.column {
+                    _ if left_out => None,
                     Column::Name if identity && id_is_node_path(scene, comp, info) => None,
                     _ => self.value(scene, comp, info, p),
                 })
                 .collect();
-            if values.iter().all(Option::is_none) {
+            if values.iter().all(Option::is_none) && !fill {
                 continue;
             }
             let col = match &def.value_type {
@@ -711,7 +730,51 @@ mod tests {
             &SchemaPlacement::File("s.json".into()),
             TableScope::Identity,
         ));
-        assert_eq!(identity, ["id", "name", "source", "class", "storey"]);
+        // Sharing schema.json, every ENUM and FLOAT64 property of the class is in the table
+        // (the identity scope's property sets too, as noData); text ones only with values.
+        assert_eq!(
+            identity,
+            [
+                "id",
+                "name",
+                "source",
+                "class",
+                "storey",
+                "building",
+                "site",
+                "material",
+                "Pset_WallCommon_IsExternal",
+                "Qto_Width"
+            ]
+        );
+        let absent = |t: PropertyTable, id: &str| t.columns.into_iter().find(|c| c.0 == id);
+        let file = SchemaPlacement::File("s.json".into());
+        assert_eq!(
+            absent(
+                m.property_table(&s, &ids, &file, TableScope::Identity),
+                "Qto_Width"
+            ),
+            Some((
+                "Qto_Width".into(),
+                ColumnData::Float64(vec![NO_NUMBER, NO_NUMBER])
+            ))
+        );
+        assert_eq!(
+            absent(
+                m.property_table(&s, &ids, &file, TableScope::All),
+                "building"
+            ),
+            Some((
+                "building".into(),
+                ColumnData::Enum {
+                    codes: vec![0, 0],
+                    one_byte: true
+                }
+            ))
+        );
+        let inline_identity =
+            names(m.property_table(&s, &ids, &SchemaPlacement::Inline, TableScope::Identity));
+        assert_eq!(inline_identity, ["id", "name", "source", "class", "storey"]);
         let full = m.to_json(None);
         assert_eq!(full["id"], "bimtiles");
         assert_eq!(

@@ -104,8 +104,12 @@ impl<'a> TileWriter<'a> {
         // The metadata schema, in every tile or once for the tileset (schema.json).
         let schema = MetadataSchema::from_scene(scene);
         let schema_bytes = serde_json::to_vec(&schema.to_json(None)).map_or(0, |v| v.len());
-        let schema_placement =
-            SchemaPlacement::choose(content_tiles_at_most(prep, opts), schema_bytes, SCHEMA_URI);
+        let schema_placement = match opts.schema_in_every_tile {
+            true => SchemaPlacement::Inline,
+            false => {
+                SchemaPlacement::choose(content_tiles_at_most(prep, opts), schema_bytes, SCHEMA_URI)
+            }
+        };
         std::fs::create_dir_all(&tiles_dir)
             .map_err(|e| Error::output_from(&tiles_dir, "cannot create the folder", e))?;
         Ok(TileWriter {
