@@ -150,13 +150,12 @@ test-browser: deps build
 # are there (non-grey pixels). What a client cannot do is asserted as its documented limitation
 # (tools/clients/expectations.mjs), so a newer client that can fails the check and the table is
 # updated. One JSON line per (client, set) in target/test-out/clients.log, all in clients.json.
-# Profiles: one variable each; swap in `--client deckgl|three|portable` once the option exists
-# (and flip SCHEMA_INLINE_IN_DECKGL_PROFILE in expectations.mjs when deckgl inlines the schema).
+# Profiles: one variable each, the `--client` profiles (and a Draco variant of the default).
 CLIENTS_SETS := shared-duplex shared-AC20-FZK-Haus shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus cityjson-3dbag-5907-subset ktx2-LoD3_Railway
 CLIENTS_PROFILE_DRACO    := --compression draco --no-inline-root
-CLIENTS_PROFILE_DECKGL   := --no-inline-root --keep-materials --no-instancing --compression meshopt
-CLIENTS_PROFILE_THREE    := --no-instancing
-CLIENTS_PROFILE_PORTABLE := --no-inline-root --keep-materials --no-instancing --compression meshopt
+CLIENTS_PROFILE_DECKGL   := --client deckgl
+CLIENTS_PROFILE_THREE    := --client three
+CLIENTS_PROFILE_PORTABLE := --client portable
 # NAME=MODEL:PROFILE, MODEL from $(SHARED)/data, converted like the shared sets (5000 triangles a tile).
 CLIENTS_VARIANTS := draco-duplex=duplex.glb:DRACO deckgl-ISSUE_021_Mini_Project=ISSUE_021_Mini_Project.glb:DECKGL \
   deckgl-duplex=duplex.glb:DECKGL three-ISSUE_021_Mini_Project=ISSUE_021_Mini_Project.glb:THREE \

@@ -7,10 +7,10 @@
 // then. Profiles: a set named `<profile>-<model>` was converted with that profile's options
 // (Makefile: CLIENTS_PROFILE_*); other sets use the default options.
 //
-// SCHEMA_INLINE_IN_DECKGL_PROFILE: flip to true once `--client deckgl` writes the schema into
-// every tile (not yet in today's options): deck.gl / loaders.gl then decode the property tables
-// of the deckgl and portable profiles' sets too.
-export const SCHEMA_INLINE_IN_DECKGL_PROFILE = false;
+// SCHEMA_INLINE_IN_DECKGL_PROFILE: `--client deckgl` and `--client portable` write the schema
+// into every tile, so deck.gl / loaders.gl must decode those sets' property tables (whatever the
+// files say: a profile that stopped inlining fails here).
+export const SCHEMA_INLINE_IN_DECKGL_PROFILE = true;
 
 // Pixel shares (of the frame, and of the drawn pixels): a drawn model covers at least DRAWN;
 // a coloured model has at least COLOURED of its pixels coloured, a grey one at most GREY.
