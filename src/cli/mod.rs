@@ -225,6 +225,15 @@ struct ConvertArgs {
     /// normals, 16-bit UVs) or none (32-bit floats).
     #[arg(long, value_enum, default_value = "meshopt")]
     compression: CompressionArg,
+    /// Edges drawn the way CAD and BIM tools draw them (EXT_mesh_primitive_edge_visibility on
+    /// every primitive, shown by CesiumJS's edgeDisplayMode): all (outlines and creases, and the
+    /// silhouettes of curved surfaces), hard (outlines and creases only) or none.
+    #[arg(long, value_enum, default_value = "all")]
+    edges: EdgesArg,
+    /// Two faces of one element that meet at more than this angle (degrees) draw a hard edge;
+    /// below it, a curved surface draws only its silhouette.
+    #[arg(long, default_value_t = bimtiles::encode::edges::DEFAULT_CREASE_ANGLE_DEG, value_parser = parse_edge_angle)]
+    edge_angle_deg: f64,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
     /// refine REPLACE) or none (internal tiles hold only what is too big for their children,
     /// refine ADD).
@@ -370,6 +379,23 @@ enum TextureFormatArg {
     Png,
     Jpeg,
     Ktx2,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum EdgesArg {
+    All,
+    Hard,
+    None,
+}
+
+/// A crease angle in degrees: above 0, at most 180.
+fn parse_edge_angle(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v > 0.0 && v <= 180.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not an angle in (0, 180] degrees"))
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -741,6 +767,14 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             CompressionArg::Quantized => Compression::Quantized,
             CompressionArg::Meshopt => Compression::Meshopt,
             CompressionArg::None => Compression::None,
+        },
+        edges: bimtiles::encode::edges::EdgeOptions {
+            mode: match a.edges {
+                EdgesArg::All => bimtiles::encode::edges::EdgeMode::All,
+                EdgesArg::Hard => bimtiles::encode::edges::EdgeMode::Hard,
+                EdgesArg::None => bimtiles::encode::edges::EdgeMode::None,
+            },
+            crease_angle_deg: a.edge_angle_deg,
         },
         lod: match (&a.lod_ratios, a.lod) {
             (Some(r), _) => LodMode::Ratios(

@@ -120,6 +120,7 @@ impl<'a> TileWriter<'a> {
             schema_placement,
             encoding: TileEncoding {
                 compression: opts.compression,
+                edges: opts.edges,
                 ..TileEncoding::default()
             },
             pb: progress_bar(opts.progress, progress_len, "tiles"),
