@@ -75,6 +75,9 @@ pub const DEFAULT_CREASE_ANGLE_DEG: f64 = 20.0;
 /// the edge between them is hidden. Quantization turns small faces by a fraction of a degree.
 pub const COPLANAR_MAX_DEG: f64 = 0.5;
 
+/// Twice the area (m²) below which a triangle has no direction: a sliver whose normal is noise.
+const MIN_DOUBLE_AREA_M2: f64 = 1e-12;
+
 /// The name of the silhouette companion data in the extension's JSON: what the pinned CesiumJS
 /// reads (`GltfLoader.loadEdgeVisibility`), not the newer draft's `silhouetteMates`.
 pub const SILHOUETTE_PROPERTY: &str = "silhouetteNormals";
@@ -191,28 +194,31 @@ pub fn edge_visibility(
         DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
     };
     let tri_count = indices.len() / 3;
-    // Unit normal per triangle; None for a triangle without area (its edges stay hidden).
-    let normals: Vec<Option<DVec3>> = indices
+    // Welded corners per triangle; a triangle two of whose corners are one is a line, and has
+    // no edges of its own (all hidden).
+    let corners: Vec<Option<[u32; 3]>> = indices
         .chunks_exact(3)
         .map(|t| {
             let c = [t[0], t[1], t[2]].map(|i| corner[i as usize]);
-            if c[0] == c[1] || c[1] == c[2] || c[2] == c[0] {
-                return None;
-            }
-            let n = (p64(t[1]) - p64(t[0])).cross(p64(t[2]) - p64(t[0]));
-            let len = n.length();
-            (len > 1e-12).then(|| n / len)
+            (c[0] != c[1] && c[1] != c[2] && c[2] != c[0]).then_some(c)
         })
         .collect();
-    // Every edge of every triangle with area, by its welded corners (low, high), and whether it
-    // runs low to high.
+    // Unit normal per triangle; None for one without area (a sliver: no direction to compare).
+    let normals: Vec<Option<DVec3>> = indices
+        .chunks_exact(3)
+        .map(|t| {
+            let n = (p64(t[1]) - p64(t[0])).cross(p64(t[2]) - p64(t[0]));
+            let len = n.length();
+            (len > MIN_DOUBLE_AREA_M2).then(|| n / len)
+        })
+        .collect();
+    // Every edge of every triangle by its welded corners (low, high), and whether it runs low to
+    // high.
     let mut edges: Vec<(u32, u32, u32, bool)> = Vec::with_capacity(tri_count * 3);
-    for (t, tri) in indices.chunks_exact(3).enumerate() {
-        if normals[t].is_none() {
-            continue;
-        }
+    for (t, c) in corners.iter().enumerate() {
+        let Some(c) = c else { continue };
         for e in 0..3 {
-            let (a, b) = (corner[tri[e] as usize], corner[tri[(e + 1) % 3] as usize]);
+            let (a, b) = (c[e], c[(e + 1) % 3]);
             edges.push((a.min(b), a.max(b), (t * 3 + e) as u32, a < b));
         }
     }
@@ -226,10 +232,11 @@ pub fn edge_visibility(
         let hard = match run {
             [_] => true,
             [(_, _, k0, dir0), (_, _, k1, dir1)] => {
-                let (n0, n1) = (
-                    normals[*k0 as usize / 3].expect("edges of faces with area"),
-                    normals[*k1 as usize / 3].expect("edges of faces with area"),
-                );
+                let (Some(n0), Some(n1)) = (normals[*k0 as usize / 3], normals[*k1 as usize / 3])
+                else {
+                    // Beside a sliver (a crack filler, mostly inside flat faces): hidden.
+                    continue;
+                };
                 // Consistently wound neighbours run the edge in opposite directions; one wound
                 // the other way has its normal turned.
                 let cos = if dir0 != dir1 {
@@ -465,7 +472,8 @@ mod tests {
 
     #[test]
     fn faces_without_area_and_back_to_back_faces() {
-        // A zero-area triangle on the quad's edge keeps its edges hidden and does not hide it.
+        // A zero-area triangle on the quad's edge: no angle to judge across the edge it shares
+        // (hidden); its two halves of that edge are boundaries, so the outline is still drawn.
         let positions = [
             [0.0, 0.0, 0.0],
             [1.0, 0.0, 0.0],
@@ -481,8 +489,22 @@ mod tests {
         )
         .unwrap();
         let v = all(&e, 3);
-        assert_eq!(&v[6..], &[HIDDEN; 3]);
-        assert_eq!(e.hard_edges, 4);
+        assert_eq!(&v[6..], &[HARD, HARD, HIDDEN]);
+        assert_eq!(e.hard_edges, 5);
+        // A triangle with two corners welded into one is a line: its edges are all hidden.
+        let e = edge_visibility(
+            &[
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1e-6],
+            ],
+            &[0; 4],
+            &[0, 1, 2, 0, 3, 1],
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!(&all(&e, 2)[3..], &[HIDDEN; 3]);
         // A one-sided sheet written twice, back to back: its outline is hard (180°), once.
         let e = edge_visibility(
             &positions[..3],

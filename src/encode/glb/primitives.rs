@@ -27,15 +27,13 @@ pub(super) fn write_primitive(
     let (mut prim, decoded, drawn) = match enc.compression {
         Compression::None => {
             let (p, indices) = plain_primitive(b, m, feature_count.is_some(), None)?;
-            (p, None, Drawn::of(m, indices))
+            (p, None, Drawn::of(m, None, indices))
         }
         Compression::Quantized => {
             let (p, indices) = plain_primitive(b, m, feature_count.is_some(), Some(frame))?;
-            (
-                p,
-                frame.map(|f| f.decoded_positions(&m.positions)),
-                Drawn::of(m, indices),
-            )
+            let decoded = frame.map(|f| f.decoded_positions(&m.positions));
+            let drawn = Drawn::of(m, decoded.as_deref(), indices);
+            (p, decoded, drawn)
         }
         Compression::Meshopt => {
             let texels = texture_texels(scene, m.material, &mats.sampled_px);
@@ -80,8 +78,9 @@ pub(super) fn write_primitive(
 }
 
 /// What a client draws of a primitive, in the order it decodes it: the triangles (a codec may
-/// reorder or rotate them), the vertices (y-up), and the element (feature ID) of each vertex.
-/// Edge visibility is written against it.
+/// reorder or rotate them), the vertices where they are drawn (y-up, quantization included: two
+/// corners the grid puts on one point are one corner), and the element (feature ID) of each
+/// vertex. Edge visibility is found on it and written against it.
 struct Drawn {
     positions_y_up: Vec<[f32; 3]>,
     groups: Vec<u32>,
@@ -89,10 +88,14 @@ struct Drawn {
 }
 
 impl Drawn {
-    /// `m`'s vertices, with triangles `indices` as the client reads them.
-    fn of(m: &ContentPrimitive, indices: Vec<u32>) -> Drawn {
+    /// `m`'s vertices (drawn at `decoded` when quantized), with triangles `indices` as the
+    /// client reads them.
+    fn of(m: &ContentPrimitive, decoded: Option<&[DVec3]>, indices: Vec<u32>) -> Drawn {
         Drawn {
-            positions_y_up: y_up(&m.positions),
+            positions_y_up: match decoded {
+                Some(d) => d.iter().map(|p| p.as_vec3().to_array()).collect(),
+                None => y_up(&m.positions),
+            },
             groups: m.feature_ids.clone(),
             indices,
         }
@@ -160,7 +163,8 @@ fn meshopt_primitive(
         written.color = Some(b.normalized_accessor(&q, UNSIGNED_BYTE, false)?);
     }
     let (p, indices) = plain_primitive_at(b, &m, with_features, Some(frame), written)?;
-    Ok((p, decoded, Drawn::of(&m, indices)))
+    let drawn = Drawn::of(&m, decoded.as_deref(), indices);
+    Ok((p, decoded, drawn))
 }
 
 /// Accessors a primitive's writer made itself (meshopt filters), used instead of the plain ones.
