@@ -72,8 +72,24 @@ impl Default for EdgeOptions {
 pub const DEFAULT_CREASE_ANGLE_DEG: f64 = 20.0;
 
 /// Two faces of one element that meet at this dihedral angle or less (degrees) are one plane:
-/// the edge between them is hidden. Quantization turns small faces by a fraction of a degree.
-pub const COPLANAR_MAX_DEG: f64 = 0.5;
+/// the edge between them is hidden. The position grid turns small faces by a degree or so (a
+/// millimetre over a few centimetres), and what it turns are not surfaces to outline; round
+/// profiles turn 10° and more a facet.
+pub const COPLANAR_MAX_DEG: f64 = 2.0;
+
+/// Steps of a silhouette normal's components as written (normalized i8): 8, so 31 values a
+/// component, within about 2° of the face. A silhouette is drawn where one face turns to the
+/// viewer and the other away; 2° moves that by 2° of view, and the coarser values cost gzip
+/// half the bytes of full i8.
+const SILHOUETTE_NORMAL_STEP: f64 = 8.0;
+
+/// A silhouette normal as written: a normalized i8 VEC3 on [`SILHOUETTE_NORMAL_STEP`].
+pub fn silhouette_normal_i8(n: [f32; 3]) -> [i8; 3] {
+    n.map(|x| {
+        let q = (x.clamp(-1.0, 1.0) as f64 * 127.0 / SILHOUETTE_NORMAL_STEP).round();
+        (q * SILHOUETTE_NORMAL_STEP).clamp(-127.0, 127.0) as i8
+    })
+}
 
 /// Twice the area (m²) below which a triangle has no direction: a sliver whose normal is noise.
 const MIN_DOUBLE_AREA_M2: f64 = 1e-12;

@@ -318,7 +318,7 @@ impl GltfBuilder {
                 .silhouette_normals
                 .iter()
                 .flatten()
-                .flat_map(|&n| normal_i8(n).map(|x| x as i8 as u8))
+                .flat_map(|&n| edges::silhouette_normal_i8(n).map(|x| x as u8))
                 .collect();
             let view = self.view(&bytes, None);
             self.edge_data.extend_from_slice(&bytes);
