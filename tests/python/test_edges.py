@@ -358,9 +358,9 @@ BIM_GLBS = ["AC20-FZK-Haus.glb", "duplex.glb", "ISSUE_021_Mini_Project.glb", "If
 
 @pytest.mark.skipif(not os.environ.get("BIMTILES_TILESET_DIRS"), reason="BIMTILES_TILESET_DIRS not set")
 def test_full_detail_hard_edges_agree_with_an_independent_finder():
-    """tests/edges.rs writes `edges-finder-<model>` tilesets (no dedup, no instancing, materials
+    """tests/edges.rs writes `edges-finder-<model>/tiles` tilesets (no dedup, no instancing, materials
     kept apart, no cut: per element and material, as the input)."""
-    found = {d.name: d for d in tileset_dirs() if d.name.startswith("edges-finder-")}
+    found = {d.parent.name: d for d in tileset_dirs() if d.parent.name.startswith("edges-finder-")}
     if not found:
         pytest.skip("no edges-finder-* tileset among BIMTILES_TILESET_DIRS (tests/edges.rs writes them)")
     rows = []
