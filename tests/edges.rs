@@ -56,9 +56,10 @@ fn gzip_len(data: &[u8]) -> u64 {
 /// and the same for a first whole-model view (tileset.json and the tiles it selects).
 fn served_gzip_bytes(dir: &Path) -> (u64, u64) {
     let tileset = gzip_len(&std::fs::read(dir.join("tileset.json")).unwrap());
+    // Tile files only: an inlined root is served inside tileset.json.
     let mut by_uri: HashMap<String, u64> = HashMap::new();
     for (uri, glb) in contents(dir) {
-        if !uri.starts_with("data:") {
+        if dir.join(&uri).is_file() {
             by_uri.insert(uri, gzip_len(&glb));
         }
     }
