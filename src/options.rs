@@ -3,6 +3,7 @@
 //! `convert` and by sharded builds.
 
 use crate::dedup::DedupOptions;
+use crate::encode::edges::EdgeOptions;
 use crate::encode::Compression;
 use crate::geodesy::GeoOrigin;
 use crate::partition::OctreeOptions;
@@ -32,6 +33,9 @@ pub struct ConvertOptions {
     pub octree: OctreeOptions,
     /// Geometry compression of the tiles.
     pub compression: Compression,
+    /// Which edges the tiles carry (`EXT_mesh_primitive_edge_visibility`) and the crease angle
+    /// that makes an edge hard.
+    pub edges: EdgeOptions,
     /// Levels of detail: HLOD (default), none, or the paper's discrete chains.
     pub lod: LodMode,
     /// Which error the simplified tiles declare as geometricError (both are reported).
@@ -95,6 +99,7 @@ impl ConvertOptions {
             strict_georef: false,
             octree: OctreeOptions::default(),
             compression: Compression::default(),
+            edges: EdgeOptions::default(),
             lod: LodMode::default(),
             error_metric: ErrorMetric::default(),
             simplify: crate::simplify::SimplifyOptions::default(),

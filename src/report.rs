@@ -31,6 +31,11 @@ pub struct OutputReport {
     pub instances: usize,
     /// Bytes of the property tables (EXT_structural_metadata) over all tiles.
     pub metadata_bytes: u64,
+    /// Bytes of the edges (`EXT_mesh_primitive_edge_visibility` data) over all tiles, and what
+    /// they cost gzipped as served (each tile's edge data gzipped alone); the tiles' own figures
+    /// are in `tiles[]`, so a view's share is the sum over the tiles it loads.
+    pub edge_bytes: u64,
+    pub edge_gzip_bytes: u64,
     /// Bytes of the element index (`element-index.json`, for a viewer's model tree and search;
     /// not in `bytes`, which a first view may load).
     pub element_index_bytes: u64,
@@ -230,6 +235,8 @@ pub(crate) fn make_report(
             instanced_shapes: out_shapes,
             instances: out_instances,
             metadata_bytes: tiles.iter().map(|t| t.content.metadata_bytes).sum(),
+            edge_bytes: tiles.iter().map(|t| t.content.edge_bytes).sum(),
+            edge_gzip_bytes: tiles.iter().map(|t| t.content.edge_gzip_bytes).sum(),
             element_index_bytes: std::fs::metadata(
                 dir.join(crate::tileset::element_index::ELEMENT_INDEX_FILE),
             )

@@ -47,6 +47,9 @@ mod mesh_formats;
 // The pipeline's stages, checked from the outside.
 /// Repeated shapes and exact duplicates found on real models.
 mod dedup;
+/// Edges (EXT_mesh_primitive_edge_visibility) in every tile, against the decoded triangles, and
+/// what they cost.
+mod edges;
 /// Fewer sequential requests before the first frame: embedded files, schema placement.
 mod first_view_requests;
 /// HLOD and LOD chains: every declared geometricError honest and tight.

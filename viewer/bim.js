@@ -856,6 +856,16 @@
       applyAll();
       saveUrl();
     };
+    // Edges: on when the tileset carries them (the viewer chose the first state from it and the URL).
+    const edgesBox = document.getElementById("bimEdges");
+    const ts = window.bimtiles.tileset;
+    const carried = ts && ts.asset && ts.asset.extras && ts.asset.extras.bimtiles && ts.asset.extras.bimtiles.edges;
+    edgesBox.disabled = !carried || !Cesium.EdgeDisplayMode;
+    edgesBox.checked = !!ts && !!Cesium.EdgeDisplayMode && ts.edgeDisplayMode === Cesium.EdgeDisplayMode.SURFACES_AND_EDGES;
+    edgesBox.parentElement.title = carried ? "Edges of the elements (EXT_mesh_primitive_edge_visibility)" : "Edges need a tileset with edges";
+    edgesBox.onchange = (e) => {
+      e.target.checked = window.bimtiles.setEdges(e.target.checked, true);
+    };
     document.getElementById("bimColorBy").onchange = (e) => colorBy(e.target.value);
     document.getElementById("bimColorReset").onclick = () => colorBy("");
     document.getElementById("bimSection").onclick = sectionAroundSelection;

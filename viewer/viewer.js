@@ -412,7 +412,7 @@
     scene.skyAtmosphere.show = sky;
     scene.globe.showGroundAtmosphere = sky;
     scene.renderError.addEventListener((s, e) => status.consoleErrors.push("render error: " + (e && e.message ? e.message : e)));
-    window.bimtiles = { viewer, tileset: null, pickAt, describe, loadTileset, showRows, loadBimTools, swStats: () => swMessage({ type: "stats" }) };
+    window.bimtiles = { viewer, tileset: null, pickAt, describe, loadTileset, showRows, loadBimTools, setEdges, swStats: () => swMessage({ type: "stats" }) };
 
     installFrameHooks(scene);
 
@@ -450,6 +450,27 @@
     });
     document.getElementById("bim").classList.remove("hidden");
     return bimTools;
+  }
+
+  // Edges (EXT_mesh_primitive_edge_visibility, drawn through the tileset's edgeDisplayMode): what
+  // the tileset carries is in asset.extras.bimtiles.edges ({written, shown}: shown at first for
+  // plain-coloured models, not for photo-textured scenes). ?edges=0|1 overrides it, and a toggle
+  // writes it back into the URL so a shared link keeps it.
+  function tilesetEdges(ts) {
+    const e = ts && ts.asset && ts.asset.extras && ts.asset.extras.bimtiles && ts.asset.extras.bimtiles.edges;
+    return e && e.written ? e : null;
+  }
+  function setEdges(on, remember) {
+    if (!tileset || !Cesium.EdgeDisplayMode) return false;
+    const shown = !!on && !!tilesetEdges(tileset);
+    tileset.edgeDisplayMode = shown ? Cesium.EdgeDisplayMode.SURFACES_AND_EDGES : Cesium.EdgeDisplayMode.SURFACES_ONLY;
+    status.edges = { written: tilesetEdges(tileset) ? tilesetEdges(tileset).written : null, shown };
+    if (remember) {
+      const u = new URL(location.href);
+      u.searchParams.set("edges", shown ? "1" : "0");
+      history.replaceState(null, "", u.pathname + u.search + u.hash);
+    }
+    return shown;
   }
 
   // Loads (or replaces) the tileset and frames it; resets the per-load figures. Used by the page
@@ -497,6 +518,9 @@
     });
     tileset = ts;
     window.bimtiles.tileset = ts;
+    const askedEdges = params.get("edges");
+    const edges = tilesetEdges(ts);
+    setEdges(askedEdges === null ? !!(edges && edges.shown) : askedEdges === "1", false);
     adaptive = BimtilesAdaptive.start(viewer.scene, ts, plan, (state) => {
       status.adaptive = state;
       document.getElementById("adaptive").textContent = BimtilesAdaptive.describe(state);

@@ -238,6 +238,16 @@ struct ConvertArgs {
     /// with any profile; --compression draco with deckgl or portable is an error.
     #[arg(long, value_enum, default_value = "cesium")]
     client: ClientArg,
+    /// Edges drawn the way CAD and BIM tools draw them (EXT_mesh_primitive_edge_visibility on
+    /// every primitive, shown by CesiumJS's edgeDisplayMode): all (outlines and creases, and the
+    /// silhouettes of curved surfaces), hard (outlines and creases only) or none.
+    /// Off by default for now: a mesh cut between two tiles still draws a line along the cut.
+    #[arg(long, value_enum, default_value = "none")]
+    edges: EdgesArg,
+    /// Two faces of one element that meet at more than this angle (degrees) draw a hard edge;
+    /// below it, a curved surface draws only its silhouette.
+    #[arg(long, default_value_t = bimtiles::encode::edges::DEFAULT_CREASE_ANGLE_DEG, value_parser = parse_edge_angle)]
+    edge_angle_deg: f64,
     /// Levels of detail: hlod (internal tiles carry their subtree simplified with our QEM,
     /// refine REPLACE) or none (internal tiles hold only what is too big for their children,
     /// refine ADD).
@@ -391,6 +401,23 @@ enum ClientArg {
     Three,
     Deckgl,
     Portable,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum EdgesArg {
+    All,
+    Hard,
+    None,
+}
+
+/// A crease angle in degrees: above 0, at most 180.
+fn parse_edge_angle(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v > 0.0 && v <= 180.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not an angle in (0, 180] degrees"))
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -764,6 +791,14 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
             ..OctreeOptions::default()
         },
         compression: compression_asked.unwrap_or_default(),
+        edges: bimtiles::encode::edges::EdgeOptions {
+            mode: match a.edges {
+                EdgesArg::All => bimtiles::encode::edges::EdgeMode::All,
+                EdgesArg::Hard => bimtiles::encode::edges::EdgeMode::Hard,
+                EdgesArg::None => bimtiles::encode::edges::EdgeMode::None,
+            },
+            crease_angle_deg: a.edge_angle_deg,
+        },
         lod: match (&a.lod_ratios, a.lod) {
             (Some(r), _) => LodMode::Ratios(
                 bimtiles::lod::chain_levels::chain_ratios(r).context("--lod-ratios")?,
@@ -878,8 +913,39 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
             human_bytes(r.peak_memory_bytes),
         ))?;
         emit(&format!("\n  place : {}\n", place_line(&r.georeference)))?;
+        if r.output.edge_bytes > 0 {
+            emit(&format!("  edges : {}\n", edges_line(a, r)))?;
+        }
     }
     Ok(())
+}
+
+/// What the edges cost, gzipped as served: over all tiles and over the tiles of a first
+/// whole-model view (`inspect`'s selection; the root inlined in tileset.json is its tile).
+fn edges_line(a: &ConvertArgs, r: &bimtiles::convert::Report) -> String {
+    let mut line = format!(
+        "{} gzipped over all tiles ({} as stored)",
+        human_bytes(r.output.edge_gzip_bytes),
+        human_bytes(r.output.edge_bytes),
+    );
+    if let Ok(view) = bimtiles::inspect::first_view::first_view(&a.out, &Default::default()) {
+        let inlined = bimtiles::uri::data::content_label("data:");
+        let first: u64 = r
+            .tiles
+            .iter()
+            .filter(|t| {
+                let label = if t.inlined_in_tileset {
+                    Some(inlined)
+                } else {
+                    t.uri.as_deref()
+                };
+                label.is_some_and(|l| view.selected.iter().any(|s| s == l))
+            })
+            .map(|t| t.content.edge_gzip_bytes)
+            .sum();
+        line += &format!(", {} on the first view", human_bytes(first));
+    }
+    line
 }
 
 /// Where the tileset landed: longitude, latitude, height, the CRS and the field that named it.

@@ -275,6 +275,8 @@ pub struct Encoded {
     /// The decoded POSITION values, xyz per point: where the client will draw the vertices
     /// (bounding volumes of instanced copies are built from them).
     pub decoded_positions: Vec<[f32; 3]>,
+    /// The whole decoded mesh: the triangle and point order a client draws.
+    pub decoded_mesh: DecodedMesh,
 }
 
 impl Encoded {
@@ -472,6 +474,7 @@ pub fn encode_mesh(
         face_count: decoded.face_count,
         attribute_min_max,
         decoded_positions,
+        decoded_mesh: decoded,
     })
 }
 

@@ -63,6 +63,18 @@ pub fn encode_triangles(
         .map_err(MeshoptEncodeError::Encode)
 }
 
+/// The triangle list a client decodes from a `TRIANGLES` stream of `index_count` indices: the
+/// same triangles in the same order, each possibly rotated (the codec may start a triangle at
+/// another corner, keeping its winding). What is written per triangle corner or edge must
+/// follow this order, not the encoder's input.
+pub fn decode_triangles(
+    encoded: &[u8],
+    index_count: usize,
+) -> Result<Vec<u32>, MeshoptEncodeError> {
+    meshopt::encoding::decode_index_buffer::<u32>(encoded, index_count)
+        .map_err(MeshoptEncodeError::Encode)
+}
+
 /// Float vectors through the `EXPONENTIAL` filter.
 pub struct ExpFiltered<const N: usize> {
     /// The filter's words (the stream's elements before the attribute codec).

@@ -3,6 +3,7 @@
 /// Draco lives below the readers (they decode compressed glTF with it); re-exported here, where
 /// tiles are encoded with it.
 pub use crate::draco;
+pub mod edges;
 pub mod glb;
 pub mod meshopt;
 pub mod metadata;

@@ -23,6 +23,10 @@ pub struct ContentFigures {
     pub instances: usize,
     /// Bytes of the property table (buffers and its JSON), 0 without metadata.
     pub metadata_bytes: u64,
+    /// Bytes of the edge visibility data (`EXT_mesh_primitive_edge_visibility` views), and
+    /// what they cost gzipped as a server sends them; 0 with `--edges none`.
+    pub edge_bytes: u64,
+    pub edge_gzip_bytes: u64,
     /// Exact box of the written vertices once decoded (quantization included), in the scene
     /// frame; empty for a tile without content.
     #[serde(skip)]

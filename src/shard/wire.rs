@@ -118,6 +118,8 @@ impl W {
             self.n(v);
         }
         self.u64(c.metadata_bytes);
+        self.u64(c.edge_bytes);
+        self.u64(c.edge_gzip_bytes);
         self.opt(&s.simplified_from_triangles, |w, &v| w.n(v));
         self.opt(&s.full_to_coarse_m, |w, &v| w.f64(v));
         self.opt(&s.coarse_to_full_bound_m, |w, &v| w.f64(v));
@@ -308,6 +310,8 @@ impl R<'_> {
             instanced_shapes,
             instances,
             metadata_bytes: self.u64()?,
+            edge_bytes: self.u64()?,
+            edge_gzip_bytes: self.u64()?,
             bounds,
         };
         Ok(TileRecord {
@@ -414,6 +418,8 @@ mod tests {
                             bytes: 1234,
                             triangles: 5,
                             metadata_bytes: 77,
+                            edge_bytes: 12,
+                            edge_gzip_bytes: 9,
                             bounds: Aabb {
                                 min: DVec3::new(-1.0, 0.25, 1e-9),
                                 max: DVec3::new(2.0, 0.5, 3.0),

@@ -164,6 +164,24 @@ pub fn tileset_json(
     })
 }
 
+/// What `asset.extras.bimtiles.edges` tells a viewer: which edges the tiles carry (`--edges`) and
+/// whether to show them at first. Shown for models of plain-coloured elements (BIM, CAD, city
+/// models without photographs), where they make the shapes readable; not for photo-textured
+/// scenes, whose images already draw their edges. `None` without edges.
+pub fn edges_extras(
+    mode: crate::encode::edges::EdgeMode,
+    scene: &crate::scene::Scene,
+) -> Option<serde_json::Value> {
+    if mode == crate::encode::edges::EdgeMode::None {
+        return None;
+    }
+    let textured = scene
+        .materials
+        .iter()
+        .any(|m| m.base_color_texture.is_some());
+    Some(serde_json::json!({"written": mode.name(), "shown": !textured}))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -124,6 +124,7 @@ impl<'a> TileWriter<'a> {
             schema_placement,
             encoding: TileEncoding {
                 compression: opts.compression,
+                edges: opts.edges,
                 ..TileEncoding::default()
             },
             pb: progress_bar(opts.progress, progress_len, "tiles"),
@@ -356,12 +357,15 @@ impl<'a> TileWriter<'a> {
         // The element index, for a viewer's model tree and search (fetched after the first view).
         let index = ElementIndex::from_scene(self.scene);
         write_renamed(&tmp.join(ELEMENT_INDEX_FILE), &index.to_bytes())?;
-        let extras = json!({"bimtiles": {
+        let mut extras = json!({"bimtiles": {
             "origin": {"longitude_deg": origin.longitude_deg, "latitude_deg": origin.latitude_deg, "height_m": origin.height_m},
             "anchor_m": anchor.to_array(),
             "frame": "root transform maps local east-north-up metres to ECEF; glTF content is y-up",
             "elementIndex": ELEMENT_INDEX_FILE,
         }});
+        if let Some(edges) = crate::tileset::edges_extras(opts.edges.mode, self.scene) {
+            extras["bimtiles"]["edges"] = edges;
+        }
         let refine = match opts.lod {
             LodMode::Hlod | LodMode::Ratios(_) => Refine::Replace,
             LodMode::None => Refine::Add,

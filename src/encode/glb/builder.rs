@@ -24,6 +24,9 @@ pub(super) struct GltfBuilder {
     pub(super) meshopt: bool,
     /// Length of the fallback buffer (buffer 1) the compressed views decode into.
     pub(super) fallback_bytes: usize,
+    /// The bytes of the edge visibility views (`EXT_mesh_primitive_edge_visibility`), for the
+    /// report's figure of what edges cost.
+    pub(super) edge_data: Vec<u8>,
 }
 
 impl GltfBuilder {
@@ -255,11 +258,13 @@ impl GltfBuilder {
         Ok(self.accessors.len() - 1)
     }
 
+    /// An index accessor; also returns the indices as a client decodes them (meshopt's index
+    /// codec may rotate a triangle's corners).
     pub(super) fn index_accessor(
         &mut self,
         indices: &[u32],
         vertex_count: usize,
-    ) -> Result<usize, EncodeError> {
+    ) -> Result<(usize, Vec<u32>), EncodeError> {
         let (bytes, ct) = if vertex_count <= u16::MAX as usize {
             let mut b = Vec::with_capacity(indices.len() * 2);
             for &i in indices {
@@ -273,21 +278,55 @@ impl GltfBuilder {
             }
             (b, UNSIGNED_INT)
         };
-        let view = if self.meshopt {
+        let (view, drawn) = if self.meshopt {
             let encoded = crate::encode::meshopt::encode_triangles(indices, vertex_count)?;
+            let drawn = crate::encode::meshopt::decode_triangles(&encoded, indices.len())?;
             let stride = if ct == UNSIGNED_SHORT { 2 } else { 4 };
-            self.meshopt_view(
+            let view = self.meshopt_view(
                 &encoded,
                 bytes.len(),
                 stride,
                 "TRIANGLES",
                 None,
                 ELEMENT_ARRAY_BUFFER,
-            )
+            );
+            (view, drawn)
         } else {
-            self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER))
+            (
+                self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER)),
+                indices.to_vec(),
+            )
         };
         self.accessors.push(json!({"bufferView": view, "componentType": ct, "count": indices.len(), "type": "SCALAR"}));
-        Ok(self.accessors.len() - 1)
+        Ok((self.accessors.len() - 1, drawn))
+    }
+
+    /// The `EXT_mesh_primitive_edge_visibility` object of a primitive: the bitfield as an
+    /// unsigned-byte SCALAR accessor and, with silhouettes, their face normals as normalized i8
+    /// VEC3 (two per silhouette edge) under [`edges::SILHOUETTE_PROPERTY`]. Plain views: the
+    /// server's gzip shrinks the long runs of hidden edges.
+    pub(super) fn edge_visibility(&mut self, e: &crate::encode::edges::EdgeVisibility) -> Value {
+        use crate::encode::edges;
+        let view = self.view(&e.visibility, None);
+        self.edge_data.extend_from_slice(&e.visibility);
+        self.accessors
+            .push(json!({"bufferView": view, "componentType": UNSIGNED_BYTE,
+            "count": e.visibility.len(), "type": "SCALAR"}));
+        let mut ext = json!({"visibility": self.accessors.len() - 1});
+        if !e.silhouette_normals.is_empty() {
+            let bytes: Vec<u8> = e
+                .silhouette_normals
+                .iter()
+                .flatten()
+                .flat_map(|&n| edges::silhouette_normal_i8(n).map(|x| x as u8))
+                .collect();
+            let view = self.view(&bytes, None);
+            self.edge_data.extend_from_slice(&bytes);
+            self.accessors
+                .push(json!({"bufferView": view, "componentType": BYTE,
+                "normalized": true, "count": 2 * e.silhouette_normals.len(), "type": "VEC3"}));
+            ext[edges::SILHOUETTE_PROPERTY] = json!(self.accessors.len() - 1);
+        }
+        ext
     }
 }

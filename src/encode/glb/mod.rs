@@ -71,6 +71,8 @@ pub struct TileEncoding {
     /// small faces; normals that follow them shade what is drawn, and Draco predicts them from
     /// those faces, so they cost fewer bytes too (docs/benchmarks.md).
     pub normals_from_drawn_faces: bool,
+    /// Which edges every primitive carries (`EXT_mesh_primitive_edge_visibility`).
+    pub edges: crate::encode::edges::EdgeOptions,
     pub generator: String,
 }
 
@@ -80,6 +82,7 @@ impl Default for TileEncoding {
             compression: Compression::default(),
             max_position_error_m: DEFAULT_MAX_POSITION_ERROR_M,
             normals_from_drawn_faces: false,
+            edges: Default::default(),
             generator: concat!("bimtiles ", env!("CARGO_PKG_VERSION")).into(),
         }
     }
@@ -147,7 +150,8 @@ fn encode_content_from(
         sampled_px: sampled_px.clone(),
         ..MaterialTable::default()
     };
-    let (glb, metadata_bytes) = write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)?;
+    let (glb, metadata_bytes, edge_data) =
+        write_glb(scene, content, enc, table.as_ref(), &mut bounds, mats)?;
     let figures = ContentFigures {
         bytes: glb.len() as u64,
         features: content.features.len(),
@@ -157,6 +161,8 @@ fn encode_content_from(
         instanced_shapes: content.instanced.len(),
         instances: content.instance_count(),
         metadata_bytes: metadata_bytes as u64,
+        edge_bytes: edge_data.len() as u64,
+        edge_gzip_bytes: crate::encode::edges::gzip_bytes(&edge_data),
         bounds,
     };
     Ok(EncodedTile {
@@ -284,7 +290,8 @@ fn z_up(v: DVec3) -> DVec3 {
 }
 
 /// Writes the GLB. With Draco, `bounds` grows to hold the *decoded* (quantized) positions too, so
-/// the tile's bounding volume contains what clients draw.
+/// the tile's bounding volume contains what clients draw. Returns it with the property table's
+/// bytes and the edge visibility data.
 fn write_glb(
     scene: &Scene,
     content: &TileContent,
@@ -292,7 +299,7 @@ fn write_glb(
     table: Option<&PropertyTable>,
     bounds: &mut Aabb,
     mats: MaterialTable,
-) -> std::result::Result<(Vec<u8>, usize), EncodeError> {
+) -> std::result::Result<(Vec<u8>, usize, Vec<u8>), EncodeError> {
     let mut w = GlbWriter {
         scene,
         enc,
@@ -492,13 +499,13 @@ impl GlbWriter<'_> {
     }
 
     /// The property table, the compression extensions and the glTF JSON, in the GLB container;
-    /// returns it with the property table's bytes.
+    /// returns it with the property table's bytes and the edge visibility data.
     fn finish(
         mut self,
         table: Option<&PropertyTable>,
         mut used: Vec<&str>,
         mut required: Vec<&str>,
-    ) -> std::result::Result<(Vec<u8>, usize), EncodeError> {
+    ) -> std::result::Result<(Vec<u8>, usize, Vec<u8>), EncodeError> {
         let b = &mut self.b;
         let (metadata_ext, metadata_bytes) = match table {
             Some(t) => {
@@ -521,6 +528,10 @@ impl GlbWriter<'_> {
             _ => {}
         }
         let b = self.b;
+        if !b.edge_data.is_empty() {
+            // Optional: a client without it draws the surfaces alone.
+            used.push(crate::encode::edges::EXTENSION);
+        }
         let mut buffers = vec![json!({"byteLength": b.bin.len()})];
         if b.fallback_bytes > 0 {
             // The decoded views' buffer: no data, so the extension is required (its README,
@@ -549,7 +560,11 @@ impl GlbWriter<'_> {
         }
         self.mats.write_into(&mut root);
         let json_bytes = serde_json::to_vec(&root)?;
-        Ok((glb_container(&json_bytes, &b.bin), metadata_bytes))
+        Ok((
+            glb_container(&json_bytes, &b.bin),
+            metadata_bytes,
+            b.edge_data,
+        ))
     }
 }
 

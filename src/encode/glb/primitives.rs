@@ -24,11 +24,16 @@ pub(super) fn write_primitive(
     enc: &TileEncoding,
     frame: Option<&QuantFrame>,
 ) -> std::result::Result<(Value, Option<Vec<DVec3>>), EncodeError> {
-    let (mut prim, decoded) = match enc.compression {
-        Compression::None => (plain_primitive(b, m, feature_count.is_some(), None)?, None),
+    let (mut prim, decoded, drawn) = match enc.compression {
+        Compression::None => {
+            let (p, indices) = plain_primitive(b, m, feature_count.is_some(), None)?;
+            (p, None, Drawn::of(m, None, indices))
+        }
         Compression::Quantized => {
-            let p = plain_primitive(b, m, feature_count.is_some(), Some(frame))?;
-            (p, frame.map(|f| f.decoded_positions(&m.positions)))
+            let (p, indices) = plain_primitive(b, m, feature_count.is_some(), Some(frame))?;
+            let decoded = frame.map(|f| f.decoded_positions(&m.positions));
+            let drawn = Drawn::of(m, decoded.as_deref(), indices);
+            (p, decoded, drawn)
         }
         Compression::Meshopt => {
             let texels = texture_texels(scene, m.material, &mats.sampled_px);
@@ -36,10 +41,18 @@ pub(super) fn write_primitive(
         }
         Compression::Draco => {
             let texels = texture_texels(scene, m.material, &mats.sampled_px);
-            let (p, bx) = draco_primitive(b, m, feature_count, enc, texels)?;
-            (p, Some(bx))
+            let (p, bx, drawn) = draco_primitive(b, m, feature_count, enc, texels)?;
+            (p, Some(bx), drawn)
         }
     };
+    if let Some(edges) = crate::encode::edges::edge_visibility(
+        &drawn.positions_y_up,
+        &drawn.groups,
+        &drawn.indices,
+        &enc.edges,
+    ) {
+        prim["extensions"][crate::encode::edges::EXTENSION] = b.edge_visibility(&edges);
+    }
     prim["mode"] = json!(4);
     if feature_count.is_some() {
         // What the written attribute holds: every vertex, or only those a triangle uses (the
@@ -64,14 +77,40 @@ pub(super) fn write_primitive(
     Ok((prim, decoded))
 }
 
+/// What a client draws of a primitive, in the order it decodes it: the triangles (a codec may
+/// reorder or rotate them), the vertices where they are drawn (y-up, quantization included: two
+/// corners the grid puts on one point are one corner), and the element (feature ID) of each
+/// vertex. Edge visibility is found on it and written against it.
+struct Drawn {
+    positions_y_up: Vec<[f32; 3]>,
+    groups: Vec<u32>,
+    indices: Vec<u32>,
+}
+
+impl Drawn {
+    /// `m`'s vertices (drawn at `decoded` when quantized), with triangles `indices` as the
+    /// client reads them.
+    fn of(m: &ContentPrimitive, decoded: Option<&[DVec3]>, indices: Vec<u32>) -> Drawn {
+        Drawn {
+            positions_y_up: match decoded {
+                Some(d) => d.iter().map(|p| p.as_vec3().to_array()).collect(),
+                None => y_up(&m.positions),
+            },
+            groups: m.feature_ids.clone(),
+            indices,
+        }
+    }
+}
+
 /// Attributes and indices as plain accessors; with `quantized` (`KHR_mesh_quantization`),
 /// normals as i8, UVs in [0, 1] as u16, and positions as i16 in the mesh's frame if it has one.
+/// Also returns the indices as a client reads them.
 pub(super) fn plain_primitive(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
     with_features: bool,
     quantized: Option<Option<&QuantFrame>>,
-) -> std::result::Result<Value, EncodeError> {
+) -> std::result::Result<(Value, Vec<u32>), EncodeError> {
     plain_primitive_at(b, m, with_features, quantized, WrittenAttributes::default())
 }
 
@@ -80,7 +119,7 @@ pub(super) fn plain_primitive(
 /// cannot hold within the bounds through the `EXPONENTIAL` filter: positions of a mesh without a
 /// frame (within `enc.max_position_error_m`), UVs that tile beyond [0, 1] (within a quarter texel
 /// of the `uv_texels` image, as Draco's UV bits); colours as 8-bit. Also returns the decoded
-/// positions.
+/// positions and what is drawn (triangles as the index codec's decoder gives them back).
 fn meshopt_primitive(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
@@ -88,7 +127,7 @@ fn meshopt_primitive(
     enc: &TileEncoding,
     frame: Option<&QuantFrame>,
     uv_texels: u32,
-) -> std::result::Result<(Value, Option<Vec<DVec3>>), EncodeError> {
+) -> std::result::Result<(Value, Option<Vec<DVec3>>, Drawn), EncodeError> {
     use crate::encode::meshopt::{exp_filtered, octahedral_normals, optimize_order};
     let m = optimize_order(m);
     let mut written = WrittenAttributes::default();
@@ -123,8 +162,9 @@ fn meshopt_primitive(
             .collect();
         written.color = Some(b.normalized_accessor(&q, UNSIGNED_BYTE, false)?);
     }
-    let p = plain_primitive_at(b, &m, with_features, Some(frame), written)?;
-    Ok((p, decoded))
+    let (p, indices) = plain_primitive_at(b, &m, with_features, Some(frame), written)?;
+    let drawn = Drawn::of(&m, decoded.as_deref(), indices);
+    Ok((p, decoded, drawn))
 }
 
 /// Accessors a primitive's writer made itself (meshopt filters), used instead of the plain ones.
@@ -143,7 +183,7 @@ fn plain_primitive_at(
     with_features: bool,
     quantized: Option<Option<&QuantFrame>>,
     written: WrittenAttributes,
-) -> std::result::Result<Value, EncodeError> {
+) -> std::result::Result<(Value, Vec<u32>), EncodeError> {
     let mut attributes = Map::new();
     let positions = match (written.position, quantized.flatten()) {
         (Some(accessor), _) => accessor,
@@ -190,20 +230,24 @@ fn plain_primitive_at(
             json!(b.float_accessor(&fids, false)?),
         );
     }
-    let indices = b.index_accessor(&m.indices, m.positions.len())?;
-    Ok(json!({"attributes": attributes, "indices": indices}))
+    let (indices, drawn_indices) = b.index_accessor(&m.indices, m.positions.len())?;
+    Ok((
+        json!({"attributes": attributes, "indices": indices}),
+        drawn_indices,
+    ))
 }
 
 /// One Draco stream in a bufferView, and accessors (without bufferViews) that describe the
 /// decoded data, as KHR_draco_mesh_compression requires; with `feature_count`, the per-vertex
-/// feature IDs go in too. Also returns the decoded positions.
-pub(super) fn draco_primitive(
+/// feature IDs go in too. Also returns the decoded positions and what is drawn (Draco's own
+/// triangle and point order, read back from the stream).
+fn draco_primitive(
     b: &mut GltfBuilder,
     m: &ContentPrimitive,
     feature_count: Option<usize>,
     enc: &TileEncoding,
     uv_texels: u32,
-) -> std::result::Result<(Value, Vec<DVec3>), EncodeError> {
+) -> std::result::Result<(Value, Vec<DVec3>, Drawn), EncodeError> {
     use crate::encode::draco::{encode_mesh, position_bits_for, EncodeAttribute, EncodeOptions};
     let positions_y_up = y_up(&m.positions);
     let mut normals_y_up = y_up(&m.normals);
@@ -277,6 +321,24 @@ pub(super) fn draco_primitive(
         json!({"componentType": index_type, "count": encoded.face_count * 3, "type": "SCALAR"}),
     );
     let indices = b.accessors.len() - 1;
+    // The element of each decoded point: its decoded feature ID (all one element without them).
+    let decoded_groups: Vec<u32> = match names.iter().position(|n| n.0 == "_FEATURE_ID_0") {
+        Some(k) => encoded
+            .decoded_mesh
+            .attribute(encoded.attribute_ids[k])
+            .map(|a| {
+                (0..encoded.point_count)
+                    .map(|i| a.values.get_f64(i) as u32)
+                    .collect()
+            })
+            .unwrap_or_else(|| vec![0; encoded.point_count]),
+        None => vec![0; encoded.point_count],
+    };
+    let drawn = Drawn {
+        positions_y_up: encoded.decoded_positions.clone(),
+        groups: decoded_groups,
+        indices: encoded.decoded_mesh.indices.clone(),
+    };
     Ok((
         json!({
             "attributes": attributes,
@@ -288,5 +350,6 @@ pub(super) fn draco_primitive(
             .iter()
             .map(|p| DVec3::from(p.map(f64::from)))
             .collect(),
+        drawn,
     ))
 }

@@ -1,0 +1,536 @@
+//! Edge visibility of a triangle primitive, as `EXT_mesh_primitive_edge_visibility` (Khronos
+//! glTF, `extensions/2.0/Vendor/EXT_mesh_primitive_edge_visibility`, "Edge Visibility") stores
+//! it: 2 bits per triangle edge, `(v0:v1, v1:v2, v2:v0)` per triangle in index order, 4 edges a
+//! byte from the low bits up; `0` hidden, `1` silhouette, `2` hard, `3` a hard edge already
+//! encoded as `2` on an adjoining triangle.
+//!
+//! Edges are found on the element's shape, not on its triangle soup: vertices of one element
+//! (one feature ID) within the weld step's tolerance (`simplify::SimplifyOptions::weld_tolerance_m`)
+//! are one corner, so the edge between two faces an exporter split for flat shading is seen as
+//! shared; vertices of different elements are never welded, so touching elements keep their
+//! outlines. Then, per welded edge:
+//! - used by one triangle (a boundary), or by three or more: hard;
+//! - used by two whose dihedral angle is above the crease angle: hard;
+//! - at or below [`COPLANAR_MAX_DEG`]: hidden (the diagonal of a flat face);
+//! - in between, a smooth edge of a curved surface: a silhouette ([`EdgeMode::All`]) or hidden.
+//!
+//! The spec's once-only rules hold by construction: of the occurrences of a welded edge, the
+//! first in index order carries `2` (or `1`) and the others `3` (or `0`).
+//!
+//! Silhouettes need companion data. The spec's latest draft names it `silhouetteMates`; the
+//! CesiumJS this project pins reads the earlier `silhouetteNormals` (the two faces' normals per
+//! silhouette edge, in the order the `1`s are met, read as VEC3 and normalized). What is written
+//! is chosen here alone: [`SILHOUETTE_PROPERTY`] and [`EdgeVisibility::silhouette_normals`].
+
+use glam::DVec3;
+use std::collections::HashMap;
+
+/// Which edges tiles carry (`--edges`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum EdgeMode {
+    /// No `EXT_mesh_primitive_edge_visibility` (the default until a cut between tiles is hidden
+    /// and edges cost less).
+    #[default]
+    None,
+    /// Hard edges only (outlines and creases).
+    Hard,
+    /// Hard edges and the silhouettes of curved surfaces.
+    All,
+}
+
+impl EdgeMode {
+    /// The one spelling of this mode (the CLI's value and the report's).
+    pub fn name(self) -> &'static str {
+        match self {
+            EdgeMode::None => "none",
+            EdgeMode::Hard => "hard",
+            EdgeMode::All => "all",
+        }
+    }
+}
+
+/// How edges are found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeOptions {
+    pub mode: EdgeMode,
+    /// Two faces meeting at more than this dihedral angle (degrees) make a hard edge.
+    pub crease_angle_deg: f64,
+}
+
+impl Default for EdgeOptions {
+    fn default() -> Self {
+        EdgeOptions {
+            mode: EdgeMode::default(),
+            crease_angle_deg: DEFAULT_CREASE_ANGLE_DEG,
+        }
+    }
+}
+
+/// Default crease angle: above the facet angle of the round profiles building models are
+/// tessellated with (pipes, columns and ducts in 16 to 36 segments turn 10° to 22.5° a facet,
+/// so they draw as silhouettes, not as a cage of lines), and below the mitres and chamfers that
+/// read as edges. Chosen by measurement (the edges page of the book).
+pub const DEFAULT_CREASE_ANGLE_DEG: f64 = 20.0;
+
+/// Two faces of one element that meet at this dihedral angle or less (degrees) are one plane:
+/// the edge between them is hidden. The position grid turns small faces by a degree or so (a
+/// millimetre over a few centimetres), and what it turns are not surfaces to outline; round
+/// profiles turn 10° and more a facet.
+pub const COPLANAR_MAX_DEG: f64 = 2.0;
+
+/// Steps of a silhouette normal's components as written (normalized i8): 8, so 31 values a
+/// component, within about 2° of the face. A silhouette is drawn where one face turns to the
+/// viewer and the other away; 2° moves that by 2° of view, and the coarser values cost gzip
+/// half the bytes of full i8.
+const SILHOUETTE_NORMAL_STEP: f64 = 8.0;
+
+/// A silhouette normal as written: a normalized i8 VEC3 on [`SILHOUETTE_NORMAL_STEP`].
+pub fn silhouette_normal_i8(n: [f32; 3]) -> [i8; 3] {
+    n.map(|x| {
+        let q = (x.clamp(-1.0, 1.0) as f64 * 127.0 / SILHOUETTE_NORMAL_STEP).round();
+        (q * SILHOUETTE_NORMAL_STEP).clamp(-127.0, 127.0) as i8
+    })
+}
+
+/// Twice the area (m²) below which a triangle has no direction: a sliver whose normal is noise.
+const MIN_DOUBLE_AREA_M2: f64 = 1e-12;
+
+/// The name of the silhouette companion data in the extension's JSON: what the pinned CesiumJS
+/// reads (`GltfLoader.loadEdgeVisibility`), not the newer draft's `silhouetteMates`.
+pub const SILHOUETTE_PROPERTY: &str = "silhouetteNormals";
+
+/// The extension's name.
+pub const EXTENSION: &str = "EXT_mesh_primitive_edge_visibility";
+
+/// Visibility values (the spec's "Edge Visibility").
+pub const HIDDEN: u8 = 0;
+pub const SILHOUETTE: u8 = 1;
+pub const HARD: u8 = 2;
+pub const REPEATED_HARD: u8 = 3;
+
+/// One primitive's edges, ready to write.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EdgeVisibility {
+    /// The bitfield: `ceil(6 N / 8)` bytes for N triangles, unused bits zero.
+    pub visibility: Vec<u8>,
+    /// Per edge encoded `1`, in the order they are met, the normals of the face that encodes it
+    /// and of the face across it (unit vectors, the positions' frame).
+    pub silhouette_normals: Vec<[[f32; 3]; 2]>,
+    /// Edges (welded) that are hard and silhouettes.
+    pub hard_edges: usize,
+    pub silhouette_edges: usize,
+}
+
+/// The visibility value of edge `k` (triangle `k / 3`, edge `k % 3`) in a bitfield.
+pub fn value_at(visibility: &[u8], k: usize) -> u8 {
+    (visibility[k / 4] >> ((k % 4) * 2)) & 3
+}
+
+/// Packs one value per triangle edge into the bitfield (4 a byte, low bits first).
+pub fn pack(values: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; (values.len() * 2).div_ceil(8)];
+    for (k, &v) in values.iter().enumerate() {
+        out[k / 4] |= (v & 3) << ((k % 4) * 2);
+    }
+    out
+}
+
+/// What `bytes` cost gzipped (the deflate stream, default level, as web servers send tiles);
+/// 0 for none.
+pub fn gzip_bytes(bytes: &[u8]) -> u64 {
+    use std::io::Write;
+    if bytes.is_empty() {
+        return 0;
+    }
+    let mut z = flate2::write::DeflateEncoder::new(Vec::new(), flate2::Compression::default());
+    z.write_all(bytes).expect("writes to a Vec");
+    z.finish().expect("writes to a Vec").len() as u64
+}
+
+/// Position tolerance of the weld (metres): the simplifier's, so an element's faces are joined
+/// as the weld step joins them.
+pub fn weld_tolerance_m() -> f64 {
+    crate::simplify::SimplifyOptions::default().weld_tolerance_m as f64
+}
+
+/// Corner of every vertex: the first earlier vertex of its group within `tolerance`, else itself
+/// (input order decides, so the result is the same on every run).
+fn welded_corners(positions: &[[f32; 3]], groups: &[u32], tolerance: f64) -> Vec<u32> {
+    let p64 = |p: [f32; 3]| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    let inv = 1.0 / tolerance;
+    let cell = |p: DVec3| {
+        [
+            (p.x * inv).floor() as i64,
+            (p.y * inv).floor() as i64,
+            (p.z * inv).floor() as i64,
+        ]
+    };
+    let mut cells: HashMap<(u32, [i64; 3]), Vec<u32>> = HashMap::new();
+    let mut corner = vec![0u32; positions.len()];
+    let tol2 = tolerance * tolerance;
+    for (i, &p) in positions.iter().enumerate() {
+        let (g, q) = (groups[i], p64(p));
+        let c = cell(q);
+        let mut best = u32::MAX;
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let key = (g, [c[0] + dx, c[1] + dy, c[2] + dz]);
+                    for &r in cells.get(&key).into_iter().flatten() {
+                        if r < best && (p64(positions[r as usize]) - q).length_squared() <= tol2 {
+                            best = r;
+                        }
+                    }
+                }
+            }
+        }
+        if best == u32::MAX {
+            best = i as u32;
+            cells.entry((g, c)).or_default().push(best);
+        }
+        corner[i] = best;
+    }
+    corner
+}
+
+/// The edges of one triangle list (`indices` into `positions`, `groups` the element of each
+/// vertex), classified and encoded; `None` when `opts` asks for none or no edge is visible (the
+/// spec wants at least one non-zero value).
+pub fn edge_visibility(
+    positions: &[[f32; 3]],
+    groups: &[u32],
+    indices: &[u32],
+    opts: &EdgeOptions,
+) -> Option<EdgeVisibility> {
+    if opts.mode == EdgeMode::None || indices.len() < 3 {
+        return None;
+    }
+    let corner = welded_corners(positions, groups, weld_tolerance_m());
+    let p64 = |i: u32| {
+        let p = positions[i as usize];
+        DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    };
+    let tri_count = indices.len() / 3;
+    // Welded corners per triangle; a triangle two of whose corners are one is a line, and has
+    // no edges of its own (all hidden).
+    let corners: Vec<Option<[u32; 3]>> = indices
+        .chunks_exact(3)
+        .map(|t| {
+            let c = [t[0], t[1], t[2]].map(|i| corner[i as usize]);
+            (c[0] != c[1] && c[1] != c[2] && c[2] != c[0]).then_some(c)
+        })
+        .collect();
+    // Unit normal per triangle; None for one without area (a sliver: no direction to compare).
+    let normals: Vec<Option<DVec3>> = indices
+        .chunks_exact(3)
+        .map(|t| {
+            let n = (p64(t[1]) - p64(t[0])).cross(p64(t[2]) - p64(t[0]));
+            let len = n.length();
+            (len > MIN_DOUBLE_AREA_M2).then(|| n / len)
+        })
+        .collect();
+    // Every edge of every triangle by its welded corners (low, high), and whether it runs low to
+    // high.
+    let mut edges: Vec<(u32, u32, u32, bool)> = Vec::with_capacity(tri_count * 3);
+    for (t, c) in corners.iter().enumerate() {
+        let Some(c) = c else { continue };
+        for e in 0..3 {
+            let (a, b) = (c[e], c[(e + 1) % 3]);
+            edges.push((a.min(b), a.max(b), (t * 3 + e) as u32, a < b));
+        }
+    }
+    edges.sort_unstable();
+    let cos_crease = opts.crease_angle_deg.to_radians().cos();
+    let cos_coplanar = COPLANAR_MAX_DEG.to_radians().cos();
+    let mut values = vec![HIDDEN; tri_count * 3];
+    let mut silhouettes: Vec<(u32, [[f32; 3]; 2])> = Vec::new();
+    let (mut hard_edges, mut silhouette_edges) = (0, 0);
+    for run in edges.chunk_by(|x, y| (x.0, x.1) == (y.0, y.1)) {
+        let hard = match run {
+            [_] => true,
+            [(_, _, k0, dir0), (_, _, k1, dir1)] => {
+                let (Some(n0), Some(n1)) = (normals[*k0 as usize / 3], normals[*k1 as usize / 3])
+                else {
+                    // Beside a sliver (a crack filler, mostly inside flat faces): hidden.
+                    continue;
+                };
+                // Consistently wound neighbours run the edge in opposite directions; one wound
+                // the other way has its normal turned.
+                let cos = if dir0 != dir1 {
+                    n0.dot(n1)
+                } else {
+                    -n0.dot(n1)
+                };
+                if cos < cos_crease {
+                    true
+                } else if cos >= cos_coplanar || opts.mode != EdgeMode::All {
+                    false
+                } else {
+                    values[*k0 as usize] = SILHOUETTE;
+                    let f = |n: DVec3| n.as_vec3().to_array();
+                    silhouettes.push((*k0, [f(n0), f(n1)]));
+                    silhouette_edges += 1;
+                    false
+                }
+            }
+            _ => true,
+        };
+        if hard {
+            hard_edges += 1;
+            values[run[0].2 as usize] = HARD;
+            for other in &run[1..] {
+                values[other.2 as usize] = REPEATED_HARD;
+            }
+        }
+    }
+    if hard_edges + silhouette_edges == 0 {
+        return None;
+    }
+    silhouettes.sort_unstable_by_key(|s| s.0);
+    Some(EdgeVisibility {
+        visibility: pack(&values),
+        silhouette_normals: silhouettes.into_iter().map(|s| s.1).collect(),
+        hard_edges,
+        silhouette_edges,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn all(values: &EdgeVisibility, triangles: usize) -> Vec<u8> {
+        (0..triangles * 3)
+            .map(|k| value_at(&values.visibility, k))
+            .collect()
+    }
+
+    fn count(v: &[u8], x: u8) -> usize {
+        v.iter().filter(|&&y| y == x).count()
+    }
+
+    #[test]
+    fn packs_four_edges_a_byte_low_bits_first() {
+        // The spec's example: [2,0,1, 0,2,0] is [18, 2].
+        assert_eq!(pack(&[2, 0, 1, 0, 2, 0]), vec![18, 2]);
+        // ceil(6 N / 8) bytes, unused bits zero.
+        for n in 1..9 {
+            let p = pack(&vec![3; n * 3]);
+            assert_eq!(p.len(), (6 * n).div_ceil(8));
+            let used_bits = 6 * n;
+            if used_bits % 8 != 0 {
+                assert_eq!(p.last().unwrap() >> (used_bits % 8), 0);
+            }
+        }
+    }
+
+    #[test]
+    fn a_flat_quad_has_four_hard_edges_and_a_hidden_diagonal() {
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        let e = edge_visibility(
+            &positions,
+            &[0; 4],
+            &[0, 1, 2, 0, 2, 3],
+            &Default::default(),
+        )
+        .unwrap();
+        let v = all(&e, 2);
+        assert_eq!(count(&v, HARD), 4);
+        assert_eq!(count(&v, HIDDEN), 2);
+        assert_eq!((e.hard_edges, e.silhouette_edges), (4, 0));
+        // The diagonal (0:2 in the first, 2:0 in the second) is the hidden one.
+        assert_eq!((v[2], v[3]), (HIDDEN, HIDDEN));
+    }
+
+    /// A unit cube with its vertices split per face (4 each, flat-shaded as exporters write it).
+    fn split_cube() -> (Vec<[f32; 3]>, Vec<u32>) {
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        for axis in 0..3 {
+            for side in [0.0f32, 1.0] {
+                let base = positions.len() as u32;
+                let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+                for (a, b) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+                    let mut p = [0.0f32; 3];
+                    p[axis] = side;
+                    p[u] = a;
+                    p[w] = b;
+                    positions.push(p);
+                }
+                // Outward winding.
+                if side == 1.0 {
+                    indices.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+                } else {
+                    indices.extend([base, base + 2, base + 1, base, base + 3, base + 2]);
+                }
+            }
+        }
+        (positions, indices)
+    }
+
+    #[test]
+    fn a_cube_with_split_vertices_has_twelve_hard_edges() {
+        let (positions, indices) = split_cube();
+        let e = edge_visibility(&positions, &[0; 24], &indices, &Default::default()).unwrap();
+        let v = all(&e, 12);
+        assert_eq!(e.hard_edges, 12);
+        assert_eq!(count(&v, HARD), 12);
+        assert_eq!(count(&v, REPEATED_HARD), 12);
+        assert_eq!(count(&v, HIDDEN), 12);
+        assert_eq!(count(&v, SILHOUETTE), 0);
+        // Without the weld, every face would be a boundary: 24 edges drawn twice.
+        let corners = welded_corners(&positions, &[0; 24], weld_tolerance_m());
+        let mut distinct = corners.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        assert_eq!(distinct.len(), 8);
+    }
+
+    /// An open cylinder of `segments` facets (radius 1, height 2), smooth-shaded (shared vertices).
+    fn cylinder(segments: u32) -> (Vec<[f32; 3]>, Vec<u32>) {
+        let mut positions = Vec::new();
+        for i in 0..segments {
+            let a = i as f32 / segments as f32 * std::f32::consts::TAU;
+            positions.push([a.cos(), a.sin(), 0.0]);
+            positions.push([a.cos(), a.sin(), 2.0]);
+        }
+        let mut indices = Vec::new();
+        for i in 0..segments {
+            let (b0, t0) = (2 * i, 2 * i + 1);
+            let (b1, t1) = (2 * ((i + 1) % segments), 2 * ((i + 1) % segments) + 1);
+            indices.extend([b0, b1, t1, b0, t1, t0]);
+        }
+        (positions, indices)
+    }
+
+    #[test]
+    fn a_cylinder_draws_silhouettes_along_its_side_and_hard_rims() {
+        let (positions, indices) = cylinder(24);
+        let groups = vec![0; positions.len()];
+        let e = edge_visibility(&positions, &groups, &indices, &Default::default()).unwrap();
+        // 15° a facet: below the crease angle. The vertical edges are silhouettes (24), the
+        // diagonals coplanar (hidden), the two rims hard (48 edges).
+        assert_eq!(e.silhouette_edges, 24);
+        assert_eq!(e.hard_edges, 48);
+        assert_eq!(e.silhouette_normals.len(), 24);
+        let v = all(&e, 48);
+        assert_eq!(count(&v, SILHOUETTE), 24);
+        // Each normal pair: the two faces across the edge, 15° apart.
+        for [a, b] in &e.silhouette_normals {
+            let (a, b) = (glam::Vec3::from(*a), glam::Vec3::from(*b));
+            assert!((a.dot(b) - 15f32.to_radians().cos()).abs() < 1e-4);
+        }
+        // `hard` drops the silhouettes; `none` writes nothing.
+        let hard = EdgeOptions {
+            mode: EdgeMode::Hard,
+            ..Default::default()
+        };
+        let h = edge_visibility(&positions, &groups, &indices, &hard).unwrap();
+        assert_eq!((h.hard_edges, h.silhouette_edges), (48, 0));
+        assert!(h.silhouette_normals.is_empty());
+        let none = EdgeOptions {
+            mode: EdgeMode::None,
+            ..Default::default()
+        };
+        assert!(edge_visibility(&positions, &groups, &indices, &none).is_none());
+        // A crease angle below the facet angle makes the facets hard.
+        let sharp = EdgeOptions {
+            crease_angle_deg: 10.0,
+            ..Default::default()
+        };
+        let s = edge_visibility(&positions, &groups, &indices, &sharp).unwrap();
+        assert_eq!((s.hard_edges, s.silhouette_edges), (72, 0));
+    }
+
+    #[test]
+    fn two_touching_elements_keep_their_own_outlines() {
+        // Two flat quads side by side sharing the edge x = 1, as two elements: 8 hard edges, the
+        // shared one drawn by both. As one element, the shared edge is an inner one (hidden).
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [2.0, 0.0, 0.0],
+            [2.0, 1.0, 0.0],
+            [1.0, 1.0, 0.0],
+        ];
+        let indices = [0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7];
+        let two = edge_visibility(
+            &positions,
+            &[0, 0, 0, 0, 1, 1, 1, 1],
+            &indices,
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!(two.hard_edges, 8);
+        assert_eq!(count(&all(&two, 4), REPEATED_HARD), 0);
+        let one = edge_visibility(&positions, &[0; 8], &indices, &Default::default()).unwrap();
+        assert_eq!(one.hard_edges, 6);
+    }
+
+    #[test]
+    fn vertices_within_the_weld_tolerance_are_one_corner() {
+        let t = weld_tolerance_m() as f32;
+        let positions = [[0.0, 0.0, 0.0], [0.5 * t, 0.0, 0.0], [3.0 * t, 0.0, 0.0]];
+        assert_eq!(welded_corners(&positions, &[0; 3], t as f64), vec![0, 0, 2]);
+        // Another group never welds.
+        assert_eq!(
+            welded_corners(&positions, &[0, 1, 0], t as f64),
+            vec![0, 1, 2]
+        );
+    }
+
+    #[test]
+    fn faces_without_area_and_back_to_back_faces() {
+        // A zero-area triangle on the quad's edge: no angle to judge across the edge it shares
+        // (hidden); its two halves of that edge are boundaries, so the outline is still drawn.
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.5, 0.0, 0.0],
+        ];
+        let e = edge_visibility(
+            &positions,
+            &[0; 5],
+            &[0, 1, 2, 0, 2, 3, 0, 4, 1],
+            &Default::default(),
+        )
+        .unwrap();
+        let v = all(&e, 3);
+        assert_eq!(&v[6..], &[HARD, HARD, HIDDEN]);
+        assert_eq!(e.hard_edges, 5);
+        // A triangle with two corners welded into one is a line: its edges are all hidden.
+        let e = edge_visibility(
+            &[
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1e-6],
+            ],
+            &[0; 4],
+            &[0, 1, 2, 0, 3, 1],
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!(&all(&e, 2)[3..], &[HIDDEN; 3]);
+        // A one-sided sheet written twice, back to back: its outline is hard (180°), once.
+        let e = edge_visibility(
+            &positions[..3],
+            &[0; 3],
+            &[0, 1, 2, 0, 2, 1],
+            &Default::default(),
+        )
+        .unwrap();
+        let v = all(&e, 2);
+        assert_eq!((count(&v, HARD), count(&v, REPEATED_HARD)), (3, 3));
+    }
+}
