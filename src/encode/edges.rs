@@ -299,6 +299,14 @@ pub fn edge_visibility(
 mod tests {
     use super::*;
 
+    /// Hard edges and silhouettes (`--edges all`), the default crease angle.
+    fn every_edge() -> EdgeOptions {
+        EdgeOptions {
+            mode: EdgeMode::All,
+            ..EdgeOptions::default()
+        }
+    }
+
     fn all(values: &EdgeVisibility, triangles: usize) -> Vec<u8> {
         (0..triangles * 3)
             .map(|k| value_at(&values.visibility, k))
@@ -332,13 +340,7 @@ mod tests {
             [1.0, 1.0, 0.0],
             [0.0, 1.0, 0.0],
         ];
-        let e = edge_visibility(
-            &positions,
-            &[0; 4],
-            &[0, 1, 2, 0, 2, 3],
-            &Default::default(),
-        )
-        .unwrap();
+        let e = edge_visibility(&positions, &[0; 4], &[0, 1, 2, 0, 2, 3], &every_edge()).unwrap();
         let v = all(&e, 2);
         assert_eq!(count(&v, HARD), 4);
         assert_eq!(count(&v, HIDDEN), 2);
@@ -376,7 +378,7 @@ mod tests {
     #[test]
     fn a_cube_with_split_vertices_has_twelve_hard_edges() {
         let (positions, indices) = split_cube();
-        let e = edge_visibility(&positions, &[0; 24], &indices, &Default::default()).unwrap();
+        let e = edge_visibility(&positions, &[0; 24], &indices, &every_edge()).unwrap();
         let v = all(&e, 12);
         assert_eq!(e.hard_edges, 12);
         assert_eq!(count(&v, HARD), 12);
@@ -412,7 +414,7 @@ mod tests {
     fn a_cylinder_draws_silhouettes_along_its_side_and_hard_rims() {
         let (positions, indices) = cylinder(24);
         let groups = vec![0; positions.len()];
-        let e = edge_visibility(&positions, &groups, &indices, &Default::default()).unwrap();
+        let e = edge_visibility(&positions, &groups, &indices, &every_edge()).unwrap();
         // 15° a facet: below the crease angle. The vertical edges are silhouettes (24), the
         // diagonals coplanar (hidden), the two rims hard (48 edges).
         assert_eq!(e.silhouette_edges, 24);
@@ -428,20 +430,20 @@ mod tests {
         // `hard` drops the silhouettes; `none` writes nothing.
         let hard = EdgeOptions {
             mode: EdgeMode::Hard,
-            ..Default::default()
+            ..every_edge()
         };
         let h = edge_visibility(&positions, &groups, &indices, &hard).unwrap();
         assert_eq!((h.hard_edges, h.silhouette_edges), (48, 0));
         assert!(h.silhouette_normals.is_empty());
         let none = EdgeOptions {
             mode: EdgeMode::None,
-            ..Default::default()
+            ..every_edge()
         };
         assert!(edge_visibility(&positions, &groups, &indices, &none).is_none());
         // A crease angle below the facet angle makes the facets hard.
         let sharp = EdgeOptions {
             crease_angle_deg: 10.0,
-            ..Default::default()
+            ..every_edge()
         };
         let s = edge_visibility(&positions, &groups, &indices, &sharp).unwrap();
         assert_eq!((s.hard_edges, s.silhouette_edges), (72, 0));
@@ -466,12 +468,12 @@ mod tests {
             &positions,
             &[0, 0, 0, 0, 1, 1, 1, 1],
             &indices,
-            &Default::default(),
+            &every_edge(),
         )
         .unwrap();
         assert_eq!(two.hard_edges, 8);
         assert_eq!(count(&all(&two, 4), REPEATED_HARD), 0);
-        let one = edge_visibility(&positions, &[0; 8], &indices, &Default::default()).unwrap();
+        let one = edge_visibility(&positions, &[0; 8], &indices, &every_edge()).unwrap();
         assert_eq!(one.hard_edges, 6);
     }
 
@@ -502,7 +504,7 @@ mod tests {
             &positions,
             &[0; 5],
             &[0, 1, 2, 0, 2, 3, 0, 4, 1],
-            &Default::default(),
+            &every_edge(),
         )
         .unwrap();
         let v = all(&e, 3);
@@ -518,18 +520,13 @@ mod tests {
             ],
             &[0; 4],
             &[0, 1, 2, 0, 3, 1],
-            &Default::default(),
+            &every_edge(),
         )
         .unwrap();
         assert_eq!(&all(&e, 2)[3..], &[HIDDEN; 3]);
         // A one-sided sheet written twice, back to back: its outline is hard (180°), once.
-        let e = edge_visibility(
-            &positions[..3],
-            &[0; 3],
-            &[0, 1, 2, 0, 2, 1],
-            &Default::default(),
-        )
-        .unwrap();
+        let e =
+            edge_visibility(&positions[..3], &[0; 3], &[0, 1, 2, 0, 2, 1], &every_edge()).unwrap();
         let v = all(&e, 2);
         assert_eq!((count(&v, HARD), count(&v, REPEATED_HARD)), (3, 3));
     }
