@@ -35,7 +35,8 @@
 // A model that is no GLB (IFC, CityGML, CityJSON, OBJ, FBX) has no raw GLB: its raw variant is
 // bimtiles' own single-tile GLB of it (one octree cell: --max-tile-triangles and --max-tile-bytes
 // at their largest, no coarse root above it, Draco whatever our default, images embedded, the GLB a
-// file as a raw model is, not inlined in tileset.json).
+// file as a raw model is, not inlined in tileset.json). A model wider than the octree's leaf extent
+// (a district, a city tile) cannot be one tile: the run says so; give it a GLB with --raw-glb.
 //
 // Fly-in (each run, each variant, after the cold load): the tileset is loaded again at a new URL
 // (nothing cached) with the camera at the first stop, then moved to each stop in turn (heading 0.6,

@@ -30,12 +30,12 @@ import json
 import math
 import os
 import pathlib
-import struct
 
 import numpy as np
 import pytest
 
 from meshopt_decode import decoded_tileset
+from test_metadata_reader import read_glb
 from tile_content import content_bytes, content_uris, read_tileset
 
 DracoPy = pytest.importorskip("DracoPy")
@@ -56,21 +56,6 @@ MIN_AREA_REL = 1e-10
 DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 NORM = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-
-
-def read_glb(data):
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    assert magic == b"glTF" and version == 2, "not a GLB 2.0"
-    off, doc, blob = 12, None, b""
-    while off + 8 <= min(length, len(data)):
-        clen, ctype = struct.unpack_from("<II", data, off)
-        chunk = data[off + 8:off + 8 + clen]
-        if ctype == 0x4E4F534A:
-            doc = json.loads(chunk)
-        elif ctype == 0x004E4942:
-            blob = chunk
-        off += 8 + clen
-    return doc, blob
 
 
 def accessor(doc, blob, index, raw=False):
@@ -302,7 +287,7 @@ def tiles_of(directory):
 
 def check_tileset(directory, f):
     for label, data in tiles_of(directory):
-        doc, blob = read_glb(data)
+        doc, blob = read_glb(label, data)
         for mi, mesh in enumerate(doc.get("meshes", [])):
             for pi, prim in enumerate(mesh["primitives"]):
                 if EXT in prim.get("extensions", {}):
@@ -339,7 +324,7 @@ def test_the_decoder_reads_the_spec_example():
 def input_hard_edges(glb_path, crease_deg=CREASE_DEG):
     """Hard edges (boundaries and creases) of a GLB input, per node and primitive: the input's own
     triangles welded on a grid of the weld tolerance, dihedral angles from its own positions."""
-    doc, blob = read_glb(glb_path.read_bytes())
+    doc, blob = read_glb(glb_path)
     total = 0
     for node in doc.get("nodes", []):
         if "mesh" not in node:
@@ -367,7 +352,7 @@ def tile_hard_edges(directory):
         uri = t.get("content", {}).get("uri")
         if uri is None or t["geometricError"] > 0:
             continue
-        doc, blob = read_glb(content_bytes(d, uri))
+        doc, blob = read_glb(f"{d}/{uri}", content_bytes(d, uri))
         for node in doc.get("nodes", []):
             if "mesh" not in node:
                 continue
