@@ -22,6 +22,8 @@ pub(super) struct GltfBuilder {
     pub(super) accessors: Vec<Value>,
     /// Vertex attributes and indices as `EXT_meshopt_compression` streams.
     pub(super) meshopt: bool,
+    /// Primitives get edges: what a client draws (decoded indices) is kept for finding them.
+    pub(super) edges: bool,
     /// Length of the fallback buffer (buffer 1) the compressed views decode into.
     pub(super) fallback_bytes: usize,
     /// The bytes of the edge visibility views (`EXT_mesh_primitive_edge_visibility`), for the
@@ -280,7 +282,12 @@ impl GltfBuilder {
         };
         let (view, drawn) = if self.meshopt {
             let encoded = crate::encode::meshopt::encode_triangles(indices, vertex_count)?;
-            let drawn = crate::encode::meshopt::decode_triangles(&encoded, indices.len())?;
+            // Decoded back only for the edges, which follow the order a client reads.
+            let drawn = if self.edges {
+                crate::encode::meshopt::decode_triangles(&encoded, indices.len())?
+            } else {
+                Vec::new()
+            };
             let stride = if ct == UNSIGNED_SHORT { 2 } else { 4 };
             let view = self.meshopt_view(
                 &encoded,
@@ -292,10 +299,12 @@ impl GltfBuilder {
             );
             (view, drawn)
         } else {
-            (
-                self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER)),
-                indices.to_vec(),
-            )
+            let drawn = if self.edges {
+                indices.to_vec()
+            } else {
+                Vec::new()
+            };
+            (self.view(&bytes, Some(ELEMENT_ARRAY_BUFFER)), drawn)
         };
         self.accessors.push(json!({"bufferView": view, "componentType": ct, "count": indices.len(), "type": "SCALAR"}));
         Ok((self.accessors.len() - 1, drawn))

@@ -305,6 +305,7 @@ fn write_glb(
         enc,
         b: GltfBuilder {
             meshopt: enc.compression == Compression::Meshopt,
+            edges: enc.edges.mode != crate::encode::edges::EdgeMode::None,
             ..GltfBuilder::default()
         },
         mats,

@@ -27,12 +27,12 @@ pub(super) fn write_primitive(
     let (mut prim, decoded, drawn) = match enc.compression {
         Compression::None => {
             let (p, indices) = plain_primitive(b, m, feature_count.is_some(), None)?;
-            (p, None, Drawn::of(m, None, indices))
+            (p, None, Drawn::of(b.edges, m, None, indices))
         }
         Compression::Quantized => {
             let (p, indices) = plain_primitive(b, m, feature_count.is_some(), Some(frame))?;
             let decoded = frame.map(|f| f.decoded_positions(&m.positions));
-            let drawn = Drawn::of(m, decoded.as_deref(), indices);
+            let drawn = Drawn::of(b.edges, m, decoded.as_deref(), indices);
             (p, decoded, drawn)
         }
         Compression::Meshopt => {
@@ -81,6 +81,7 @@ pub(super) fn write_primitive(
 /// reorder or rotate them), the vertices where they are drawn (y-up, quantization included: two
 /// corners the grid puts on one point are one corner), and the element (feature ID) of each
 /// vertex. Edge visibility is found on it and written against it.
+#[derive(Default)]
 struct Drawn {
     positions_y_up: Vec<[f32; 3]>,
     groups: Vec<u32>,
@@ -89,8 +90,16 @@ struct Drawn {
 
 impl Drawn {
     /// `m`'s vertices (drawn at `decoded` when quantized), with triangles `indices` as the
-    /// client reads them.
-    fn of(m: &ContentPrimitive, decoded: Option<&[DVec3]>, indices: Vec<u32>) -> Drawn {
+    /// client reads them; nothing when the primitives get no edges (`wanted` false).
+    fn of(
+        wanted: bool,
+        m: &ContentPrimitive,
+        decoded: Option<&[DVec3]>,
+        indices: Vec<u32>,
+    ) -> Drawn {
+        if !wanted {
+            return Drawn::default();
+        }
         Drawn {
             positions_y_up: match decoded {
                 Some(d) => d.iter().map(|p| p.as_vec3().to_array()).collect(),
@@ -163,7 +172,7 @@ fn meshopt_primitive(
         written.color = Some(b.normalized_accessor(&q, UNSIGNED_BYTE, false)?);
     }
     let (p, indices) = plain_primitive_at(b, &m, with_features, Some(frame), written)?;
-    let drawn = Drawn::of(&m, decoded.as_deref(), indices);
+    let drawn = Drawn::of(b.edges, &m, decoded.as_deref(), indices);
     Ok((p, decoded, drawn))
 }
 
@@ -321,23 +330,29 @@ fn draco_primitive(
         json!({"componentType": index_type, "count": encoded.face_count * 3, "type": "SCALAR"}),
     );
     let indices = b.accessors.len() - 1;
-    // The element of each decoded point: its decoded feature ID (all one element without them).
-    let decoded_groups: Vec<u32> = match names.iter().position(|n| n.0 == "_FEATURE_ID_0") {
-        Some(k) => encoded
-            .decoded_mesh
-            .attribute(encoded.attribute_ids[k])
-            .map(|a| {
-                (0..encoded.point_count)
-                    .map(|i| a.values.get_f64(i) as u32)
-                    .collect()
-            })
-            .unwrap_or_else(|| vec![0; encoded.point_count]),
-        None => vec![0; encoded.point_count],
-    };
-    let drawn = Drawn {
-        positions_y_up: encoded.decoded_positions.clone(),
-        groups: decoded_groups,
-        indices: encoded.decoded_mesh.indices.clone(),
+    // What is drawn, for the edges only.
+    let drawn = if !b.edges {
+        Drawn::default()
+    } else {
+        // The element of each decoded point: its decoded feature ID (all one element
+        // without them).
+        let decoded_groups: Vec<u32> = match names.iter().position(|n| n.0 == "_FEATURE_ID_0") {
+            Some(k) => encoded
+                .decoded_mesh
+                .attribute(encoded.attribute_ids[k])
+                .map(|a| {
+                    (0..encoded.point_count)
+                        .map(|i| a.values.get_f64(i) as u32)
+                        .collect()
+                })
+                .unwrap_or_else(|| vec![0; encoded.point_count]),
+            None => vec![0; encoded.point_count],
+        };
+        Drawn {
+            positions_y_up: encoded.decoded_positions.clone(),
+            groups: decoded_groups,
+            indices: encoded.decoded_mesh.indices.clone(),
+        }
     };
     Ok((
         json!({
