@@ -70,6 +70,16 @@ def ogc(tag):
     return tag.startswith("{http://www.opengis.net/") and "/gml" not in tag.split("}")[0]
 
 
+def ade(tag):
+    """An Application Domain Extension's name: a namespace outside OGC, W3C and OASIS xAL."""
+    ns = tag[1:].split("}")[0] if tag.startswith("{") else ""
+    return bool(ns) and not ns.startswith(("http://www.opengis.net/", "http://www.w3.org/", "urn:oasis:"))
+
+
+# An ADE's geometry property: lodN followed by a geometry word (not an attribute like lod1HeightType).
+ADE_GEOMETRY = re.compile(r"lod\d\w*(Solid|Surface|Geometry|FootPrint|RoofEdge|Curve)$")
+
+
 def gml_id(el):
     for k in GML_ID:
         if k in el.attrib:
@@ -104,12 +114,21 @@ class Model:
         self.srs = srs[0] if srs else None
         dims = [e.get("srsDimension") for e in root.iter() if e.get("srsDimension")]
         self.dim = int(dims[0]) if dims else 3
-        self.objects = [e for e in root.iter() if ogc(e.tag) and local(e.tag) in CLASSES]
+        self.objects = [e for e in root.iter() if self.is_object(e)]
+
+    def is_object(self, el):
+        """A city object: a CityGML class, or an ADE's feature (a capitalised name with a gml:id)
+        that is not a boundary surface (inside a boundedBy)."""
+        if ogc(el.tag):
+            return local(el.tag) in CLASSES
+        parent = self.parent.get(el)
+        return (ade(el.tag) and local(el.tag)[:1].isupper() and gml_id(el) is not None
+                and parent is not None and local(parent.tag) != "boundedBy")
 
     def owner(self, el):
         """The nearest city object enclosing an element."""
         p = self.parent.get(el)
-        while p is not None and not (ogc(p.tag) and local(p.tag) in CLASSES):
+        while p is not None and not self.is_object(p):
             p = self.parent.get(p)
         return p
 
@@ -142,7 +161,7 @@ class Model:
             name = local(el.tag)
             m = re.match(r"lod(\d)\w+", name)
             lod = None
-            if m and ogc(el.tag):
+            if m and (ogc(el.tag) or (ade(el.tag) and ADE_GEOMETRY.match(name))):
                 lod = int(m.group(1))
             elif name == "tin" and ogc(el.tag):
                 lods = [c.text for c in self.parent[el] if local(c.tag) == "lod"]

@@ -74,19 +74,33 @@ pub(super) fn geographic_to_enu(
     definition: &str,
     polygons: &mut [super::parse::Polygon],
 ) -> Result<MapPlace, CrsError> {
-    let all = || polygons.iter().flat_map(|p| p.rings.iter().flatten());
+    // The drawn points; a placed prototype is its reference point (its offsets are metres).
+    let all = || {
+        polygons.iter().filter(|p| !p.template).flat_map(|p| {
+            let own = p.rings.iter().flatten().filter(move |_| p.anchor.is_none());
+            own.copied().chain(p.anchor)
+        })
+    };
     let (min, max) = all().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(a, b), p| (a.min(*p), b.max(*p)),
+        |(a, b), p| (a.min(p), b.max(p)),
     );
     let centre = (min + max) / 2.0;
     let place = place_geographic_point(definition, centre.x, centre.y, min.z)?;
     with_map_to_enu(definition, &place.place, |to_enu| {
-        for p in polygons
-            .iter_mut()
-            .flat_map(|p| p.rings.iter_mut().flatten())
-        {
-            *p = to_enu(*p)?;
+        for polygon in polygons.iter_mut().filter(|p| !p.template) {
+            match polygon.anchor.take() {
+                // A prototype's axes are taken as east, north and up at its reference point.
+                Some(anchor) => {
+                    let at = to_enu(anchor)?;
+                    polygon.rings.iter_mut().flatten().for_each(|v| *v += at);
+                }
+                None => {
+                    for v in polygon.rings.iter_mut().flatten() {
+                        *v = to_enu(*v)?;
+                    }
+                }
+            }
         }
         Ok(())
     })??;

@@ -11,6 +11,9 @@
 //! aggregate (MultiSurface, CompositeSurface, Solid, CompositeSolid, TriangulatedSurface,
 //! OrientableSurface, which turns them over), inline or by `xlink:href` to a gml:id anywhere in
 //! the file; a polygon reached twice (a solid built from its boundary surfaces) is drawn once.
+//! ImplicitGeometry placements become polygons of their object (the prototype through the
+//! placement's matrix, from its reference point), and an Application Domain Extension's features
+//! and geometry properties are read like CityGML's own ([`parse`]).
 //! One LoD of each object is read: its highest, or the one asked for (`--citygml-lod`).
 //! Coordinates stay f64 until the object's mesh is made relative to its corner: a projected
 //! `srsName` is returned for the per-vertex placement, a geographic one (latitude first when
@@ -20,6 +23,8 @@ mod appearance;
 mod attributes;
 pub mod crs;
 mod parse;
+#[cfg(test)]
+mod tests;
 
 use crate::error::{Error, Result};
 use crate::geometry::triangulate;
@@ -127,7 +132,18 @@ pub fn read_citygml_bytes(path: &Path, data: &[u8], opts: CityGmlOptions<'_>) ->
 
 fn read_document(path: &Path, mut doc: Document, opts: CityGmlOptions<'_>) -> Result<CityModel> {
     let mut warnings = Vec::new();
+    place_implicit_geometries(&mut doc);
+    hand_up_attributes_of_empty_ade_features(&mut doc);
     let (map_crs, geographic) = choose_crs(path, &mut doc, opts.crs, &mut warnings);
+    if geographic.is_none() {
+        // The file's coordinates are kept (map or local): a placed prototype is its reference
+        // point plus its offsets.
+        for p in &mut doc.polygons {
+            if let Some(anchor) = p.anchor.take() {
+                p.rings.iter_mut().flatten().for_each(|v| *v += anchor);
+            }
+        }
+    }
     let mut builder = Builder {
         path,
         doc: &doc,
@@ -179,11 +195,11 @@ fn read_document(path: &Path, mut doc: Document, opts: CityGmlOptions<'_>) -> Re
             ));
         }
     }
-    if doc.implicit_geometries > 0 {
+    if doc.implicit_not_drawn > 0 {
         warnings.push(format!(
-            "{}: {} ImplicitGeometry instances (prototype shapes) are not drawn",
+            "{}: {} ImplicitGeometry instances are not drawn (a library object in another file, no prototype in this file, or no transformation or reference point)",
             path.display(),
-            doc.implicit_geometries
+            doc.implicit_not_drawn
         ));
     }
     scene.reader_warnings.extend(warnings);
@@ -250,12 +266,13 @@ fn choose_crs(
     match crs::crs_kind(&definition) {
         crs::CrsKind::Geographic { latitude_first } => {
             if latitude_first {
-                for p in doc
-                    .polygons
-                    .iter_mut()
-                    .flat_map(|p| p.rings.iter_mut().flatten())
-                {
-                    *p = DVec3::new(p.y, p.x, p.z);
+                let swap = |p: &mut DVec3| *p = DVec3::new(p.y, p.x, p.z);
+                for polygon in doc.polygons.iter_mut().filter(|p| !p.template) {
+                    match polygon.anchor.as_mut() {
+                        // A placed prototype's offsets are metres, east and north already.
+                        Some(anchor) => swap(anchor),
+                        None => polygon.rings.iter_mut().flatten().for_each(swap),
+                    }
                 }
             }
             match crs::geographic_to_enu(&definition, &mut doc.polygons) {
@@ -290,14 +307,101 @@ fn choose_crs(
     }
 }
 
+/// The bounds of the drawn polygons in the file's coordinates (a placed prototype's at its
+/// reference point plus its offsets).
 fn raw_bounds(doc: &Document) -> (DVec3, DVec3) {
     doc.polygons
         .iter()
-        .flat_map(|p| p.rings.iter().flatten())
+        .filter(|p| !p.template)
+        .flat_map(|p| {
+            let anchor = p.anchor.unwrap_or(DVec3::ZERO);
+            p.rings.iter().flatten().map(move |v| *v + anchor)
+        })
         .fold(
             (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-            |(a, b), p| (a.min(*p), b.max(*p)),
+            |(a, b), p| (a.min(p), b.max(p)),
         )
+}
+
+/// The polygons a member stands for (with whether each is turned over), references followed.
+fn expand(doc: &Document, m: &Member, reversed: bool, depth: usize, out: &mut Vec<(u32, bool)>) {
+    match m {
+        Member::Polygon(p, r) => out.push((*p, r ^ reversed)),
+        Member::Href(id, r) => {
+            if depth >= MAX_REFERENCE_DEPTH {
+                return;
+            }
+            if let Some(&p) = doc.polygon_ids.get(id) {
+                out.push((p, r ^ reversed));
+            } else if let Some(list) = doc.geometry_ids.get(id) {
+                for m in list {
+                    expand(doc, m, r ^ reversed, depth + 1, out);
+                }
+            }
+        }
+    }
+}
+
+/// Every ImplicitGeometry placement becomes polygons of its object at its LoD: the prototype's
+/// points through the row-major transformation, as offsets from the reference point (added once
+/// the CRS is known). Copies of one prototype are congruent, so dedup makes them instances.
+fn place_implicit_geometries(doc: &mut Document) {
+    for o in 0..doc.objects.len() {
+        for placement in std::mem::take(&mut doc.objects[o].implicit) {
+            let m = placement.matrix_row_major;
+            let transform = DMat4::from_cols_array(&m).transpose();
+            let mut polygons = Vec::new();
+            for member in &placement.template {
+                expand(doc, member, false, 0, &mut polygons);
+            }
+            let mut placed = Vec::with_capacity(polygons.len());
+            for (p, reversed) in polygons {
+                let template = &doc.polygons[p as usize];
+                let rings = template
+                    .rings
+                    .iter()
+                    .map(|ring| {
+                        ring.iter()
+                            .map(|v| transform.transform_point3(*v))
+                            .collect()
+                    })
+                    .collect::<Vec<Vec<DVec3>>>();
+                let index = doc.polygons.len() as u32;
+                doc.polygons.push(parse::Polygon {
+                    ring_ids: vec![None; rings.len()],
+                    rings,
+                    semantic: template.semantic,
+                    template: false,
+                    anchor: Some(placement.reference),
+                });
+                placed.push(Member::Polygon(index, reversed));
+            }
+            doc.objects[o]
+                .lods
+                .entry(placement.lod)
+                .or_default()
+                .extend(placed);
+        }
+    }
+}
+
+/// An ADE feature that draws nothing (a data record with an id) gives its attributes to the
+/// object it is in, so they stay pickable.
+fn hand_up_attributes_of_empty_ade_features(doc: &mut Document) {
+    for o in (0..doc.objects.len()).rev() {
+        let object = &doc.objects[o];
+        let draws = object.lods.values().any(|l| !l.is_empty());
+        let (Some(parent), true, false) = (object.parent, object.ade, draws) else {
+            continue;
+        };
+        let attributes = std::mem::take(&mut doc.objects[o].attributes);
+        let into = &mut doc.objects[parent].attributes;
+        for (name, value) in attributes {
+            if !into.iter().any(|(n, _)| *n == name) {
+                into.push((name, value));
+            }
+        }
+    }
 }
 
 /// What makes two surfaces' materials the same: semantic type, texture, colour (as bits).
@@ -364,26 +468,6 @@ impl Builder<'_> {
         Ok(looks)
     }
 
-    /// The polygons a member stands for (with whether each is turned over), references
-    /// followed.
-    fn expand(&self, m: &Member, reversed: bool, depth: usize, out: &mut Vec<(u32, bool)>) {
-        match m {
-            Member::Polygon(p, r) => out.push((*p, r ^ reversed)),
-            Member::Href(id, r) => {
-                if depth >= MAX_REFERENCE_DEPTH {
-                    return;
-                }
-                if let Some(&p) = self.doc.polygon_ids.get(id) {
-                    out.push((p, r ^ reversed));
-                } else if let Some(list) = self.doc.geometry_ids.get(id) {
-                    for m in list {
-                        self.expand(m, r ^ reversed, depth + 1, out);
-                    }
-                }
-            }
-        }
-    }
-
     fn build(&mut self, looks: &appearance::PolygonLooks) -> Result<()> {
         let doc = self.doc;
         let mut nodes = Vec::with_capacity(doc.objects.len());
@@ -401,7 +485,7 @@ impl Builder<'_> {
             for (lod, members) in &object.lods {
                 let mut polygons = Vec::new();
                 for m in members {
-                    self.expand(m, false, 0, &mut polygons);
+                    expand(doc, m, false, 0, &mut polygons);
                 }
                 if !polygons.is_empty() {
                     at_lod.insert(*lod, polygons);

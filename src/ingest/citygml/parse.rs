@@ -98,6 +98,33 @@ pub(super) struct Polygon {
     pub rings: Vec<Vec<DVec3>>,
     pub ring_ids: Vec<Option<String>>,
     pub semantic: Option<usize>,
+    /// A prototype's polygon (inside an ImplicitGeometry), in the prototype's own coordinates:
+    /// never drawn itself, only its placements.
+    pub template: bool,
+    /// A placed prototype's polygon: its rings are offsets in metres from this point of the
+    /// file's CRS (the placement's reference point), until the CRS is known and they are placed.
+    pub anchor: Option<DVec3>,
+}
+
+/// An ImplicitGeometry (CityGML 2.0 clause 8.2, 3.0 core): a prototype's surfaces, placed by a
+/// 4x4 row-major transformation and a reference point, at the LoD of its property.
+#[derive(Debug, Clone)]
+pub(super) struct ImplicitPlacement {
+    pub lod: u8,
+    pub matrix_row_major: [f64; 16],
+    pub reference: DVec3,
+    pub template: Vec<Member>,
+}
+
+/// What an ImplicitGeometry has said so far.
+#[derive(Debug, Default)]
+struct ImplicitState {
+    /// The LoD list of the object it belongs to: its prototype's surfaces are collected apart
+    /// meanwhile.
+    outer_lod: Option<(u8, Vec<Member>)>,
+    matrix_row_major: Option<[f64; 16]>,
+    reference: Option<DVec3>,
+    library_object: bool,
 }
 
 /// A surface of a geometry: a polygon read inline, or an `xlink:href` to a polygon or a
@@ -119,6 +146,10 @@ pub(super) struct CityObject {
     pub attributes: Vec<(String, PropertyValue)>,
     /// The LoD a relief component states in its own `lod` element.
     plain_lod: Option<u8>,
+    /// Its ImplicitGeometry placements, drawn as surfaces of the LoD they are under.
+    pub implicit: Vec<ImplicitPlacement>,
+    /// An Application Domain Extension's feature (a class outside the OGC namespaces).
+    pub ade: bool,
 }
 
 /// Everything read from one CityGML document.
@@ -135,8 +166,9 @@ pub(super) struct Document {
     /// The first `srsName` of the file.
     pub srs_name: Option<String>,
     pub appearances: Appearances,
-    /// ImplicitGeometry instances, not drawn.
-    pub implicit_geometries: usize,
+    /// ImplicitGeometry instances not drawn: a library object (an external file), no
+    /// transformation or reference point, or outside a LoD property.
+    pub implicit_not_drawn: usize,
     /// Bytes read (decompressed).
     pub bytes: u64,
 }
@@ -223,6 +255,8 @@ struct Parser {
     polygon: Option<Polygon>,
     ring: Option<(Vec<DVec3>, Option<String>)>,
     implicit_depth: usize,
+    /// The ImplicitGeometry being read.
+    implicit: Option<ImplicitState>,
     srs_dimension: usize,
     in_appearance: bool,
     theme: Option<String>,
@@ -253,6 +287,7 @@ pub(super) fn parse(input: impl BufRead) -> Result<Document, ParseError> {
         polygon: None,
         ring: None,
         implicit_depth: 0,
+        implicit: None,
         srs_dimension: 3,
         in_appearance: false,
         theme: None,
@@ -365,17 +400,30 @@ impl Parser {
         }
         let id = attr(e, b"id");
         let href = attr(e, b"href");
-        let frame = if self.implicit_depth > 0 {
-            if local == "ImplicitGeometry" {
-                self.implicit_depth += 1;
-                Frame::Implicit
-            } else {
-                Frame::Plain
-            }
-        } else if local == "ImplicitGeometry" {
+        let ade = namespace_of(ns) == Namespace::Ade;
+        let frame = if local == "ImplicitGeometry" {
             self.implicit_depth += 1;
-            self.doc.implicit_geometries += 1;
+            if self.implicit_depth == 1 {
+                match self.lod.as_ref() {
+                    Some(&(lod, _)) => {
+                        // The prototype's surfaces go to a list of their own.
+                        let outer_lod = self.lod.replace((lod, Vec::new()));
+                        self.implicit = Some(ImplicitState {
+                            outer_lod,
+                            ..ImplicitState::default()
+                        });
+                    }
+                    None => self.doc.implicit_not_drawn += 1,
+                }
+            }
             Frame::Implicit
+        } else if self.implicit_depth > 1 {
+            Frame::Plain
+        } else if self.implicit.is_some() && local == "relativeGMLGeometry" {
+            if let Some(h) = href {
+                self.push_member(Member::Href(href_id(&h), self.reversed));
+            }
+            Frame::Plain
         } else if ogc && !is_gml && local == "Appearance" {
             self.in_appearance = true;
             self.theme = None;
@@ -393,7 +441,23 @@ impl Parser {
             Frame::Both(Box::new(thematic), Box::new(object))
         } else if ogc && !is_gml && THEMATIC_SURFACES.contains(&local) {
             self.thematic_start(local)
-        } else if ogc && !is_gml && self.lod.is_none() && lod_of_property(local).is_some() {
+        } else if ade && self.lod.is_none() && is_ade_feature(local, id.as_deref()) {
+            // An ADE's own feature: a boundary surface of its parent when it is one (it sits in a
+            // `boundedBy`), else a city object.
+            let in_bounded_by = self.frames.last().is_some_and(|f| f.local == "boundedBy");
+            if in_bounded_by {
+                self.thematic_start(local)
+            } else {
+                let frame = self.object_start(local, id);
+                if let Some(&o) = self.objects.last() {
+                    self.doc.objects[o].ade = true;
+                }
+                frame
+            }
+        } else if self.lod.is_none()
+            && ((ogc && !is_gml && lod_of_property(local).is_some())
+                || (ade && !self.objects.is_empty() && ade_geometry_lod(local).is_some()))
+        {
             self.lod = Some((lod_of_property(local).unwrap_or(0), Vec::new()));
             if let Some(h) = href {
                 self.push_member(Member::Href(href_id(&h), self.reversed));
@@ -518,6 +582,35 @@ impl Parser {
         })
     }
 
+    /// An ImplicitGeometry ends: the object's LoD list is back, and the placement is recorded
+    /// (or counted as not drawn when it names no prototype here, or no transformation).
+    fn implicit_end(&mut self) {
+        let Some(state) = self.implicit.take() else {
+            return;
+        };
+        let template = std::mem::replace(&mut self.lod, state.outer_lod).map(|(_, list)| list);
+        let lod = self.lod.as_ref().map(|&(lod, _)| lod);
+        match (
+            state.matrix_row_major,
+            state.reference,
+            template,
+            lod,
+            self.objects.last(),
+        ) {
+            (Some(matrix_row_major), Some(reference), Some(template), Some(lod), Some(&o))
+                if !template.is_empty() =>
+            {
+                self.doc.objects[o].implicit.push(ImplicitPlacement {
+                    lod,
+                    matrix_row_major,
+                    reference,
+                    template,
+                });
+            }
+            _ => self.doc.implicit_not_drawn += 1,
+        }
+    }
+
     fn appearance_start(&mut self, local: &str, e: &BytesStart<'_>) -> Frame {
         match local {
             "ParameterizedTexture" => {
@@ -595,7 +688,8 @@ impl Parser {
             }
             Frame::Orientable(was) => self.reversed = was,
             Frame::Polygon(id) => {
-                if let Some(polygon) = self.polygon.take() {
+                if let Some(mut polygon) = self.polygon.take() {
+                    polygon.template = self.implicit.is_some();
                     if !polygon.rings.is_empty() {
                         let index = self.doc.polygons.len() as u32;
                         self.doc.polygons.push(polygon);
@@ -617,7 +711,12 @@ impl Parser {
                     polygon.ring_ids.push(id);
                 }
             }
-            Frame::Implicit => self.implicit_depth -= 1,
+            Frame::Implicit => {
+                self.implicit_depth -= 1;
+                if self.implicit_depth == 0 {
+                    self.implicit_end();
+                }
+            }
             Frame::GenericAttribute => {
                 if let (Some(g), Some(&o)) = (self.generic.take(), self.objects.last()) {
                     if let Some(a) = g.finish() {
@@ -660,7 +759,30 @@ impl Parser {
     /// The text of an element with no children: coordinates, appearance fields, attributes.
     fn leaf_text(&mut self, open: &Open, text: &str) -> Result<(), String> {
         let local = open.local.as_str();
-        if open.ns == Namespace::Gml && self.implicit_depth == 0 {
+        if let Some(state) = self.implicit.as_mut().filter(|_| self.ring.is_none()) {
+            match local {
+                "transformationMatrix" => {
+                    let values = parse_numbers(text)?;
+                    let matrix: [f64; 16] = values.try_into().map_err(|v: Vec<f64>| {
+                        format!("transformationMatrix of {} numbers, not 16", v.len())
+                    })?;
+                    state.matrix_row_major = Some(matrix);
+                }
+                "pos" | "coordinates" => {
+                    let values = parse_numbers(&text.replace(',', " "))?;
+                    if !(2..=3).contains(&values.len()) {
+                        return Err(format!(
+                            "ImplicitGeometry reference point '{text}' is not a point"
+                        ));
+                    }
+                    state.reference = Some(point(&values));
+                }
+                "libraryObject" => state.library_object = true,
+                _ => {}
+            }
+            return Ok(());
+        }
+        if open.ns == Namespace::Gml && self.implicit_depth <= 1 {
             if let Some((points, _)) = self.ring.as_mut() {
                 match local {
                     "posList" | "pos" => {
@@ -778,6 +900,31 @@ fn is_surface_geometry(local: &str) -> bool {
             | "MultiSolid"
             | "OrientableSurface"
     )
+}
+
+/// Whether an ADE element is a feature of its own: a class name (capitalised) with a gml:id.
+/// Data types of an ADE (an attribute's structure) have no id and stay attributes.
+fn is_ade_feature(local: &str, id: Option<&str>) -> bool {
+    id.is_some() && local.starts_with(|c: char| c.is_ascii_uppercase())
+}
+
+/// The LoD of an ADE's geometry property (`lod2Solid`, `lod0Geometry`…): named like CityGML's,
+/// ending in a geometry word, so that an ADE attribute such as `lod1HeightType` stays an
+/// attribute.
+fn ade_geometry_lod(local: &str) -> Option<u8> {
+    const GEOMETRY_WORDS: &[&str] = &[
+        "Solid",
+        "Surface",
+        "Geometry",
+        "FootPrint",
+        "RoofEdge",
+        "Curve",
+    ];
+    let lod = lod_of_property(local)?;
+    GEOMETRY_WORDS
+        .iter()
+        .any(|w| local.ends_with(w))
+        .then_some(lod)
 }
 
 /// The LoD of a geometry property (`lod2Solid`, `lod0FootPrint`, `lod3MultiSurface`…).
