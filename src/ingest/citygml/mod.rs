@@ -134,6 +134,8 @@ fn read_document(path: &Path, mut doc: Document, opts: CityGmlOptions<'_>) -> Re
     let mut warnings = Vec::new();
     place_implicit_geometries(&mut doc);
     hand_up_attributes_of_empty_ade_features(&mut doc);
+    // In the file's own x, y: before the CRS moves a geographic file's points to metres.
+    let georeferenced = georeferenced_pixels(path, &doc);
     let (map_crs, geographic) = choose_crs(path, &mut doc, opts.crs, &mut warnings);
     if geographic.is_none() {
         // The file's coordinates are kept (map or local): a placed prototype is its reference
@@ -168,7 +170,7 @@ fn read_document(path: &Path, mut doc: Document, opts: CityGmlOptions<'_>) -> Re
         lods_present: BTreeSet::new(),
         objects_without_lod: 0,
     };
-    let looks = builder.looks(opts.theme)?;
+    let looks = builder.looks(opts.theme, &georeferenced)?;
     builder.build(&looks)?;
     let Builder {
         mut scene,
@@ -385,6 +387,57 @@ fn place_implicit_geometries(doc: &mut Document) {
     }
 }
 
+/// Where the points of each GeoreferencedTexture's polygons fall in its image (pixels), from the
+/// texture's placement (its own, or its image's world file) in the file's x, y; textures without
+/// a placement are left out.
+fn georeferenced_pixels(
+    path: &Path,
+    doc: &Document,
+) -> HashMap<usize, Vec<(u32, appearance::RingPixels)>> {
+    let base_dir = path.parent().unwrap_or(Path::new(""));
+    let mut out = HashMap::new();
+    for (i, texture) in doc.appearances.textures.iter().enumerate() {
+        let Some(g) = texture.georeferenced.as_ref() else {
+            continue;
+        };
+        let Some((reference, [a, b, d, e])) = g.resolve(base_dir, &texture.image) else {
+            continue;
+        };
+        let determinant = a * e - b * d;
+        if determinant.abs() < f64::MIN_POSITIVE || !determinant.is_finite() {
+            continue;
+        }
+        // (column, row) = M⁻¹ (point − reference).
+        let to_pixel = |v: &DVec3| {
+            let (x, y) = (v.x - reference[0], v.y - reference[1]);
+            [(e * x - b * y) / determinant, (a * y - d * x) / determinant]
+        };
+        let mut polygons = Vec::new();
+        for target in &g.targets {
+            expand(
+                doc,
+                &Member::Href(target.clone(), false),
+                false,
+                0,
+                &mut polygons,
+            );
+        }
+        let placed = polygons
+            .into_iter()
+            .map(|(p, _)| {
+                let rings = doc.polygons[p as usize]
+                    .rings
+                    .iter()
+                    .map(|ring| ring.iter().map(to_pixel).collect())
+                    .collect();
+                (p, rings)
+            })
+            .collect();
+        out.insert(i, placed);
+    }
+    out
+}
+
 /// An ADE feature that draws nothing (a data record with an id) gives its attributes to the
 /// object it is in, so they stay pickable.
 fn hand_up_attributes_of_empty_ade_features(doc: &mut Document) {
@@ -422,7 +475,11 @@ struct Builder<'a> {
 
 impl Builder<'_> {
     /// The looks of the theme drawn (the one asked for, else the file's first).
-    fn looks(&mut self, theme: Option<&str>) -> Result<appearance::PolygonLooks> {
+    fn looks(
+        &mut self,
+        theme: Option<&str>,
+        georeferenced: &HashMap<usize, Vec<(u32, appearance::RingPixels)>>,
+    ) -> Result<appearance::PolygonLooks> {
         let doc = self.doc;
         let themes = doc.appearances.themes();
         let chosen = match theme {
@@ -459,9 +516,14 @@ impl Builder<'_> {
         }
         let mut images = ImageFiles::default();
         let base_dir = self.path.parent().unwrap_or(Path::new("")).to_path_buf();
-        let looks =
-            doc.appearances
-                .looks(&chosen, &targets, &mut images, &base_dir, &mut self.scene);
+        let looks = doc.appearances.looks(
+            &chosen,
+            &targets,
+            georeferenced,
+            &mut images,
+            &base_dir,
+            &mut self.scene,
+        );
         if let Some(line) = images.missing_warning(self.path) {
             self.scene.reader_warnings.push(line);
         }

@@ -3,7 +3,9 @@
 //! list their polygons per LoD (inline or by `xlink:href`, resolved later), attributes and
 //! appearances. Nothing of the XML tree is kept, so memory follows the model, not the file.
 
-use super::appearance::{Appearances, MaterialDef, TextureDef, TextureTarget};
+use super::appearance::{
+    Appearances, GeoreferencedPlacement, MaterialDef, TextureDef, TextureTarget,
+};
 use super::attributes::{self, GenericAttribute};
 use crate::scene::PropertyValue;
 use glam::DVec3;
@@ -613,9 +615,11 @@ impl Parser {
 
     fn appearance_start(&mut self, local: &str, e: &BytesStart<'_>) -> Frame {
         match local {
-            "ParameterizedTexture" => {
+            "ParameterizedTexture" | "GeoreferencedTexture" => {
                 self.texture = Some(TextureDef {
                     theme: self.theme.clone(),
+                    georeferenced: (local == "GeoreferencedTexture")
+                        .then(GeoreferencedPlacement::default),
                     ..TextureDef::default()
                 });
                 Frame::Texture
@@ -821,10 +825,32 @@ impl Parser {
             if local == "theme" {
                 self.theme = Some(text);
             } else if let Some(t) = self.texture.as_mut() {
-                match (local, self.target.as_mut()) {
-                    ("imageURI", _) => t.image = text,
-                    ("wrapMode", _) => t.wrap_mode = Some(text),
-                    ("target", Some(target)) => target.polygon = href_id(&text),
+                match (local, self.target.as_mut(), t.georeferenced.as_mut()) {
+                    ("imageURI", _, _) => t.image = text,
+                    ("wrapMode", _, _) => t.wrap_mode = Some(text),
+                    ("target", Some(target), _) => target.polygon = href_id(&text),
+                    ("target", None, Some(g)) => g.targets.push(href_id(&text)),
+                    ("orientation", _, Some(g)) => {
+                        let values = parse_numbers(&text)?;
+                        g.orientation = Some(values.try_into().map_err(|v: Vec<f64>| {
+                            format!(
+                                "GeoreferencedTexture orientation of {} numbers, not 4",
+                                v.len()
+                            )
+                        })?);
+                    }
+                    ("preferWorldFile", _, Some(g)) => {
+                        g.prefer_world_file = matches!(text.trim(), "true" | "1");
+                    }
+                    ("pos" | "coordinates", _, Some(g)) => {
+                        let values = parse_numbers(&text.replace(',', " "))?;
+                        if values.len() < 2 {
+                            return Err(format!(
+                                "GeoreferencedTexture reference point '{text}' is not a point"
+                            ));
+                        }
+                        g.reference = Some([values[0], values[1]]);
+                    }
                     _ => {}
                 }
             } else if let Some(m) = self.material.as_mut() {

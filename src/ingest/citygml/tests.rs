@@ -219,3 +219,83 @@ fn a_prototype_placed_in_a_geographic_crs_keeps_its_metres() {
         "{size}"
     );
 }
+
+/// A square roof of 8 m at (1000, 2000) under a georeferenced 4x4 image of 2 m pixels, placed
+/// by the texture itself or by a world file beside the image.
+fn georeferenced_roof(placement: &str, world_file: Option<&str>) -> Scene {
+    let dir = tempfile::tempdir().unwrap();
+    image::RgbImage::from_pixel(4, 4, image::Rgb([200, 40, 40]))
+        .save(dir.path().join("ortho.png"))
+        .unwrap();
+    if let Some(w) = world_file {
+        std::fs::write(dir.path().join("ortho.pgw"), w).unwrap();
+    }
+    let xml = format!(
+        r##"{HEAD}
+<cityObjectMember><bldg:Building gml:id="b"><bldg:lod2MultiSurface><gml:MultiSurface gml:id="roof">
+  <gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing>
+  <gml:posList>1000 1992 10 1008 1992 10 1008 2000 10 1000 2000 10 1000 1992 10</gml:posList>
+  </gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>
+</bldg:lod2MultiSurface></bldg:Building></cityObjectMember>
+<appearanceMember xmlns:app="http://www.opengis.net/citygml/appearance/2.0"><app:Appearance>
+  <app:theme>ortho</app:theme><app:surfaceDataMember><app:GeoreferencedTexture>
+  <app:imageURI>ortho.png</app:imageURI>{placement}<app:target>#roof</app:target>
+  </app:GeoreferencedTexture></app:surfaceDataMember></app:Appearance></appearanceMember>
+</CityModel>"##
+    );
+    let path = dir.path().join("roof.gml");
+    std::fs::write(&path, xml).unwrap();
+    read_citygml(&path, CityGmlOptions::default())
+        .unwrap()
+        .scene
+}
+
+/// The UV at each corner of the roof.
+fn corner_uvs(scene: &Scene) -> Vec<(DVec3, [f32; 2])> {
+    let component = &scene.components[0];
+    let mesh = scene.mesh(component.mesh);
+    let p = &mesh.primitives[0];
+    let uvs = p.uvs.as_ref().expect("textured");
+    p.positions
+        .iter()
+        .zip(uvs)
+        .map(|(v, uv)| {
+            (
+                component
+                    .world
+                    .transform_point3(DVec3::from_array(v.map(f64::from))),
+                *uv,
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn georeferenced_textures_lie_over_their_surfaces() {
+    // The upper-left pixel's centre at (1001, 1999), 2 m a pixel, rows going south.
+    let own = r#"<app:referencePoint><gml:Point><gml:pos>1001 1999</gml:pos></gml:Point></app:referencePoint>
+      <app:orientation>2 0 0 -2</app:orientation>"#;
+    let world = "2\n0\n0\n-2\n1001\n1999\n";
+    for scene in [
+        georeferenced_roof(own, None),
+        georeferenced_roof(
+            "<app:preferWorldFile>true</app:preferWorldFile>",
+            Some(world),
+        ),
+        georeferenced_roof("", Some(world)),
+    ] {
+        assert_eq!(scene.images.len(), 1);
+        for (v, uv) in corner_uvs(&scene) {
+            // The roof covers the image exactly: west edge u = 0, north edge v = 0.
+            let expected = [((v.x - 1000.0) / 8.0) as f32, ((2000.0 - v.y) / 8.0) as f32];
+            assert!(
+                (uv[0] - expected[0]).abs() < 1e-5 && (uv[1] - expected[1]).abs() < 1e-5,
+                "{v}: {uv:?} vs {expected:?}"
+            );
+        }
+    }
+    let unplaced = georeferenced_roof("", None);
+    assert!(unplaced.images.is_empty(), "no placement, no image");
+    let roof = &unplaced.components[0];
+    assert!(unplaced.mesh(roof.mesh).primitives[0].uvs.is_none());
+}
