@@ -460,7 +460,7 @@ async function checkEdges(page, failures, name, timeoutMs, shots) {
   step(`${name}: edges`);
   const LINE_DARKER = 40; // luminance (0..255) by which the band must be darker than both sides
   const MIN_SAMPLES = 30; // fewer visible edge samples and the check could not tell much
-  const carried = await page.evaluate(() => ({ edges: window.bimtiles.tileset.asset.extras.bimtiles.edges, status: window.bimtilesStatus.edges, box: document.getElementById("bimEdges").checked }));
+  const carried = await page.evaluate(() => ({ edges: window.bimtiles.tileset.asset.extras.bimtiles.edges, status: window.bimtilesStatus.edges }));
   if (!carried.edges || !carried.edges.written) {
     failures.push(`${name}: the tileset carries no edges: ${JSON.stringify(carried.edges)}`);
     return { carried };
