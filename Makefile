@@ -128,7 +128,12 @@ INLINED_SETS := shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
 # box, plan cut and the URL state on the FZK house; ARIA roles, the element index fetched after
 # the first view, and the tree and search on 100k elements on both.
 VIEWER_SETS := duplex=target/test-out/shared-duplex/tiles fzk=target/test-out/shared-AC20-FZK-Haus/tiles
+# Edges in the same browser (checkEdges): the sample and an IFC model, converted here with
+# --edges all (the cargo tests write none to keep): with the Edges box on, a dark line along known
+# hard edges (box edges of picked elements whose surface reaches them); off, none.
+EDGE_SETS := edges-sample=$(SAMPLE) edges-duplex=$(SHARED)/data/duplex.ifc
 test-browser: deps build
+	@set -e; for s in $(EDGE_SETS); do n=$${s%%=*}; $(BIN) convert $${s#*=} --out target/test-out/$$n/tiles --force --quiet --edges all; done
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || { echo "browser test: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; \
 	  case " $(INLINED_SETS) " in *" $$s "*) grep -Eq '"uri": *"data:model/gltf-binary;base64,' $$d/tileset.json || { echo "browser test: $$s: the root is not inlined in tileset.json"; exit 1; };; esac; \
 	  echo "browser test: $$s"; pick=""; case $$s in sample) pick="--require-pick --check-adaptive";; cityjson-*|shared-IfcOpenHouse_IFC4) pick=--require-pick;; citygml-*|mesh-formats-*) pick="--require-pick --require-texture 0.015";; ladder-airport) pick="--min-drawn-pct 0.1";; esac; \
@@ -136,7 +141,7 @@ test-browser: deps build
 	  BIMTILES_SERVE_LOG=1 node tools/browser_test.mjs --server-cmd "$(BIN) serve $$d --port 0" \
 	    --out target/test-out/$$s.png $$pick > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log; done
 	@echo "viewer test (BIM tools): $(VIEWER_SETS)"; log=target/test-out/viewer.browser.log; \
-	  node tools/viewer_test.mjs --bin $(BIN) $(foreach s,$(VIEWER_SETS),--set $(s)) \
+	  node tools/viewer_test.mjs --bin $(BIN) $(foreach s,$(VIEWER_SETS) $(foreach e,$(EDGE_SETS),$(firstword $(subst =, ,$(e)))=target/test-out/$(firstword $(subst =, ,$(e)))/tiles),--set $(s)) \
 	    --json target/test-out/viewer.json > $$log 2>&1 || { cat $$log; exit 1; }; tail -n 1 $$log
 
 # Client compatibility matrix (tools/clients/): the tilesets of CLIENTS_SETS, which the
@@ -189,14 +194,21 @@ docs: deps-docs build
 
 # The README's and the book's screenshots, taken by the browser tests: a shared IFC model converted
 # with the default options, loaded in the viewer at full resolution (a click must pick an element),
-# then its BIM tools (tree and isolate, colour by class, section box).
+# then its BIM tools (tree and isolate, colour by class, section box); and edges off and on
+# (edges-ifc-*.png, edges-campus-*.png) on the same model and on a small campus of shared
+# buildings (make_campus.py, numpy from the venv), both converted with --edges all.
 SCREENSHOT_MODEL ?= $(SHARED)/data/AC20-FZK-Haus.ifc
+SCREENSHOT_CAMPUS := $(addprefix $(SHARED)/data/,AC20-FZK-Haus.glb duplex.glb IfcOpenHouse_IFC4.glb)
 screenshot: deps build
 	mkdir -p target/screenshot
 	$(BIN) convert $(SCREENSHOT_MODEL) --out target/screenshot/tiles --force --quiet
+	$(BIN) convert $(SCREENSHOT_MODEL) --out target/screenshot/ifc-edges --force --quiet --edges all
+	$(PY) $(SHARED)/data/make_campus.py target/screenshot/campus.glb --copies 9 --inputs $(SCREENSHOT_CAMPUS)
+	$(BIN) convert target/screenshot/campus.glb --out target/screenshot/campus-edges --force --quiet --edges all
 	node tools/browser_test.mjs --server-cmd "$(BIN) serve target/screenshot/tiles --port 0" \
 	  --query "msaa=4&scale=1" --require-pick --out docs/src/images/viewer.png
-	node tools/viewer_test.mjs --bin $(BIN) --set fzk=target/screenshot/tiles --shots docs/src/images
+	node tools/viewer_test.mjs --bin $(BIN) --set fzk=target/screenshot/tiles --set ifc=target/screenshot/ifc-edges \
+	  --set campus=target/screenshot/campus-edges --shots docs/src/images
 
 # Raw model (one-tile tileset) vs our tileset in real CesiumJS, cold and warm (tile cache) loads:
 # load time, bytes, memory, frame cost -> target/bench/browser.json, then the charts

@@ -132,6 +132,17 @@ fn every_bim_model_carries_edges_and_reports_what_they_cost() {
         }
         let reported = r["output"]["edge_gzip_bytes"].as_u64().unwrap();
         assert!(reported > 0, "{name}: edges cost bytes");
+        // The first view's share: some edges, at most all of them; none without edges.
+        let first_view = r["output"]["first_view_edge_gzip_bytes"].as_u64().unwrap();
+        assert!(
+            first_view > 0 && first_view <= reported,
+            "{name}: first view {first_view} of {reported} edge gzip bytes"
+        );
+        assert_eq!(
+            r0["output"]["first_view_edge_gzip_bytes"].as_u64().unwrap(),
+            0,
+            "{name}: first view without edges"
+        );
         // What serving adds: the same tiles with and without edges, gzipped (the tree can differ
         // where a tile's size decides, e.g. whether the root is inlined).
         let (all, first) = served_gzip_bytes(&with);

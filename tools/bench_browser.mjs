@@ -26,6 +26,8 @@
 //   --scale S          the page's drawing resolution (?scale=S); default the viewer's own choice:
 //                      half the canvas on a software renderer such as SwiftShader, else full
 //   --timeout S        per-load timeout (default 180)
+//   --query Q          more of the viewer page's query string, e.g. bim=0 (the page without its
+//                      BIM tools) or edges=0
 //   --json FILE        write the result there too
 //   --cpu-profile DIR  write a CPU profile (CDP Profiler, Chrome DevTools' .cpuprofile) of each
 //                      measured cold load there, DIR/MODEL-VARIANT-runN.cpuprofile: from the
@@ -506,7 +508,8 @@ async function main() {
       if (opts.network) throttled = await throttle(page, opts.network);
       const cacheQuery = opts.network ? "&cache=0" : "";
       const scaleQuery = opts.scale ? `&scale=${opts.scale}` : "";
-      await page.goto(new URL(`/?msaa=1&sse=16${cacheQuery}${scaleQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
+      const moreQuery = opts.query ? `&${opts.query}` : "";
+      await page.goto(new URL(`/?msaa=1&sse=16${cacheQuery}${scaleQuery}${moreQuery}&tileset=${encodeURIComponent(variants.ours + "?warm=0")}`, base).href);
       const w0 = await waitLoaded(page, opts.timeout * 1000);
       if (!w0.ok) throw new Error(`warm-up: ${w0.reason}`);
       entry.serviceWorker = await page.evaluate(() => window.bimtilesStatus.cache);

@@ -9,8 +9,10 @@
 // A set named `duplex` gets the tree checks, `fzk` the search, colour, section box, plan cut,
 // measure and URL checks; every set: the ARIA roles, the element index fetched only after the
 // first view, the 100k-element budgets (the set's own index repeated to 100k rows), and no
-// request leaves loopback, no console error (browser_test.mjs's watch). --shots writes the
-// README's screenshots from `fzk`. Prints a JSON summary; exits 1 on failure.
+// request leaves loopback, no console error (browser_test.mjs's watch). A set whose tileset
+// carries edges gets the ARIA and index checks and the edges check (checkEdges) instead of the
+// others. --shots writes the README's screenshots: from `fzk`, and an edges pair (off, on) from
+// each set with edges. Prints a JSON summary; exits 1 on failure.
 
 import { existsSync, rmSync, writeFileSync } from "node:fs";
 import { canvasShot, frames, launch, pixels, startServer, stopServer, waitLoaded, watch } from "./browser_test.mjs";
@@ -448,6 +450,155 @@ async function checkMeasure(page, failures, timeoutMs) {
   return out;
 }
 
+/** Edges (a tileset converted with edges): the Edges box switches them, and with them on the frame
+ * has a dark line along the known hard edges, with them off it has not, with the camera still.
+ * Known hard edges: the edges of the boxes of elements picked on a grid where, a few pixels to
+ * one side of the projected edge, the surface drawn lies on one of the box's two faces that meet
+ * at that edge (the element's surface reaches the edge of its box: an outline or a crease). Along
+ * each such edge, away from its ends, a dark line is a band across it darker than both sides. */
+async function checkEdges(page, failures, name, timeoutMs, shots) {
+  step(`${name}: edges`);
+  const LINE_DARKER = 40; // luminance (0..255) by which the band must be darker than both sides
+  const MIN_SAMPLES = 30; // fewer visible edge samples and the check could not tell much
+  const carried = await page.evaluate(() => ({ edges: window.bimtiles.tileset.asset.extras.bimtiles.edges, status: window.bimtilesStatus.edges }));
+  if (!carried.edges || !carried.edges.written) {
+    failures.push(`${name}: the tileset carries no edges: ${JSON.stringify(carried.edges)}`);
+    return { carried };
+  }
+  // Closer than the first view, so that more edges are long enough to sample.
+  await page.evaluate(() => {
+    const ts = window.bimtiles.tileset;
+    return window.bimtiles.viewer.zoomTo(ts, new Cesium.HeadingPitchRange(0.6, -0.4, 2 * ts.boundingSphere.radius));
+  });
+  // Each state by a click on the Edges box (on first if the tileset starts without them).
+  const click = async () => {
+    await page.locator("#bimEdges").click();
+    await settle(page, timeoutMs);
+    return page.evaluate(() => ({ shown: window.bimtilesStatus.edges.shown, url: new URL(location.href).searchParams.get("edges") }));
+  };
+  if (!(await page.locator("#bimEdges").isChecked())) await click();
+  const offState = await click();
+  const off = await canvasShot(page);
+  // Samples along the box edges of the elements most picked, visible in the frame without edges.
+  const grid = await pickGrid(page, 24);
+  const counts = new Map();
+  for (const p of grid) counts.set(p.id, (counts.get(p.id) || 0) + 1);
+  const ids = [...counts.entries()].sort((a, b) => b[1] - a[1]).slice(0, 16).map(([id]) => id);
+  const samples = await page.evaluate((ids) => {
+    const B = window.bimtilesBim;
+    const { viewer } = window.bimtiles;
+    const scene = viewer.scene;
+    const W = viewer.canvas.clientWidth, H = viewer.canvas.clientHeight;
+    const SIDE_PX = 3, TOL_M = 0.05, STEP_PX = 8, MAX_PER_EDGE = 12;
+    const screen = (local) => {
+      const w = B.toWorld(local);
+      const front = Cesium.Cartesian3.dot(Cesium.Cartesian3.subtract(w, viewer.camera.positionWC, new Cesium.Cartesian3()), viewer.camera.directionWC) > 0;
+      const s = Cesium.SceneTransforms.worldToWindowCoordinates(scene, w);
+      return front && s && s.x >= 8 && s.y >= 8 && s.x <= W - 8 && s.y <= H - 8 ? s : null;
+    };
+    const out = [];
+    let edges = 0;
+    for (const id of ids) {
+      const b = B.rowBox(B.rowOf.get(id));
+      for (let a = 0; a < 3; a++) {
+        const [u, v] = [0, 1, 2].filter((k) => k !== a);
+        for (const bu of [b.min[u], b.max[u]])
+          for (const bv of [b.min[v], b.max[v]]) {
+            const at = (t) => {
+              const p = [0, 0, 0];
+              p[a] = b.min[a] + t * (b.max[a] - b.min[a]);
+              p[u] = bu;
+              p[v] = bv;
+              return p;
+            };
+            const [s0, s1] = [screen(at(0)), screen(at(1))];
+            if (!s0 || !s1) continue;
+            const lengthPx = Math.hypot(s1.x - s0.x, s1.y - s0.y);
+            if (lengthPx < 40) continue;
+            const n = { x: -(s1.y - s0.y) / lengthPx, y: (s1.x - s0.x) / lengthPx };
+            // On a face of the box at this edge, near the edge: one face's plane, within the
+            // box's extent, and a few pixels' size from the edge (a face seen at a grazing angle
+            // lies further away than the pixels it takes).
+            const onFace = (L, nearM) => {
+              const inside = (k) => L[k] > b.min[k] - TOL_M && L[k] < b.max[k] + TOL_M;
+              const [du, dv] = [Math.abs(L[u] - bu), Math.abs(L[v] - bv)];
+              return inside(0) && inside(1) && inside(2) && ((du < TOL_M && dv < nearM) || (dv < TOL_M && du < nearM));
+            };
+            const k = Math.min(MAX_PER_EDGE, Math.floor((0.7 * lengthPx) / STEP_PX));
+            let kept = 0;
+            for (let i = 0; i < k; i++) {
+              const p = at(0.15 + (0.7 * (i + 0.5)) / k);
+              const s = screen(p);
+              if (!s) continue;
+              const nearM = (SIDE_PX + 2) * viewer.camera.getPixelSize(new Cesium.BoundingSphere(B.toWorld(p), 0), W, H);
+              const seen = [1, -1].some((side) => {
+                const w = scene.pickPosition(new Cesium.Cartesian2(s.x + side * SIDE_PX * n.x, s.y + side * SIDE_PX * n.y));
+                return w && onFace(B.toLocal(w), nearM);
+              });
+              if (seen) {
+                out.push({ x: s.x, y: s.y, nx: n.x, ny: n.y, id });
+                kept++;
+              }
+            }
+            if (kept) edges++;
+          }
+      }
+    }
+    return { samples: out, edges };
+  }, ids);
+  const onState = await click();
+  const on = await canvasShot(page);
+  // Per sample: how much darker the darkest pixel of a band across the edge (±2 px) is than the
+  // darker of the two sides (6 and 7 px away).
+  const depthOf = ([px], { pts, W, H }) => {
+    const lum = (x, y) => {
+      x = Math.round(x);
+      y = Math.round(y);
+      if (x < 0 || y < 0 || x >= W || y >= H) return null;
+      const i = 4 * (y * W + x);
+      return 0.299 * px[i] + 0.587 * px[i + 1] + 0.114 * px[i + 2];
+    };
+    return pts.map((p) => {
+      let band = 255;
+      for (let j = -2; j <= 2; j++) for (let t = -1; t <= 1; t++) band = Math.min(band, lum(p.x + j * p.nx + t * p.ny, p.y + j * p.ny - t * p.nx) ?? 255);
+      const side = (d) => (lum(p.x + d * p.nx, p.y + d * p.ny) + lum(p.x + (d + Math.sign(d)) * p.nx, p.y + (d + Math.sign(d)) * p.ny)) / 2;
+      return Math.min(side(6), side(-6)) - band;
+    });
+  };
+  const pts = samples.samples;
+  const arg = { pts, W: WIDTH, H: HEIGHT };
+  const [dOn, dOff] = [await pixels(page, [on], depthOf, arg), await pixels(page, [off], depthOf, arg)];
+  const share = (d) => d.filter((x) => x >= LINE_DARKER).length / Math.max(1, d.length);
+  const median = (d) => [...d].sort((a, b) => a - b)[Math.floor(d.length / 2)] ?? 0;
+  const out = {
+    carried: carried.edges,
+    shownAtLoad: carried.status && carried.status.shown,
+    elements: ids.length,
+    edges: samples.edges,
+    samples: pts.length,
+    darkLineShareOn: +share(dOn).toFixed(3),
+    darkLineShareOff: +share(dOff).toFixed(3),
+    medianDarkerOn: +median(dOn).toFixed(1),
+    medianDarkerOff: +median(dOff).toFixed(1),
+    off: offState,
+    on: onState,
+  };
+  if (offState.shown !== false || offState.url !== "0") failures.push(`${name}: edges: the box did not switch them off: ${JSON.stringify(offState)}`);
+  if (onState.shown !== true || onState.url !== "1") failures.push(`${name}: edges: the box did not switch them on: ${JSON.stringify(onState)}`);
+  // The README's pairs are shot on models whose element boxes need not lie on their edges (a
+  // building turned on its site): there the line measure is only reported.
+  if (shots) {
+    writeFileSync(`${shots}/edges-${name}-off.png`, off);
+    writeFileSync(`${shots}/edges-${name}-on.png`, on);
+    return out;
+  }
+  if (pts.length < MIN_SAMPLES) failures.push(`${name}: edges: only ${pts.length} samples on visible box edges (the check could not tell much)`);
+  if (out.darkLineShareOn < 0.6) failures.push(`${name}: edges on: a dark line at ${(100 * out.darkLineShareOn).toFixed(0)} % of ${pts.length} samples along known edges`);
+  if (out.darkLineShareOff > 0.15) failures.push(`${name}: edges off: a dark line at ${(100 * out.darkLineShareOff).toFixed(0)} % of ${pts.length} samples along known edges`);
+  if (out.medianDarkerOn - out.medianDarkerOff < LINE_DARKER) failures.push(`${name}: edges: the line is only ${(out.medianDarkerOn - out.medianDarkerOff).toFixed(1)} darker with edges on (median)`);
+  return out;
+}
+
 /** The tree and search on 100k elements: the set's index repeated, as a campus of its copies. */
 async function checkSpeed(page, failures, name) {
   const r = await page.evaluate(async (n) => {
@@ -543,12 +694,16 @@ async function main() {
       try {
         const page = await openViewer(browser.context, server.url, o.timeout * 1000);
         r.common = await checkCommon(page, failures, set.name);
-        if (set.name === "duplex") r.tree = await checkTree(page, failures, o.timeout * 1000);
-        if (set.name === "fzk") Object.assign(r, await checkFzk(page, browser.context, server.url, failures, o.timeout * 1000, o.shots));
-        step(`${set.name}: 100k elements`);
-        r.speed = await checkSpeed(page, failures, set.name);
+        const edged = await page.evaluate(() => !!window.bimtilesStatus.edges && window.bimtilesStatus.edges.written !== null);
+        if (edged) r.edges = await checkEdges(page, failures, set.name, o.timeout * 1000, o.shots);
+        else {
+          if (set.name === "duplex") r.tree = await checkTree(page, failures, o.timeout * 1000);
+          if (set.name === "fzk") Object.assign(r, await checkFzk(page, browser.context, server.url, failures, o.timeout * 1000, o.shots));
+          step(`${set.name}: 100k elements`);
+          r.speed = await checkSpeed(page, failures, set.name);
+        }
         await page.close();
-        if (set.name === "duplex") r.phone = await checkPhone(browser.context, server.url, failures, o.timeout * 1000);
+        if (set.name === "duplex" && !edged) r.phone = await checkPhone(browser.context, server.url, failures, o.timeout * 1000);
       } catch (e) {
         failures.push(`${set.name}: ${e && e.stack ? e.stack : e}`);
       } finally {

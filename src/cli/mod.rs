@@ -914,7 +914,7 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
         ))?;
         emit(&format!("\n  place : {}\n", place_line(&r.georeference)))?;
         if r.output.edge_bytes > 0 {
-            emit(&format!("  edges : {}\n", edges_line(a, r)))?;
+            emit(&format!("  edges : {}\n", edges_line(r)))?;
         }
     }
     Ok(())
@@ -922,30 +922,13 @@ fn print_summary(a: &ConvertArgs, r: &bimtiles::convert::Report) -> Result<()> {
 
 /// What the edges cost, gzipped as served: over all tiles and over the tiles of a first
 /// whole-model view (`inspect`'s selection; the root inlined in tileset.json is its tile).
-fn edges_line(a: &ConvertArgs, r: &bimtiles::convert::Report) -> String {
-    let mut line = format!(
-        "{} gzipped over all tiles ({} as stored)",
+fn edges_line(r: &bimtiles::convert::Report) -> String {
+    format!(
+        "{} gzipped over all tiles ({} as stored), {} on the first view",
         human_bytes(r.output.edge_gzip_bytes),
         human_bytes(r.output.edge_bytes),
-    );
-    if let Ok(view) = bimtiles::inspect::first_view::first_view(&a.out, &Default::default()) {
-        let inlined = bimtiles::uri::data::content_label("data:");
-        let first: u64 = r
-            .tiles
-            .iter()
-            .filter(|t| {
-                let label = if t.inlined_in_tileset {
-                    Some(inlined)
-                } else {
-                    t.uri.as_deref()
-                };
-                label.is_some_and(|l| view.selected.iter().any(|s| s == l))
-            })
-            .map(|t| t.content.edge_gzip_bytes)
-            .sum();
-        line += &format!(", {} on the first view", human_bytes(first));
-    }
-    line
+        human_bytes(r.output.first_view_edge_gzip_bytes),
+    )
 }
 
 /// Where the tileset landed: longitude, latitude, height, the CRS and the field that named it.

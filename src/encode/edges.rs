@@ -102,6 +102,11 @@ pub const SILHOUETTE_PROPERTY: &str = "silhouetteNormals";
 /// The extension's name.
 pub const EXTENSION: &str = "EXT_mesh_primitive_edge_visibility";
 
+/// The colour of the edges (linear RGBA), as the base colour of the material the extension's
+/// `material` names: without one, CesiumJS draws an edge in its surface's own unlit colour, which
+/// is lighter than a lit face and hard to see; drawings show edges as dark lines.
+pub const EDGE_COLOR: [f32; 4] = [0.02, 0.02, 0.02, 1.0];
+
 /// Visibility values (the spec's "Edge Visibility").
 pub const HIDDEN: u8 = 0;
 pub const SILHOUETTE: u8 = 1;

@@ -20,6 +20,8 @@ pub(super) struct MaterialTable<'a> {
     pub(super) sampled_px: BTreeMap<ImageId, u32>,
     pub(super) samplers: Vec<Sampler>,
     pub(super) textures: Vec<(usize, usize)>,
+    /// The material of the edges ([`crate::encode::edges::EDGE_COLOR`]), once a primitive has edges.
+    pub(super) edge_material: Option<usize>,
 }
 
 impl MaterialTable<'_> {
@@ -101,6 +103,16 @@ impl MaterialTable<'_> {
             }
         }
         n
+    }
+
+    /// The glTF index of the edges' material, written on first use.
+    pub(super) fn edge_index(&mut self) -> usize {
+        *self.edge_material.get_or_insert_with(|| {
+            self.materials
+                .push(json!({"name": "edges", "pbrMetallicRoughness": {
+                "baseColorFactor": crate::encode::edges::EDGE_COLOR, "metallicFactor": 0.0}}));
+            self.materials.len() - 1
+        })
     }
 
     pub(super) fn write_into(self, root: &mut Value) {

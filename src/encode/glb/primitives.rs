@@ -51,7 +51,9 @@ pub(super) fn write_primitive(
         &drawn.indices,
         &enc.edges,
     ) {
-        prim["extensions"][crate::encode::edges::EXTENSION] = b.edge_visibility(&edges);
+        let mut ext = b.edge_visibility(&edges);
+        ext["material"] = json!(mats.edge_index());
+        prim["extensions"][crate::encode::edges::EXTENSION] = ext;
     }
     prim["mode"] = json!(4);
     if feature_count.is_some() {
