@@ -25,7 +25,7 @@ use super::clock::{self, Part};
 use crate::partition::content::{ContentPrimitive, TileContent};
 use crate::partition::ContentItem;
 use crate::scene::{ComponentId, Scene};
-use crate::simplify::hausdorff::{sample_surface_dense, MeshBvh, TriMesh};
+use crate::simplify::hausdorff::{DenseSamples, MeshBvh, TriMesh};
 use crate::simplify::{simplify, MeshInput, SimplifiedMesh, SimplifyError, SimplifyOptions};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -146,39 +146,13 @@ impl<'a> ErrorReference<'a> {
         // Measured distances above these already declare more than `limit_m`.
         let f2c_limit = limit_m / FULL_TO_COARSE_SAFETY;
         let c2f_limit = limit_m / opts.error_safety;
-        let center = self.center;
         let (pp, pi) = soup(content);
         let p_bvh = MeshBvh::new(TriMesh::new(&pp, &pi));
         // F -> P: dense samples of each leaf, a running maximum shared by all (a point only needs
         // an exact distance when it could raise it).
         clock::count_measurement();
         let t_full = std::time::Instant::now();
-        let run = AtomicU64::new(0);
-        self.leaves.par_iter().for_each(|items| {
-            if f64::from_bits(run.load(Relaxed)) > f2c_limit {
-                return;
-            }
-            let leaf = TileContent::gather(self.scene, items, center);
-            let (lp, li) = soup(&leaf);
-            let pts = sample_surface_dense(
-                TriMesh::new(&lp, &li),
-                (li.len() / 3).max(self.min_leaf_samples),
-            );
-            pts.par_iter().with_min_len(1024).for_each_init(
-                || u32::MAX,
-                |hint, &x| {
-                    let thr = f64::from_bits(run.load(Relaxed));
-                    if thr > f2c_limit {
-                        return;
-                    }
-                    let d = p_bvh.distance_or_below(x, thr, hint);
-                    if d >= thr && d.is_finite() {
-                        run.fetch_max(d.to_bits(), Relaxed);
-                    }
-                },
-            );
-        });
-        let sampled_m = f64::from_bits(run.load(Relaxed));
+        let sampled_m = self.full_to_coarse_sampled(&p_bvh, f2c_limit);
         clock::add(Part::FullToCoarse, t_full);
         if sampled_m > f2c_limit {
             return None;
@@ -198,45 +172,7 @@ impl<'a> ErrorReference<'a> {
         // an exact query on a far one descends much of its tree (most of the full queries here,
         // and most of the measurement's time).
         let t_coarse = std::time::Instant::now();
-        let samples = (pi.len() / 3).clamp(20_000, 250_000);
-        let run = AtomicU64::new(0.0f64.to_bits());
-        sample_surface_dense(TriMesh::new(&pp, &pi), samples)
-            .par_iter()
-            .with_min_len(1024)
-            .for_each_init(
-                || (vec![u32::MAX; self.kids.len()], Vec::new()),
-                |(hints, order), &x| {
-                    let thr = f64::from_bits(run.load(Relaxed));
-                    if thr > c2f_limit {
-                        return;
-                    }
-                    order.clear();
-                    order.extend(
-                        self.kids
-                            .iter()
-                            .enumerate()
-                            .map(|(k, (b, e))| (b.distance_lower_bound(x) + e, k)),
-                    );
-                    order.sort_unstable_by(|a: &(f64, usize), b| a.0.total_cmp(&b.0));
-                    let mut nearest = f64::INFINITY;
-                    for &(lower, k) in order.iter() {
-                        if lower >= nearest {
-                            break;
-                        }
-                        let (b, e) = &self.kids[k];
-                        let below = thr - e;
-                        let d = b.distance_between(x, below, nearest - e, &mut hints[k]);
-                        if d < below {
-                            return;
-                        }
-                        nearest = nearest.min(d + e);
-                    }
-                    if nearest.is_finite() && nearest > thr {
-                        run.fetch_max(nearest.to_bits(), Relaxed);
-                    }
-                },
-            );
-        let coarse_to_full_m = f64::from_bits(run.load(Relaxed));
+        let coarse_to_full_m = self.coarse_to_full_sampled(TriMesh::new(&pp, &pi), c2f_limit);
         clock::add(Part::CoarseToFull, t_coarse);
         let error = TileError {
             error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
@@ -250,6 +186,131 @@ impl<'a> ErrorReference<'a> {
 }
 
 impl ErrorReference<'_> {
+    /// The largest distance from a dense sample of the full detail to the content (`p_bvh`), or
+    /// some value over `f2c_limit` as soon as one shows it. Samples go a triangle at a time: every
+    /// sample on a triangle whose corners lie nearer than the maximum to one triangle of the
+    /// content is nearer too (convexity), and needs no query.
+    fn full_to_coarse_sampled(&self, p_bvh: &MeshBvh, f2c_limit: f64) -> f64 {
+        let run = AtomicU64::new(0);
+        self.leaves.par_iter().for_each(|items| {
+            if f64::from_bits(run.load(Relaxed)) > f2c_limit {
+                return;
+            }
+            let leaf = TileContent::gather(self.scene, items, self.center);
+            let (lp, li) = soup(&leaf);
+            let samples = DenseSamples::new(
+                TriMesh::new(&lp, &li),
+                (li.len() / 3).max(self.min_leaf_samples),
+            );
+            let sample = |hint: &mut u32, x: DVec3| {
+                let thr = f64::from_bits(run.load(Relaxed));
+                if thr > f2c_limit {
+                    return;
+                }
+                let d = p_bvh.distance_or_below(x, thr, hint);
+                if d >= thr && d.is_finite() {
+                    run.fetch_max(d.to_bits(), Relaxed);
+                }
+            };
+            samples
+                .lone_vertices
+                .par_iter()
+                .with_min_len(1024)
+                .for_each_init(|| u32::MAX, |hint, &x| sample(hint, x));
+            (0..samples.triangles.len())
+                .into_par_iter()
+                .with_min_len(256)
+                .for_each_init(
+                    || u32::MAX,
+                    |hint, i| {
+                        // Every sample on a triangle whose corners lie nearer than the maximum
+                        // to one triangle of the content is nearer too (convexity).
+                        let thr = f64::from_bits(run.load(Relaxed));
+                        let covered = *hint != u32::MAX
+                            && samples.triangles[i]
+                                .iter()
+                                .all(|&v| surely_below(p_bvh.distance_to_triangle(v, *hint), thr));
+                        if !covered {
+                            samples.for_each_on_triangle(i, |x| sample(hint, x));
+                        }
+                    },
+                );
+        });
+        f64::from_bits(run.load(Relaxed))
+    }
+
+    /// The largest `min over children (distance + its bound)` of a dense sample of `coarse`, or
+    /// some value over `c2f_limit` as soon as one shows it (see [`ErrorReference::measure_within`]).
+    fn coarse_to_full_sampled(&self, coarse: TriMesh<'_>, c2f_limit: f64) -> f64 {
+        let sample_count = (coarse.indices.len() / 3).clamp(20_000, 250_000);
+        let run = AtomicU64::new(0.0f64.to_bits());
+        let samples = DenseSamples::new(coarse, sample_count);
+        // Per thread: each child's last triangle, the scratch order, and the child that settled
+        // the last sample.
+        type Scratch = (Vec<u32>, Vec<(f64, usize)>, usize);
+        let sample = |(hints, order, last): &mut Scratch, x: DVec3| {
+            let thr = f64::from_bits(run.load(Relaxed));
+            if thr > c2f_limit {
+                return;
+            }
+            order.clear();
+            order.extend(
+                self.kids
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (b, e))| (b.distance_lower_bound(x) + e, k)),
+            );
+            order.sort_unstable_by(|a: &(f64, usize), b| a.0.total_cmp(&b.0));
+            let mut nearest = f64::INFINITY;
+            for &(lower, k) in order.iter() {
+                if lower >= nearest {
+                    break;
+                }
+                let (b, e) = &self.kids[k];
+                let below = thr - e;
+                let d = b.distance_between(x, below, nearest - e, &mut hints[k]);
+                if d < below {
+                    *last = k;
+                    return;
+                }
+                nearest = nearest.min(d + e);
+            }
+            if nearest.is_finite() && nearest > thr {
+                run.fetch_max(nearest.to_bits(), Relaxed);
+            }
+        };
+        samples
+            .lone_vertices
+            .par_iter()
+            .with_min_len(1024)
+            .for_each_init(
+                || (vec![u32::MAX; self.kids.len()], Vec::new(), usize::MAX),
+                |scratch, &x| sample(scratch, x),
+            );
+        (0..samples.triangles.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .for_each_init(
+                || (vec![u32::MAX; self.kids.len()], Vec::new(), usize::MAX),
+                |scratch, i| {
+                    // As above: corners nearer than the maximum (less the child's bound) to one
+                    // triangle of a child settle every sample on the triangle.
+                    let thr = f64::from_bits(run.load(Relaxed));
+                    let covered = self.kids.get(scratch.2).is_some_and(|(b, e)| {
+                        let t = scratch.0[scratch.2];
+                        t != u32::MAX
+                            && samples.triangles[i]
+                                .iter()
+                                .all(|&v| surely_below(b.distance_to_triangle(v, t) + e, thr))
+                    });
+                    if !covered {
+                        samples.for_each_on_triangle(i, |x| sample(scratch, x));
+                    }
+                },
+            );
+        f64::from_bits(run.load(Relaxed))
+    }
+
     /// The largest distance from the full detail to `coarse`, given `sampled_m`, the largest
     /// distance of the samples (every vertex among them). Per full-detail triangle, two bounds of
     /// the distance anywhere on it: the distance is 1-Lipschitz (at most the largest corner's
@@ -353,6 +414,12 @@ impl ErrorReference<'_> {
         }
         f64::from_bits(run.load(Relaxed))
     }
+}
+
+/// Whether `d` is below `thr` by more than rounding: the corners' largest distance to a triangle
+/// then bounds every point between them (convexity) despite the points' own rounding.
+fn surely_below(d: f64, thr: f64) -> bool {
+    d + 1e-9 < thr * (1.0 - 1e-9)
 }
 
 /// At most this many four-way splits of a full-detail triangle when its distance to a tile's

@@ -447,6 +447,108 @@ pub fn sample_surface_dense(mesh: TriMesh<'_>, samples: usize) -> Vec<DVec3> {
     out
 }
 
+/// The points of [`sample_surface_dense`], grouped by the triangle they lie on: a triangle's
+/// corners, its area-weighted points, edge midpoints and centroid, plus the referenced vertices on
+/// no valid triangle. The same points (as a set: a corner shared by triangles is listed with each),
+/// so that a maximum of distances over them can skip a whole triangle at once: the distance to one
+/// triangle of the other surface is convex, so its largest value on a triangle is at a corner.
+pub struct DenseSamples {
+    /// The valid triangles (as [`TriMesh`] keeps them).
+    pub triangles: Vec<[DVec3; 3]>,
+    /// Per triangle, the range of the low-discrepancy sequence's indices of its area points.
+    area_points: Vec<(u64, u64)>,
+    /// Referenced vertices on no valid triangle.
+    pub lone_vertices: Vec<DVec3>,
+}
+
+impl DenseSamples {
+    /// The points of `sample_surface_dense(mesh, samples)`.
+    pub fn new(mesh: TriMesh<'_>, samples: usize) -> Self {
+        let n = mesh.positions.len();
+        let at = |i: u32| {
+            let v = mesh.positions[i as usize];
+            DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+        };
+        let mut on_triangle = vec![false; n];
+        let mut triangles = Vec::with_capacity(mesh.indices.len() / 3);
+        for t in mesh.indices.chunks_exact(3) {
+            if !t.iter().all(|&i| (i as usize) < n) {
+                continue;
+            }
+            let tri = [at(t[0]), at(t[1]), at(t[2])];
+            if tri.iter().all(|v| v.is_finite())
+                && (tri[1] - tri[0]).cross(tri[2] - tri[0]) != DVec3::ZERO
+            {
+                triangles.push(tri);
+                for &i in t {
+                    on_triangle[i as usize] = true;
+                }
+            }
+        }
+        let mut seen = vec![false; n];
+        let mut lone_vertices = Vec::new();
+        for &i in mesh.indices {
+            if (i as usize) < n && !seen[i as usize] {
+                seen[i as usize] = true;
+                let v = at(i);
+                if !on_triangle[i as usize] && v.is_finite() {
+                    lone_vertices.push(v);
+                }
+            }
+        }
+        // The ranges `sample_area_into` walks, with the same arithmetic.
+        let areas: Vec<f64> = triangles
+            .iter()
+            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+            .collect();
+        let total: f64 = areas.iter().sum();
+        let area_points = if total.is_nan() || total <= 0.0 || samples == 0 {
+            vec![(0, 0); triangles.len()]
+        } else {
+            let scale = samples as f64 / total;
+            let mut acc = 0.0f64;
+            areas
+                .iter()
+                .map(|&a| {
+                    let before = (acc * scale).floor() as u64;
+                    acc += a;
+                    (before, (acc * scale).floor() as u64)
+                })
+                .collect()
+        };
+        DenseSamples {
+            triangles,
+            area_points,
+            lone_vertices,
+        }
+    }
+
+    /// Calls `f` on every point on triangle `i`: its corners, area points, edge midpoints and
+    /// centroid.
+    pub fn for_each_on_triangle(&self, i: usize, mut f: impl FnMut(DVec3)) {
+        let t = &self.triangles[i];
+        for &v in t {
+            f(v);
+        }
+        const G: f64 = 1.324_717_957_244_746; // plastic number, as `sample_area_into`
+        let (a1, a2) = (1.0 / G, 1.0 / (G * G));
+        let (before, after) = self.area_points[i];
+        for k in before + 1..=after {
+            let mut u = (0.5 + a1 * k as f64).fract();
+            let mut v = (0.5 + a2 * k as f64).fract();
+            if u + v > 1.0 {
+                u = 1.0 - u;
+                v = 1.0 - v;
+            }
+            f(t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v);
+        }
+        f((t[0] + t[1]) * 0.5);
+        f((t[1] + t[2]) * 0.5);
+        f((t[2] + t[0]) * 0.5);
+        f((t[0] + t[1] + t[2]) / 3.0);
+    }
+}
+
 /// Measured one-sided Hausdorff distances `(A->B, B->A)` with the points of
 /// [`sample_surface_dense`] (`samples` area-weighted points on each side),
 /// plus a 45-point barycentric grid on every triangle whose own vertex /
@@ -750,6 +852,41 @@ mod tests {
             vec![[0.0, 0.0, z], [1.0, 0.0, z], [1.0, 1.0, z], [0.0, 1.0, z]],
             vec![0, 1, 2, 0, 2, 3],
         )
+    }
+
+    #[test]
+    fn grouped_samples_are_the_dense_samples() {
+        // Uneven triangles, a degenerate one, an out-of-range index and a vertex on no valid
+        // triangle (only on the degenerate one).
+        let pos: Vec<[f32; 3]> = vec![
+            [0.0, 0.0, 0.0],
+            [3.0, 0.0, 0.1],
+            [0.0, 1.0, 0.2],
+            [5.0, 4.0, 1.0],
+            [7.0, 7.0, 7.0],
+            [1.0, 1.0, 1.0],
+            [2.0, 2.0, 2.0],
+        ];
+        let idx = [0, 1, 2, 1, 3, 2, 4, 5, 6, 0, 1, 99];
+        let mesh = TriMesh::new(&pos, &idx);
+        let key = |v: DVec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+        let mut dense: Vec<_> = sample_surface_dense(mesh, 40)
+            .into_iter()
+            .map(key)
+            .collect();
+        let grouped = DenseSamples::new(mesh, 40);
+        let mut ours: Vec<_> = grouped.lone_vertices.iter().map(|&v| key(v)).collect();
+        for i in 0..grouped.triangles.len() {
+            grouped.for_each_on_triangle(i, |x| ours.push(key(x)));
+        }
+        for v in [&mut dense, &mut ours] {
+            v.sort_unstable();
+            v.dedup();
+        }
+        assert_eq!(grouped.triangles.len(), 2);
+        assert_eq!(grouped.lone_vertices.len(), 3);
+        assert!(dense.len() > 40);
+        assert_eq!(ours, dense);
     }
 
     #[test]
