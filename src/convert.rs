@@ -260,7 +260,9 @@ fn build_into(
         tileset: t_tileset,
         total: 0.0,
     };
+    let first_view_edges = crate::inspect::first_view::edge_gzip_bytes(&records, &tmp);
     let mut report = make_report(prep, records, opts, &tmp, timings, texture_levels);
+    report.output.first_view_edge_gzip_bytes = first_view_edges;
     report.timings_s.total = t0.elapsed().as_secs_f64();
     let hlod_timings = crate::lod::clock::take();
     report.hlod_timings_s = (opts.lod == crate::options::LodMode::Hlod).then_some(hlod_timings);

@@ -68,7 +68,8 @@ pub const LAYERS: &[&[&str]] = &[
     &["prepare"],
     &["tiling"],
     &["report"],
-    &["convert", "inspect"],
+    &["inspect"],
+    &["convert"],
     &["shard", "serve"],
     &["fuzzing"],
 ];

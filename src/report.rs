@@ -179,30 +179,6 @@ impl MemoryReport {
     }
 }
 
-/// The gzipped edge data of the tiles a first whole-model view of the tileset in `dir` selects;
-/// 0 without edges, or when the view cannot be worked out (the build's own checks report that).
-fn first_view_edge_gzip_bytes(tiles: &[TileRecord], dir: &Path) -> u64 {
-    if tiles.iter().all(|t| t.content.edge_gzip_bytes == 0) {
-        return 0;
-    }
-    let Ok(view) = crate::inspect::first_view::first_view(dir, &ViewOptions::default()) else {
-        return 0;
-    };
-    let inlined = crate::uri::data::content_label("data:");
-    tiles
-        .iter()
-        .filter(|t| {
-            let label = if t.inlined_in_tileset {
-                Some(inlined)
-            } else {
-                t.uri.as_deref()
-            };
-            label.is_some_and(|l| view.selected.iter().any(|s| s == l))
-        })
-        .map(|t| t.content.edge_gzip_bytes)
-        .sum()
-}
-
 /// The report of a finished build in `dir` (tileset.json and schema.json written), from the tiles'
 /// records (in plan order); timings and peak memory are the caller's.
 pub(crate) fn make_report(
@@ -264,7 +240,8 @@ pub(crate) fn make_report(
             metadata_bytes: tiles.iter().map(|t| t.content.metadata_bytes).sum(),
             edge_bytes: tiles.iter().map(|t| t.content.edge_bytes).sum(),
             edge_gzip_bytes: tiles.iter().map(|t| t.content.edge_gzip_bytes).sum(),
-            first_view_edge_gzip_bytes: first_view_edge_gzip_bytes(&tiles, dir),
+            // Filled by the caller, which may read the written tileset back.
+            first_view_edge_gzip_bytes: 0,
             element_index_bytes: std::fs::metadata(
                 dir.join(crate::tileset::element_index::ELEMENT_INDEX_FILE),
             )

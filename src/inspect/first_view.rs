@@ -307,6 +307,30 @@ pub fn full_view(dir: &Path) -> Result<FirstView, ViewError> {
     )
 }
 
+/// The gzipped edge data of the tiles a first whole-model view of the tileset in `dir` selects;
+/// 0 without edges, or when the view cannot be worked out (the build's own checks report that).
+pub fn edge_gzip_bytes(tiles: &[crate::encode::TileRecord], dir: &Path) -> u64 {
+    if tiles.iter().all(|t| t.content.edge_gzip_bytes == 0) {
+        return 0;
+    }
+    let Ok(view) = first_view(dir, &crate::tileset::view::ViewOptions::default()) else {
+        return 0;
+    };
+    let inlined = crate::uri::data::content_label("data:");
+    tiles
+        .iter()
+        .filter(|t| {
+            let label = if t.inlined_in_tileset {
+                Some(inlined)
+            } else {
+                t.uri.as_deref()
+            };
+            label.is_some_and(|l| view.selected.iter().any(|s| s == l))
+        })
+        .map(|t| t.content.edge_gzip_bytes)
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

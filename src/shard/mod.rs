@@ -434,7 +434,9 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         total: 0.0,
     };
     let memory = MemoryReport::of(&l.scene);
+    let first_view_edges = crate::inspect::first_view::edge_gzip_bytes(&records, dir);
     let mut report = make_report(l.prep, records, opts, dir, timings, textures);
+    report.output.first_view_edge_gzip_bytes = first_view_edges;
     report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = memory;
