@@ -127,7 +127,9 @@ fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) 
     args.extend_from_slice(extra);
     campus.convert(out, &args);
     let _ = std::fs::remove_dir_all(full);
-    campus.convert(full, &["--quiet"]);
+    let mut full_args = vec!["--quiet"];
+    full_args.extend_from_slice(extra);
+    campus.convert(full, &full_args);
     let after = tileset_files(out);
     let expected = tileset_files(full);
     assert_eq!(
@@ -416,4 +418,150 @@ fn killed_updates_leave_the_old_or_the_new_tileset() {
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
     assert!(build > Duration::ZERO);
+}
+
+/// The box (tileset frame, metres) of the elements of building `name` in the tileset in `dir`,
+/// from its element index; `None` if it has none.
+fn building_box(dir: &Path, name: &str) -> Option<[f64; 6]> {
+    let index: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("element-index.json")).unwrap()).unwrap();
+    let ids = index["columns"]["id"].as_array().unwrap();
+    let boxes = index["columns"]["box_mm"].as_array().unwrap();
+    assert_eq!(
+        boxes.len(),
+        6 * ids.len(),
+        "six millimetre figures an element"
+    );
+    let prefix = format!("{name}/");
+    let mut b = [f64::MAX, f64::MAX, f64::MAX, f64::MIN, f64::MIN, f64::MIN];
+    let mut any = false;
+    for (i, id) in ids.iter().enumerate() {
+        if !id.as_str().unwrap().starts_with(&prefix) {
+            continue;
+        }
+        let mm: Vec<f64> = (0..6)
+            .map(|k| boxes[6 * i + k].as_f64().unwrap() / 1000.0)
+            .collect();
+        for k in 0..3 {
+            b[k] = b[k].min(mm[k]);
+            b[k + 3] = b[k + 3].max(mm[k + 3]);
+        }
+        any = true;
+    }
+    any.then_some(b)
+}
+
+/// The content files of the tiles of `tileset` (tileset.json's bytes) whose bounding box meets
+/// one of `boxes` (tileset frame, 1 cm of slack), and of their ancestors: what a change inside
+/// those boxes may rewrite, worked out from the tree alone.
+fn tiles_meeting(tileset: &[u8], boxes: &[[f64; 6]]) -> std::collections::BTreeSet<String> {
+    fn visit(
+        tile: &Value,
+        boxes: &[[f64; 6]],
+        ancestors: &mut Vec<String>,
+        out: &mut std::collections::BTreeSet<String>,
+    ) {
+        let uri = tile["content"]["uri"].as_str().map(String::from);
+        let b = tile["boundingVolume"]["box"].as_array().unwrap();
+        let f = |i: usize| b[i].as_f64().unwrap();
+        // Boxes in the tileset frame are axis-aligned: half-axes along x, y, z.
+        let (centre, half) = ([f(0), f(1), f(2)], [f(3), f(7), f(11)]);
+        let meets = boxes.iter().any(|c| {
+            (0..3).all(|k| {
+                centre[k] - half[k].abs() <= c[k + 3] + 0.01
+                    && c[k] - 0.01 <= centre[k] + half[k].abs()
+            })
+        });
+        if meets {
+            out.extend(ancestors.iter().cloned());
+            out.extend(uri.clone());
+        }
+        ancestors.extend(uri.clone());
+        for c in tile["children"].as_array().into_iter().flatten() {
+            visit(c, boxes, ancestors, out);
+        }
+        if uri.is_some() {
+            ancestors.pop();
+        }
+    }
+    let tileset: Value = serde_json::from_slice(tileset).unwrap();
+    let mut out = std::collections::BTreeSet::new();
+    visit(&tileset["root"], boxes, &mut Vec::new(), &mut out);
+    out
+}
+
+/// The tileset's own files every build writes again when any content changes: the tree, the
+/// schema and the element index.
+const TILESET_WIDE_FILES: [&str; 3] = ["tileset.json", "schema.json", "element-index.json"];
+
+/// A building removed at the campus's edge (which moves the campus's bounds): the files the update writes
+/// with new bytes are the tiles whose boxes meet the building's old or new box and their
+/// ancestors (and the tileset-wide files), all but a few; and the update equals a full build.
+#[test]
+fn a_removal_rewrites_only_the_tiles_it_touches() {
+    let (Some(fzk), Some(duplex), Some(house)) = (
+        shared_file("AC20-FZK-Haus.glb"),
+        shared_file("duplex.glb"),
+        shared_file("IfcOpenHouse_IFC4.glb"),
+    ) else {
+        return;
+    };
+    let mut campus = Campus::new("update-local");
+    // Untextured models: a texture shared by several tiles is written once, as its own file, so
+    // a building's textures reach every tile that shares them.
+    let models = [
+        (&fzk, "fzk.glb"),
+        (&duplex, "duplex.glb"),
+        (&house, "house.glb"),
+    ];
+    for b in 0..9 {
+        let (model, file) = models[b % 3];
+        let (east, north) = ((b % 3) as f64 * 60.0, (b / 3) as f64 * 60.0);
+        campus.add(&format!("b{b}"), model, file, east, north);
+    }
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    campus.convert(&out, &["--update", "--quiet"]);
+    type Change<'a> = (&'a str, &'a dyn Fn(&mut Campus));
+    let changes: [Change; 1] = [("b8", &|c| {
+        c.models.remove(8);
+    })];
+    for (building, change) in changes {
+        let before = tileset_files(&out);
+        let old_box = building_box(&out, building);
+        change(&mut campus);
+        update_and_compare(&campus, &out, &full, &[]);
+        let after = tileset_files(&out);
+        let boxes: Vec<[f64; 6]> = old_box
+            .into_iter()
+            .chain(building_box(&out, building))
+            .collect();
+        assert!(!boxes.is_empty(), "{building} has elements");
+        let mut may_change = tiles_meeting(&after["tileset.json"], &boxes);
+        may_change.extend(tiles_meeting(&before["tileset.json"], &boxes));
+        may_change.extend(TILESET_WIDE_FILES.map(String::from));
+        let rewritten: Vec<&String> = after
+            .iter()
+            .filter(|(name, bytes)| before.get(*name) != Some(bytes))
+            .map(|(name, _)| name)
+            .collect();
+        let outside: Vec<&&String> = rewritten
+            .iter()
+            .filter(|n| !may_change.contains(n.as_str()))
+            .collect();
+        // A few may lie beyond: an ancestor that held some of the building and cut what stays in
+        // it to the budget cuts other meshes once it is gone, and their parts go to other cells.
+        assert!(
+            outside.len() * 50 <= after.len(),
+            "{building}: {} of {} files rewritten away from the change: {outside:?}",
+            outside.len(),
+            rewritten.len()
+        );
+        assert!(
+            after.len() - rewritten.len() > after.len() / 2,
+            "{building}: most files kept ({} of {} rewritten)",
+            rewritten.len(),
+            after.len()
+        );
+    }
 }

@@ -358,6 +358,7 @@ pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene>
         anchor: DVec3::ZERO,
         map_linear: None,
     });
+    scene.stable_layout = true;
     scene.finish();
     Ok(scene)
 }

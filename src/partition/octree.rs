@@ -24,6 +24,16 @@
 //! budgets alone would make a root over a few kilometre-wide leaves) gets the levels between;
 //! compact models, smaller than a leaf, keep the tree their budgets give.
 //!
+//! A campus's grid is anchored ([`Scene::stable_layout`]: a manifest of placed models): every
+//! cell below the root is a cell of one fixed power-of-two grid (a cell of side `s` spans
+//! `[i s, (i + 1) s]` on each axis of the tileset frame), and the root is the grid-aligned cube
+//! of twice the smallest power of two that spans the content ([`grid_root_cell`]). So the cells do not move when the content's bounds do: a building
+//! removed, moved or replaced changes the cells it was or is in and their ancestors, and the
+//! rest of the tree, cells and content, stays as it was (`convert --update`). Only content that
+//! reaches past the root's cube, or shrinks to half of it, changes the root. A single model's
+//! root is the cube around its bounds (cells that fit it tightly: a grid anchored at the origin
+//! would cut a model centred there along its middle planes first).
+//!
 //! The plan is computed from bounds and counts only, and is a pure function of the scene and the
 //! options (input order, no hashing, no threads): the output is the same on every run.
 
@@ -213,15 +223,43 @@ pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
         return plan;
     }
     let all = items.iter().fold(Aabb::EMPTY, |b, i| b.union(&i.bounds));
-    let half = all.size().max_element().max(1e-6) * 0.5;
-    let root_cell = Aabb {
-        min: all.center() - DVec3::splat(half),
-        max: all.center() + DVec3::splat(half),
+    let root_cell = match scene.stable_layout {
+        true => grid_root_cell(&all),
+        false => bounds_root_cell(&all),
     };
     if let Some(root) = build(scene, root_cell, items, 0, "r".into(), opts) {
         flatten(root, &mut plan.tiles);
     }
     plan
+}
+
+/// The root cell of a single model: the cube around its bounds' centre whose side is their
+/// largest (the tightest cells for a model whose bounds an update seldom moves).
+fn bounds_root_cell(bounds: &Aabb) -> Aabb {
+    let half = bounds.size().max_element().max(1e-6) * 0.5;
+    Aabb {
+        min: bounds.center() - DVec3::splat(half),
+        max: bounds.center() + DVec3::splat(half),
+    }
+}
+
+/// The root cell of a campus (a scene with [`Scene::stable_layout`]) within `bounds`: a cube of side `2 s`, `s` the smallest power of two
+/// (metres) no smaller than the content's largest side, its corner on the grid of side `s`. It
+/// holds the content (which starts in its lower half on each axis), and its children, and theirs,
+/// are cells of the fixed power-of-two grid whatever the bounds: the content's bounds choose only
+/// how far up the grid the root sits.
+pub fn grid_root_cell(bounds: &Aabb) -> Aabb {
+    let extent_m = bounds.size().max_element().max(1e-6);
+    // An exact power of two, so that the corners below are exact multiples of it.
+    let mut side_m = 2f64.powi(extent_m.log2().ceil() as i32);
+    while side_m < extent_m {
+        side_m *= 2.0;
+    }
+    let min = (bounds.min / side_m).floor() * side_m;
+    Aabb {
+        min,
+        max: min + DVec3::splat(2.0 * side_m),
+    }
 }
 
 struct Node {
@@ -532,6 +570,17 @@ mod tests {
     }
 
     fn check_invariants(scene: &Scene, plan: &TilePlan, opts: &OctreeOptions) {
+        // The depth cap counts grid levels from the root cell, some of which an empty tile with a
+        // single child may have left out: a capped cell is this small.
+        let bounds = scene
+            .components
+            .iter()
+            .fold(Aabb::EMPTY, |b, c| b.union(&c.world_bounds));
+        let root = match scene.stable_layout {
+            true => grid_root_cell(&bounds),
+            false => bounds_root_cell(&bounds),
+        };
+        let capped_side_m = root.size().x / 2f64.powi(opts.max_depth as i32);
         // Every triangle exactly once.
         let mut seen: Vec<Vec<u32>> = scene
             .components
@@ -574,7 +623,8 @@ mod tests {
             // The budget holds for every tile, unless one triangle exceeds it or the depth cap
             // was hit.
             assert!(
-                t.content_triangles <= opts.max_tile_triangles || t.depth == opts.max_depth,
+                t.content_triangles <= opts.max_tile_triangles
+                    || t.cell.size().x <= capped_side_m * (1.0 + 1e-9),
                 "{} holds {} triangles",
                 t.path,
                 t.content_triangles
@@ -584,6 +634,81 @@ mod tests {
             seen.iter().flatten().all(|&n| n == 1),
             "every triangle exactly once"
         );
+    }
+
+    #[test]
+    fn the_root_cell_holds_the_content_on_the_power_of_two_grid() {
+        for (min, max) in [
+            (DVec3::new(0.0, 0.0, 0.0), DVec3::new(40.0, 10.0, 5.0)),
+            (DVec3::new(-7.5, 3.0, -2.0), DVec3::new(25.0, 9.0, 12.0)),
+            (
+                DVec3::new(1000.3, -20.0, 0.0),
+                DVec3::new(1003.1, -19.0, 0.5),
+            ),
+            (DVec3::splat(64.0), DVec3::splat(64.0)),
+        ] {
+            let b = Aabb { min, max };
+            let cell = grid_root_cell(&b);
+            assert!(cell.contains_box(&b, 0.0), "{b:?} in {cell:?}");
+            let side = cell.size().x;
+            assert_eq!(cell.size(), DVec3::splat(side));
+            let half = side / 2.0;
+            assert_eq!(half.log2().fract(), 0.0, "a power of two: {half}");
+            assert!(
+                half >= b.size().max_element() && half < 2.0 * b.size().max_element().max(1e-6)
+            );
+            // Its children are grid cells: corners on multiples of their side.
+            assert_eq!((cell.min / half).fract(), DVec3::ZERO);
+        }
+    }
+
+    #[test]
+    fn a_removed_box_leaves_the_other_cells_where_they_were() {
+        // A row of boxes over 300 m, split by a small budget; the last box (which sets the
+        // bounds) removed: the tiles that hold none of it keep their cells and content.
+        let specs: Vec<(DVec3, f64)> = (0..30)
+            .map(|i| (DVec3::new(i as f64 * 10.0, (i % 3) as f64 * 4.0, 0.0), 2.0))
+            .collect();
+        let opts = OctreeOptions {
+            max_tile_triangles: 36,
+            ..Default::default()
+        };
+        let campus = |specs: &[(DVec3, f64)]| {
+            let mut s = boxes(specs);
+            s.stable_layout = true;
+            s
+        };
+        let before = plan_octree(&campus(&specs), &opts);
+        let after = plan_octree(&campus(&specs[..29]), &opts);
+        check_invariants(&campus(&specs[..29]), &after, &opts);
+        let gone = ComponentId(29);
+        // The tiles that held the box, and so their ancestors (path prefixes), may change; every
+        // other leaf of the new plan is a leaf of the old one, with the same content.
+        let held: Vec<&str> = before
+            .tiles
+            .iter()
+            .filter(|t| t.content.iter().any(|c| c.component == gone))
+            .map(|t| t.path.as_str())
+            .collect();
+        let leaves = |p: &TilePlan| -> Vec<(String, Vec<ContentItem>)> {
+            p.tiles
+                .iter()
+                .filter(|t| t.children.is_empty() && !held.iter().any(|h| h.starts_with(&t.path)))
+                .map(|t| (t.path.clone(), t.content.clone()))
+                .collect()
+        };
+        let (kept_before, kept_after) = (leaves(&before), leaves(&after));
+        assert!(kept_after.len() >= 8, "{} leaves", kept_after.len());
+        for leaf in &kept_after {
+            assert!(kept_before.contains(leaf), "{} as it was", leaf.0);
+        }
+        // A single model's cells follow its bounds: the same change moves them.
+        let single = plan_octree(&boxes(&specs[..29]), &opts);
+        let moved = leaves(&single)
+            .iter()
+            .filter(|l| !kept_before.contains(l))
+            .count();
+        assert!(moved > 0, "a single model's grid is not anchored");
     }
 
     #[test]
@@ -646,10 +771,15 @@ mod tests {
         for t in &leaves.tiles {
             assert_eq!(t.content.is_empty(), !t.children.is_empty(), "{}", t.path);
         }
-        // The slab went from the root to the root's new leaf "r8".
-        let r8 = leaves.tiles.iter().find(|t| t.path == "r8").unwrap();
-        assert!(r8.content.iter().any(|c| c.component == ComponentId(0)));
-        assert_eq!(r8.depth, 1);
+        // The slab went from the root to the root's new leaf, named after it.
+        let root = &leaves.tiles[0].path;
+        let leaf = leaves
+            .tiles
+            .iter()
+            .find(|t| t.path == format!("{root}8"))
+            .unwrap();
+        assert!(leaf.content.iter().any(|c| c.component == ComponentId(0)));
+        assert_eq!(leaf.depth, 1);
     }
 
     #[test]

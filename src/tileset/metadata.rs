@@ -6,6 +6,14 @@
 //! Repeated strings (classes, storeys, materials, source files) are enums: a tile stores a 2-byte
 //! code per element and the names once, in the schema. Property-set values are typed when every
 //! value of a property has one type (numbers → FLOAT64, booleans → an enum), else text.
+//!
+//! In a campus ([`Scene::stable_layout`]), an enum value's code comes from its name (a fixed hash into the codes the enum's width
+//! allows, the next free code on a collision, names taken in sorted order), not from its rank
+//! among the values: a building added to or removed from a campus takes its own values with it
+//! and leaves every other value's code, and so every tile that does not hold it, as it was
+//! (`convert --update`). A single model's codes are dense, in first-use order: columns whose
+//! values agree (one building, one site, one source file) are the same bytes and share one
+//! bufferView.
 
 use crate::encode::metadata::{ColumnData, PropertyTable, SchemaRef};
 use crate::scene::{Component, ComponentId, ElementInfo, PropertyValue, Scene, SharedText};
@@ -127,7 +135,8 @@ pub struct MetadataSchema {
     pub properties: Vec<PropertyDef>,
     /// (property set, property name) of each `Column::Pset`.
     pub pset_keys: Vec<(String, String)>,
-    /// Enum id → value names (index = code; 0 is [`NO_VALUE`]).
+    /// Enum id → value names in first-use order ([`NO_VALUE`] first, code 0); their codes are
+    /// [`MetadataSchema::enum_code`].
     pub enums: BTreeMap<String, Vec<String>>,
     enum_codes: HashMap<String, HashMap<String, u16>>,
     /// Kept component → ids of its aliases (exact duplicates not drawn), as a JSON array.
@@ -142,13 +151,56 @@ fn id_is_node_path(scene: &Scene, comp: &Component, info: &ElementInfo) -> bool 
         .is_some_and(|n| scene.nodes[n.index()].name_repeat == 0 && info.key == scene.node_path(n))
 }
 
-/// Enum value name → code (its index in `names`).
-fn codes_of(names: &[String]) -> HashMap<String, u16> {
+/// 64-bit FNV-1a of `s`: a hash fixed by its definition (the same on every platform and in every
+/// version), unlike the standard library's.
+fn fnv1a(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// Enum value name → code, dense: its index in `names`.
+fn dense_codes_of(names: &[String]) -> HashMap<String, u16> {
     names
         .iter()
         .enumerate()
         .map(|(i, n)| (n.clone(), i as u16))
         .collect()
+}
+
+/// Enum value name → code, from the name. The first `fixed` names (the base schema's values) keep their index;
+/// every other name takes the code its hash points at among those the enum's width allows
+/// (1-255 for an enum of at most 256 values, else 1-65535), or the next free one, names taken in
+/// sorted order: a pure function of the set of names in which one name more or less moves no
+/// other code unless it took that code's place first.
+fn codes_of(names: &[String], fixed: usize) -> HashMap<String, u16> {
+    let mut codes: HashMap<String, u16> = names
+        .iter()
+        .take(fixed)
+        .enumerate()
+        .map(|(i, n)| (n.clone(), i as u16))
+        .collect();
+    let top: u64 = if names.len() <= 256 { 255 } else { 65_535 };
+    let mut taken = vec![false; top as usize + 1];
+    taken[0] = true;
+    for &c in codes.values() {
+        taken[c as usize] = true;
+    }
+    let mut free: Vec<&String> = names
+        .iter()
+        .skip(fixed)
+        .filter(|n| !codes.contains_key(*n))
+        .collect();
+    free.sort();
+    for n in free {
+        let mut c = 1 + fnv1a(n) % top;
+        while taken[c as usize] {
+            c = c % top + 1;
+        }
+        taken[c as usize] = true;
+        codes.insert(n.clone(), c as u16);
+    }
+    codes
 }
 
 /// A schema identifier from any text: non-alphanumerics become '_', no leading digit.
@@ -163,10 +215,12 @@ pub fn identifier(s: &str) -> String {
     id
 }
 
-/// The enums of a schema while it is built: value names (index = code) and codes by name.
+/// The enums of a schema while it is built: value names in first-use order, and how many of
+/// them are the base schema's (codes fixed by their index).
 struct EnumTable {
     names: BTreeMap<String, Vec<String>>,
-    codes: HashMap<String, HashMap<String, u16>>,
+    seen: HashMap<String, std::collections::HashSet<String>>,
+    fixed: HashMap<String, usize>,
 }
 
 impl EnumTable {
@@ -174,7 +228,8 @@ impl EnumTable {
     fn from_base(base: &Value) -> EnumTable {
         let mut table = EnumTable {
             names: BTreeMap::new(),
-            codes: HashMap::new(),
+            seen: HashMap::new(),
+            fixed: HashMap::new(),
         };
         for (id, e) in base["enums"].as_object().expect("base enums") {
             let names: Vec<String> = e["values"]
@@ -183,27 +238,46 @@ impl EnumTable {
                 .iter()
                 .map(|v| v["name"].as_str().expect("enum value name").to_string())
                 .collect();
+            let fixed = names.len();
             table.insert(id.clone(), names);
+            table.fixed.insert(id.clone(), fixed);
         }
         table
     }
 
-    /// Adds enum `enum_id` with these value names.
+    /// Adds enum `enum_id` with these value names, the first ([`NO_VALUE`]) fixed at code 0.
     fn insert(&mut self, enum_id: String, names: Vec<String>) {
-        self.codes.insert(enum_id.clone(), codes_of(&names));
+        self.fixed.insert(enum_id.clone(), names.len().min(1));
+        self.seen
+            .insert(enum_id.clone(), names.iter().cloned().collect());
         self.names.insert(enum_id, names);
     }
 
     /// Adds value `v` (if any and new, while codes last) to enum `enum_id` of the base schema.
     fn add(&mut self, enum_id: &str, v: Option<&str>) {
         if let Some(v) = v {
-            let codes = self.codes.get_mut(enum_id).expect("known enum");
-            if !codes.contains_key(v) && codes.len() < u16::MAX as usize {
+            let seen = self.seen.get_mut(enum_id).expect("known enum");
+            if !seen.contains(v) && seen.len() < u16::MAX as usize {
+                seen.insert(v.to_string());
                 let list = self.names.get_mut(enum_id).expect("known enum");
-                codes.insert(v.to_string(), list.len() as u16);
                 list.push(v.to_string());
             }
         }
+    }
+
+    /// The code of every value of every enum: from its name ([`codes_of`]) when `by_name`, else
+    /// its index ([`dense_codes_of`]).
+    fn codes(&self, by_name: bool) -> HashMap<String, HashMap<String, u16>> {
+        self.names
+            .iter()
+            .map(|(id, names)| {
+                let codes = match by_name {
+                    true => codes_of(names, self.fixed[id]),
+                    false => dense_codes_of(names),
+                };
+                (id.clone(), codes)
+            })
+            .collect()
     }
 
     /// The values the scene uses of the fixed enums (source files, then each element's IFC
@@ -399,16 +473,20 @@ impl MetadataSchema {
         MetadataSchema {
             properties,
             pset_keys,
+            enum_codes: enums.codes(scene.stable_layout),
             enums: enums.names,
-            enum_codes: enums.codes,
             aliases: alias_lists(scene),
             base,
         }
     }
 
+    /// The code of value `name` of enum `enum_id`, if the enum has it.
+    pub fn enum_code(&self, enum_id: &str, name: &str) -> Option<u16> {
+        self.enum_codes.get(enum_id)?.get(name).copied()
+    }
+
     fn code(&self, enum_id: &str, v: Option<&str>) -> Option<MetaValue> {
-        let c = *self.enum_codes.get(enum_id)?.get(v?)?;
-        Some(MetaValue::Code(c))
+        Some(MetaValue::Code(self.enum_code(enum_id, v?)?))
     }
 
     /// The value of property `p` for a component and its element (None: no value).
@@ -604,10 +682,10 @@ impl MetadataSchema {
             if self.enum_is_one_byte(id) {
                 e["valueType"] = json!("UINT8");
             }
+            let codes = &self.enum_codes[id];
             e["values"] = json!(names
                 .iter()
-                .enumerate()
-                .map(|(i, n)| json!({"name": n, "value": i}))
+                .map(|n| json!({"name": n, "value": codes[n]}))
                 .collect::<Vec<_>>());
             enums.insert(id.clone(), e);
         }
@@ -696,7 +774,7 @@ mod tests {
         assert_eq!(m.properties[idx("Mixed_x")].value_type, ValueType::Text);
         assert_eq!(
             value_of(&m, &s, ComponentId(1), idx("class")),
-            Some(MetaValue::Code(2))
+            m.enum_code("ifcClass", "IfcWindow").map(MetaValue::Code)
         );
         assert_eq!(value_of(&m, &s, ComponentId(1), idx("storey")), None);
         assert_eq!(
@@ -713,7 +791,7 @@ mod tests {
         );
         assert_eq!(
             value_of(&m, &s, ComponentId(0), idx("source")),
-            Some(MetaValue::Code(1))
+            m.enum_code("sourceFile", "model.glb").map(MetaValue::Code)
         );
         let ids = [ComponentId(0), ComponentId(1)];
         let names = |t: PropertyTable| t.columns.into_iter().map(|c| c.0).collect::<Vec<_>>();
@@ -852,7 +930,7 @@ mod tests {
         assert_eq!(m.enums[e], vec!["(none)", "Paint", "Tile"]);
         assert_eq!(
             value_of(&m, &s, ComponentId(1), finish),
-            Some(MetaValue::Code(2))
+            m.enum_code(e, "Tile").map(MetaValue::Code)
         );
         assert_eq!(
             value_of(&m, &s, ComponentId(2), finish),
@@ -866,6 +944,50 @@ mod tests {
             json!(e)
         );
         assert_eq!(json["enums"][e]["values"][2]["name"], "Tile");
+        assert_eq!(
+            json["enums"][e]["values"][2]["value"],
+            m.enum_code(e, "Tile").unwrap()
+        );
+    }
+
+    #[test]
+    fn enum_codes_stay_when_a_value_goes() {
+        let names = |n: &[&str]| -> Vec<String> {
+            std::iter::once(NO_VALUE)
+                .chain(n.iter().copied())
+                .map(String::from)
+                .collect()
+        };
+        let all: Vec<String> = (0..60).map(|i| format!("b{i:03}.glb")).collect();
+        let refs: Vec<&str> = all.iter().map(String::as_str).collect();
+        let before = codes_of(&names(&refs), 1);
+        assert_eq!(before[NO_VALUE], 0);
+        let distinct: std::collections::HashSet<u16> = before.values().copied().collect();
+        assert_eq!(distinct.len(), before.len(), "codes are unique");
+        assert!(before.values().all(|&c| c <= 255), "one byte");
+        // One value gone (one campus building removed), another added at the end: the others keep
+        // their codes, whatever their rank, unless they had collided with the one that went.
+        let mut fewer: Vec<&str> = refs.clone();
+        let gone = fewer.remove(30);
+        fewer.push("z.glb");
+        let after = codes_of(&names(&fewer), 1);
+        let moved = refs
+            .iter()
+            .filter(|n| **n != gone && before[**n] != after[**n])
+            .count();
+        assert!(moved <= 2, "{moved} codes moved");
+        // First-use order does not matter: the codes are a function of the set.
+        let mut reversed = fewer.clone();
+        reversed.reverse();
+        assert_eq!(codes_of(&names(&reversed), 1), after);
+        // Over 256 values: two-byte codes, all distinct.
+        let many: Vec<String> = (0..1000).map(|i| format!("v{i}")).collect();
+        let many_codes = codes_of(
+            &names(&many.iter().map(String::as_str).collect::<Vec<_>>()),
+            1,
+        );
+        let distinct: std::collections::HashSet<u16> = many_codes.values().copied().collect();
+        assert_eq!(distinct.len(), 1001);
     }
 
     #[test]

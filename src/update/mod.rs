@@ -191,11 +191,20 @@ fn has_extension(path: &Path, extensions: &[&str]) -> bool {
         .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
 }
 
+/// The files below `dir` a model may reference. Dot-entries (a build's staging folder, the update
+/// cache) and folders holding a `tileset.json` (a tileset, such as the output itself when it sits
+/// beside the models) are outputs, not inputs: hashing them would see every build change them.
 fn collect_resources(dir: &Path, depth: usize, files: &mut BTreeSet<PathBuf>) {
+    if dir.join("tileset.json").is_file() {
+        return;
+    }
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
     for entry in entries.flatten() {
+        if entry.file_name().to_string_lossy().starts_with('.') {
+            continue;
+        }
         let path = entry.path();
         let Ok(kind) = entry.file_type() else {
             continue;
