@@ -105,6 +105,9 @@ pub(crate) struct Prepared {
 /// Place, dedup, texture preparation and the octree plan. Fails on an image over the limits
 /// (`crate::texture::admit`).
 pub(crate) fn prepare(scene: &mut Scene, opts: &Settings) -> Result<Prepared> {
+    // The anchored grid and name-derived codes cost bytes (a larger root cube, fewer shared
+    // columns); they pay only where a tileset is kept up to date.
+    scene.stable_layout &= opts.update;
     let input = InputReport {
         files: scene
             .sources

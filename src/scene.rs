@@ -507,11 +507,11 @@ pub struct Scene {
     pub skipped_primitives: usize,
     /// Elements whose id is not their plain GlobalId or node path, because it repeated ([`ids`]).
     pub renamed_ids: usize,
-    /// The scene is a campus of separately placed models (a manifest), which an update changes
-    /// a building at a time: its octree sits on the fixed power-of-two grid and its enum codes
-    /// come from the values' names, so that a change stays in the tiles it touches
-    /// (`partition::octree`, `tileset::metadata`). A single model's octree fits its bounds, and
-    /// its enum codes are dense.
+    /// The scene is a campus of separately placed models (a manifest) built to be updated
+    /// (`--update`), a building at a time: its octree sits on the fixed power-of-two grid and its
+    /// enum codes come from the values' names, so that a change stays in the tiles it touches
+    /// (`partition::octree`, `tileset::metadata`). Otherwise the octree fits the bounds and the
+    /// enum codes are dense.
     pub stable_layout: bool,
 }
 

@@ -127,7 +127,8 @@ fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) 
     args.extend_from_slice(extra);
     campus.convert(out, &args);
     let _ = std::fs::remove_dir_all(full);
-    let mut full_args = vec!["--quiet"];
+    // A full build with the same options: `--update` into a folder of its own.
+    let mut full_args = vec!["--update", "--quiet"];
     full_args.extend_from_slice(extra);
     campus.convert(full, &full_args);
     let after = tileset_files(out);
@@ -236,7 +237,7 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     campus.models.remove(1);
     campus.convert(&out, &["--update", "--quiet", "--keep-stale"]);
     let _ = std::fs::remove_dir_all(&full);
-    campus.convert(&full, &["--quiet"]);
+    campus.convert(&full, &["--update", "--quiet"]);
     let (kept, expected) = (tileset_files(&out), tileset_files(&full));
     let stale: Vec<&String> = before
         .keys()
@@ -283,11 +284,13 @@ fn a_missing_or_corrupt_cache_is_a_full_build_with_one_line_note() {
         notes[0].to_string()
     };
     assert!(note(&o).ends_with("full build: no tileset at the output yet"));
-    campus.convert(&full, &["--quiet"]);
+    let plain = campus.dir.join("plain");
+    campus.convert(&plain, &["--quiet"]);
     assert!(
-        !full.join(".bimtiles").exists(),
+        !plain.join(".bimtiles").exists(),
         "a plain build leaves no cache"
     );
+    campus.convert(&full, &["--update", "--quiet"]);
     let expected = tileset_files(&full);
     let cases: [Spoiled; 4] = [
         (
@@ -370,7 +373,7 @@ fn killed_updates_leave_the_old_or_the_new_tileset() {
     campus.models[1]["east_m"] = json!(150.0);
     let full = campus.dir.join("full");
     let t = Instant::now();
-    campus.convert(&full, &["--quiet"]);
+    campus.convert(&full, &["--update", "--quiet"]);
     let build = t.elapsed();
     let new = tileset_files(&full);
     assert_ne!(old, new);
