@@ -403,34 +403,46 @@ pub fn sample_surface(mesh: TriMesh<'_>, samples: usize) -> Vec<DVec3> {
 
 /// The area-weighted part of [`sample_surface`].
 fn sample_area_into(tris: &[[DVec3; 3]], samples: usize, out: &mut Vec<DVec3>) {
+    for (t, (before, after)) in tris.iter().zip(area_point_ranges(tris, samples)) {
+        out.extend((before + 1..=after).map(|k| area_point(t, k)));
+    }
+}
+
+/// Per triangle, the indices `(before, after]` of the low-discrepancy sequence's points that fall
+/// on it: `samples` points over the whole area, each triangle taking its share (none when the
+/// area is zero or not a number).
+fn area_point_ranges(tris: &[[DVec3; 3]], samples: usize) -> Vec<(u64, u64)> {
     let areas: Vec<f64> = tris
         .iter()
         .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
         .collect();
     let total: f64 = areas.iter().sum();
     if total.is_nan() || total <= 0.0 || samples == 0 {
-        return;
+        return vec![(0, 0); tris.len()];
     }
-    const G: f64 = 1.324_717_957_244_746; // plastic number
-    let (a1, a2) = (1.0 / G, 1.0 / (G * G));
     let scale = samples as f64 / total;
     let mut acc = 0.0f64;
-    let mut k: u64 = 0;
-    for (t, &a) in tris.iter().zip(&areas) {
-        let before = (acc * scale).floor() as u64;
-        acc += a;
-        let after = (acc * scale).floor() as u64;
-        for _ in before..after {
-            k += 1;
-            let mut u = (0.5 + a1 * k as f64).fract();
-            let mut v = (0.5 + a2 * k as f64).fract();
-            if u + v > 1.0 {
-                u = 1.0 - u;
-                v = 1.0 - v;
-            }
-            out.push(t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v);
-        }
+    areas
+        .iter()
+        .map(|&a| {
+            let before = (acc * scale).floor() as u64;
+            acc += a;
+            (before, (acc * scale).floor() as u64)
+        })
+        .collect()
+}
+
+/// The `k`-th point of the low-discrepancy (plastic number) sequence, folded into triangle `t`.
+fn area_point(t: &[DVec3; 3], k: u64) -> DVec3 {
+    const G: f64 = 1.324_717_957_244_746; // plastic number
+    let (a1, a2) = (1.0 / G, 1.0 / (G * G));
+    let mut u = (0.5 + a1 * k as f64).fract();
+    let mut v = (0.5 + a2 * k as f64).fract();
+    if u + v > 1.0 {
+        u = 1.0 - u;
+        v = 1.0 - v;
     }
+    t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v
 }
 
 /// Denser deterministic samples for the *measured* error of [`super::simplify`]:
@@ -496,26 +508,7 @@ impl DenseSamples {
                 }
             }
         }
-        // The ranges `sample_area_into` walks, with the same arithmetic.
-        let areas: Vec<f64> = triangles
-            .iter()
-            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
-            .collect();
-        let total: f64 = areas.iter().sum();
-        let area_points = if total.is_nan() || total <= 0.0 || samples == 0 {
-            vec![(0, 0); triangles.len()]
-        } else {
-            let scale = samples as f64 / total;
-            let mut acc = 0.0f64;
-            areas
-                .iter()
-                .map(|&a| {
-                    let before = (acc * scale).floor() as u64;
-                    acc += a;
-                    (before, (acc * scale).floor() as u64)
-                })
-                .collect()
-        };
+        let area_points = area_point_ranges(&triangles, samples);
         DenseSamples {
             triangles,
             area_points,
@@ -530,17 +523,9 @@ impl DenseSamples {
         for &v in t {
             f(v);
         }
-        const G: f64 = 1.324_717_957_244_746; // plastic number, as `sample_area_into`
-        let (a1, a2) = (1.0 / G, 1.0 / (G * G));
         let (before, after) = self.area_points[i];
         for k in before + 1..=after {
-            let mut u = (0.5 + a1 * k as f64).fract();
-            let mut v = (0.5 + a2 * k as f64).fract();
-            if u + v > 1.0 {
-                u = 1.0 - u;
-                v = 1.0 - v;
-            }
-            f(t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v);
+            f(area_point(t, k));
         }
         f((t[0] + t[1]) * 0.5);
         f((t[1] + t[2]) * 0.5);

@@ -402,7 +402,8 @@ impl Parser {
         }
         let id = attr(e, b"id");
         let href = attr(e, b"href");
-        let ade = namespace_of(ns) == Namespace::Ade;
+        let namespace = namespace_of(ns);
+        let ade = namespace == Namespace::Ade;
         let frame = if local == "ImplicitGeometry" {
             self.implicit_depth += 1;
             if self.implicit_depth == 1 {
@@ -483,7 +484,7 @@ impl Parser {
             had_child: false,
             local: local.to_string(),
             prefix,
-            ns: namespace_of(ns),
+            ns: namespace,
         });
         Ok(())
     }
