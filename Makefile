@@ -123,17 +123,22 @@ test: deps
 # 2026-11-25, were tiny_http leaving a new connection unread: fixed in src/serve/, no retry.)
 BROWSER_SETS := sample shared-AC20-FZK-Haus shared-duplex shared-ISSUE_021_Mini_Project shared-LoD3_Railway shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus ktx2-LoD3_Railway cityjson-3dbag-5907-subset citygml-citygml4j-lod3-building-textured-lod3_building_v2 mesh-formats-AlphaVille_CenterPart ladder-airport
 INLINED_SETS := shared-IfcOpenHouse_IFC4 ifc-AC20-FZK-Haus
-# The BIM tools (viewer/bim.js) in one more browser, on two of the tilesets above
+# The BIM tools (viewer/bim.js) in one more browser, on two of the tilesets above and a campus
 # (tools/viewer_test.mjs): tree, hide and isolate on duplex; search, colour by class, section
-# box, plan cut and the URL state on the FZK house; ARIA roles, the element index fetched after
-# the first view, and the tree and search on 100k elements on both.
-VIEWER_SETS := duplex=target/test-out/shared-duplex/tiles fzk=target/test-out/shared-AC20-FZK-Haus/tiles
+# box, plan cut and the URL state on the FZK house; the tree and search budgets on the campus;
+# ARIA roles and the element index fetched after the first view on each.
+VIEWER_SETS := duplex=target/test-out/shared-duplex/tiles fzk=target/test-out/shared-AC20-FZK-Haus/tiles campus=target/test-out/viewer-campus/tiles
+# The campus of the tree and search budgets: 100 buildings of the shared GLBs, about 100k elements,
+# converted here without HLOD (only its element index is measured; the tiles need not be coarse).
+VIEWER_CAMPUS := $(SHARED)/data/ISSUE_021_Mini_Project.glb=36 $(SHARED)/data/duplex.glb=32 $(SHARED)/data/AC20-FZK-Haus.glb=32
 # Edges in the same browser (checkEdges): the sample and an IFC model, converted here with
 # --edges all (the cargo tests write none to keep): with the Edges box on, a dark line along known
 # hard edges (box edges of picked elements whose surface reaches them); off, none.
 EDGE_SETS := edges-sample=$(SAMPLE) edges-duplex=$(SHARED)/data/duplex.ifc
 test-browser: deps build
 	@set -e; for s in $(EDGE_SETS); do n=$${s%%=*}; $(BIN) convert $${s#*=} --out target/test-out/$$n/tiles --force --quiet --edges all; done
+	@$(PY) tools/campus_manifest.py --out target/test-out/viewer-campus $(VIEWER_CAMPUS) && \
+	  $(BIN) convert --manifest target/test-out/viewer-campus/campus.json --out target/test-out/viewer-campus/tiles --force --quiet --lod none
 	@set -e; for s in $(BROWSER_SETS); do d=target/test-out/$$s/tiles; [ -f $$d/tileset.json ] || { echo "browser test: $$s: the cargo tests wrote no $$d/tileset.json"; exit 1; }; \
 	  case " $(INLINED_SETS) " in *" $$s "*) grep -Eq '"uri": *"data:model/gltf-binary;base64,' $$d/tileset.json || { echo "browser test: $$s: the root is not inlined in tileset.json"; exit 1; };; esac; \
 	  echo "browser test: $$s"; pick=""; case $$s in sample) pick="--require-pick --check-adaptive";; cityjson-*|shared-IfcOpenHouse_IFC4) pick=--require-pick;; citygml-*|mesh-formats-*) pick="--require-pick --require-texture 0.015";; ladder-airport) pick="--min-drawn-pct 0.1";; esac; \
