@@ -315,6 +315,24 @@ fn instanced_shapes_carry_their_edges_once() {
 }
 
 #[test]
+fn a_tileset_whose_elements_are_cut_between_tiles() {
+    // tests/python/test_edges.py checks on it that a cut across a face draws no line: a house with a
+    // tile budget small enough that the octree cuts its large elements (slabs, walls, roof).
+    let Some(model) = shared_file("AC20-FZK-Haus.ifc") else {
+        return;
+    };
+    let dir = tmpdir("edges-cut-fzk").join("tiles");
+    let r = convert(
+        &model,
+        &dir,
+        &["--edges", "all", "--max-tile-triangles", "1000"],
+    );
+    assert!(r["output"]["edge_bytes"].as_u64().unwrap() > 0);
+    let cut = r["tiles"].as_array().unwrap().len();
+    assert!(cut > 8, "{cut} tiles: the budget did not split the model");
+}
+
+#[test]
 fn finder_tilesets_for_the_independent_check() {
     // tests/python/test_edges.py compares the hard edges of these full-detail tiles with its own
     // finder on the input: per element and material as the input has them (no dedup, no

@@ -14,6 +14,12 @@
 //! - at or below [`COPLANAR_MAX_DEG`]: hidden (the diagonal of a flat face);
 //! - in between, a smooth edge of a curved surface: a silhouette ([`EdgeMode::All`]) or hidden.
 //!
+//! An edge used by one triangle of the primitive is not always the element's boundary: where the
+//! octree cut a large element between tiles, its surface goes on in the next tile. Given the rest
+//! of the element's surface ([`Seams`]), such an edge is judged as the whole surface would have
+//! it: a seam across a flat or smoothly curved face is hidden, so a cut draws no line; a crease
+//! that the cut follows stays hard.
+//!
 //! The spec's once-only rules hold by construction: of the occurrences of a welded edge, the
 //! first in index order carries `2` (or `1`) and the others `3` (or `0`).
 //!
@@ -28,8 +34,7 @@ use std::collections::HashMap;
 /// Which edges tiles carry (`--edges`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum EdgeMode {
-    /// No `EXT_mesh_primitive_edge_visibility` (the default until a cut between tiles is hidden
-    /// and edges cost less).
+    /// No `EXT_mesh_primitive_edge_visibility` (the default until edges cost less).
     #[default]
     None,
     /// Hard edges only (outlines and creases).
@@ -106,6 +111,24 @@ pub const EXTENSION: &str = "EXT_mesh_primitive_edge_visibility";
 /// `material` names: without one, CesiumJS draws an edge in its surface's own unlit colour, which
 /// is lighter than a lit face and hard to see; drawings show edges as dark lines.
 pub const EDGE_COLOR: [f32; 4] = [0.02, 0.02, 0.02, 1.0];
+
+/// An element's whole surface (every triangle of it in the scene, not only those in the tile), in
+/// the frame of the drawn positions, with each face's material.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct WholeSurface {
+    pub positions: Vec<[f32; 3]>,
+    pub indices: Vec<u32>,
+    /// Per triangle, its material (any number that tells materials apart): a seam runs between
+    /// faces of one material; where the material changes the element has an edge of its own.
+    pub face_materials: Vec<u32>,
+}
+
+/// Where the rest of each element's surface is (by group) and how far a drawn vertex may lie from
+/// its place on that surface (the position grid and the weld), to tell seams from boundaries.
+pub struct Seams<'a> {
+    pub whole_surface: &'a dyn Fn(u32) -> Option<WholeSurface>,
+    pub tolerance_m: f64,
+}
 
 /// Visibility values (the spec's "Edge Visibility").
 pub const HIDDEN: u8 = 0;
@@ -206,6 +229,7 @@ pub fn edge_visibility(
     groups: &[u32],
     indices: &[u32],
     opts: &EdgeOptions,
+    seams: Option<&Seams>,
 ) -> Option<EdgeVisibility> {
     if opts.mode == EdgeMode::None || indices.len() < 3 {
         return None;
@@ -250,9 +274,13 @@ pub fn edge_visibility(
     let mut values = vec![HIDDEN; tri_count * 3];
     let mut silhouettes: Vec<(u32, [[f32; 3]; 2])> = Vec::new();
     let (mut hard_edges, mut silhouette_edges) = (0, 0);
+    let mut boundary: Vec<u32> = Vec::new();
     for run in edges.chunk_by(|x, y| (x.0, x.1) == (y.0, y.1)) {
         let hard = match run {
-            [_] => true,
+            [(_, _, k, _)] => {
+                boundary.push(*k);
+                continue;
+            }
             [(_, _, k0, dir0), (_, _, k1, dir1)] => {
                 let (Some(n0), Some(n1)) = (normals[*k0 as usize / 3], normals[*k1 as usize / 3])
                 else {
@@ -288,6 +316,16 @@ pub fn edge_visibility(
             }
         }
     }
+    let seam = seams.map_or_else(
+        || vec![false; boundary.len()],
+        |s| soft_seams(positions, groups, indices, &boundary, s, cos_crease),
+    );
+    for (&k, seam) in boundary.iter().zip(seam) {
+        if !seam {
+            values[k as usize] = HARD;
+            hard_edges += 1;
+        }
+    }
     if hard_edges + silhouette_edges == 0 {
         return None;
     }
@@ -298,6 +336,147 @@ pub fn edge_visibility(
         hard_edges,
         silhouette_edges,
     })
+}
+
+/// Per boundary edge (`k`: triangle `k / 3`, edge `k % 3`), whether it is a seam: the element's
+/// whole surface has an edge there between two faces that meet at no more than the crease angle.
+fn soft_seams(
+    positions: &[[f32; 3]],
+    groups: &[u32],
+    indices: &[u32],
+    boundary: &[u32],
+    seams: &Seams,
+    cos_crease: f64,
+) -> Vec<bool> {
+    let ends = |k: u32| {
+        let (t, e) = (k as usize / 3, k as usize % 3);
+        let a = indices[3 * t + e] as usize;
+        let b = indices[3 * t + (e + 1) % 3] as usize;
+        (groups[a], positions[a], positions[b])
+    };
+    let mut by_group: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+    for (j, &k) in boundary.iter().enumerate() {
+        by_group.entry(ends(k).0).or_default().push(j);
+    }
+    let mut seam = vec![false; boundary.len()];
+    for (group, list) in by_group {
+        let Some(whole) = (seams.whole_surface)(group) else {
+            continue;
+        };
+        let rest = SoftEdges::new(&whole, cos_crease, seams.tolerance_m);
+        for j in list {
+            let (_, a, b) = ends(boundary[j]);
+            seam[j] = rest.near(a, b);
+        }
+    }
+    seam
+}
+
+/// The edges of a whole surface between two faces that meet at no more than the crease angle,
+/// found by position within a tolerance.
+struct SoftEdges {
+    soft: std::collections::HashSet<(u32, u32)>,
+    /// Welded corners by grid cell (the tolerance a cell).
+    cells: HashMap<[i64; 3], Vec<u32>>,
+    positions: Vec<DVec3>,
+    tolerance_m: f64,
+}
+
+impl SoftEdges {
+    fn new(whole: &WholeSurface, cos_crease: f64, tolerance_m: f64) -> SoftEdges {
+        let n = whole.positions.len();
+        let corner = welded_corners(&whole.positions, &vec![0; n], weld_tolerance_m());
+        let positions: Vec<DVec3> = (whole.positions.iter())
+            .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        let mut edges: Vec<(u32, u32, DVec3, bool, u32)> = Vec::new();
+        for (t, &material) in whole.indices.chunks_exact(3).zip(&whole.face_materials) {
+            let c = [t[0], t[1], t[2]].map(|i| corner[i as usize]);
+            if c[0] == c[1] || c[1] == c[2] || c[2] == c[0] {
+                continue;
+            }
+            let [p0, p1, p2] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);
+            let normal = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+            for e in 0..3 {
+                let (a, b) = (c[e], c[(e + 1) % 3]);
+                edges.push((a.min(b), a.max(b), normal, a < b, material));
+            }
+        }
+        edges.sort_unstable_by_key(|e| (e.0, e.1));
+        let soft = edges
+            .chunk_by(|x, y| (x.0, x.1) == (y.0, y.1))
+            .filter_map(|run| match run {
+                [(a, b, n0, d0, m0), (_, _, n1, d1, m1)] => {
+                    let cos = if d0 != d1 { n0.dot(*n1) } else { -n0.dot(*n1) };
+                    // Beside a sliver (no normal) the seam is not judged: it stays hard.
+                    let sliver = *n0 == DVec3::ZERO || *n1 == DVec3::ZERO;
+                    (!sliver && m0 == m1 && cos >= cos_crease).then_some((*a, *b))
+                }
+                _ => None,
+            })
+            .collect();
+        let tolerance_m = tolerance_m.max(weld_tolerance_m());
+        let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (i, &c) in corner.iter().enumerate() {
+            if c == i as u32 {
+                cells
+                    .entry(cell_of(positions[i], tolerance_m))
+                    .or_default()
+                    .push(c);
+            }
+        }
+        SoftEdges {
+            soft,
+            cells,
+            positions,
+            tolerance_m,
+        }
+    }
+
+    /// Corners within the tolerance of `p`.
+    fn corners_near(&self, p: [f32; 3]) -> Vec<u32> {
+        let q = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        let c = cell_of(q, self.tolerance_m);
+        let mut out = Vec::new();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
+                    for &r in self.cells.get(&key).into_iter().flatten() {
+                        if self.positions[r as usize].distance(q) <= self.tolerance_m {
+                            out.push(r);
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Whether a soft edge of the whole surface runs between `a` and `b` (never for an edge too
+    /// short to tell its ends apart within the tolerance).
+    fn near(&self, a: [f32; 3], b: [f32; 3]) -> bool {
+        let length_m = DVec3::from(a.map(f64::from)).distance(DVec3::from(b.map(f64::from)));
+        if length_m <= 2.0 * self.tolerance_m {
+            return false;
+        }
+        let (near_a, near_b) = (self.corners_near(a), self.corners_near(b));
+        near_a.iter().any(|&x| {
+            near_b
+                .iter()
+                .any(|&y| x != y && self.soft.contains(&(x.min(y), x.max(y))))
+        })
+    }
+}
+
+/// The grid cell of `p` for cells of `size_m`.
+fn cell_of(p: DVec3, size_m: f64) -> [i64; 3] {
+    let inv = 1.0 / size_m;
+    [
+        (p.x * inv).floor() as i64,
+        (p.y * inv).floor() as i64,
+        (p.z * inv).floor() as i64,
+    ]
 }
 
 #[cfg(test)]
@@ -345,7 +524,14 @@ mod tests {
             [1.0, 1.0, 0.0],
             [0.0, 1.0, 0.0],
         ];
-        let e = edge_visibility(&positions, &[0; 4], &[0, 1, 2, 0, 2, 3], &every_edge()).unwrap();
+        let e = edge_visibility(
+            &positions,
+            &[0; 4],
+            &[0, 1, 2, 0, 2, 3],
+            &every_edge(),
+            None,
+        )
+        .unwrap();
         let v = all(&e, 2);
         assert_eq!(count(&v, HARD), 4);
         assert_eq!(count(&v, HIDDEN), 2);
@@ -383,7 +569,7 @@ mod tests {
     #[test]
     fn a_cube_with_split_vertices_has_twelve_hard_edges() {
         let (positions, indices) = split_cube();
-        let e = edge_visibility(&positions, &[0; 24], &indices, &every_edge()).unwrap();
+        let e = edge_visibility(&positions, &[0; 24], &indices, &every_edge(), None).unwrap();
         let v = all(&e, 12);
         assert_eq!(e.hard_edges, 12);
         assert_eq!(count(&v, HARD), 12);
@@ -419,7 +605,7 @@ mod tests {
     fn a_cylinder_draws_silhouettes_along_its_side_and_hard_rims() {
         let (positions, indices) = cylinder(24);
         let groups = vec![0; positions.len()];
-        let e = edge_visibility(&positions, &groups, &indices, &every_edge()).unwrap();
+        let e = edge_visibility(&positions, &groups, &indices, &every_edge(), None).unwrap();
         // 15° a facet: below the crease angle. The vertical edges are silhouettes (24), the
         // diagonals coplanar (hidden), the two rims hard (48 edges).
         assert_eq!(e.silhouette_edges, 24);
@@ -437,20 +623,20 @@ mod tests {
             mode: EdgeMode::Hard,
             ..every_edge()
         };
-        let h = edge_visibility(&positions, &groups, &indices, &hard).unwrap();
+        let h = edge_visibility(&positions, &groups, &indices, &hard, None).unwrap();
         assert_eq!((h.hard_edges, h.silhouette_edges), (48, 0));
         assert!(h.silhouette_normals.is_empty());
         let none = EdgeOptions {
             mode: EdgeMode::None,
             ..every_edge()
         };
-        assert!(edge_visibility(&positions, &groups, &indices, &none).is_none());
+        assert!(edge_visibility(&positions, &groups, &indices, &none, None).is_none());
         // A crease angle below the facet angle makes the facets hard.
         let sharp = EdgeOptions {
             crease_angle_deg: 10.0,
             ..every_edge()
         };
-        let s = edge_visibility(&positions, &groups, &indices, &sharp).unwrap();
+        let s = edge_visibility(&positions, &groups, &indices, &sharp, None).unwrap();
         assert_eq!((s.hard_edges, s.silhouette_edges), (72, 0));
     }
 
@@ -474,11 +660,12 @@ mod tests {
             &[0, 0, 0, 0, 1, 1, 1, 1],
             &indices,
             &every_edge(),
+            None,
         )
         .unwrap();
         assert_eq!(two.hard_edges, 8);
         assert_eq!(count(&all(&two, 4), REPEATED_HARD), 0);
-        let one = edge_visibility(&positions, &[0; 8], &indices, &every_edge()).unwrap();
+        let one = edge_visibility(&positions, &[0; 8], &indices, &every_edge(), None).unwrap();
         assert_eq!(one.hard_edges, 6);
     }
 
@@ -510,6 +697,7 @@ mod tests {
             &[0; 5],
             &[0, 1, 2, 0, 2, 3, 0, 4, 1],
             &every_edge(),
+            None,
         )
         .unwrap();
         let v = all(&e, 3);
@@ -526,13 +714,72 @@ mod tests {
             &[0; 4],
             &[0, 1, 2, 0, 3, 1],
             &every_edge(),
+            None,
         )
         .unwrap();
         assert_eq!(&all(&e, 2)[3..], &[HIDDEN; 3]);
         // A one-sided sheet written twice, back to back: its outline is hard (180°), once.
-        let e =
-            edge_visibility(&positions[..3], &[0; 3], &[0, 1, 2, 0, 2, 1], &every_edge()).unwrap();
+        let e = edge_visibility(
+            &positions[..3],
+            &[0; 3],
+            &[0, 1, 2, 0, 2, 1],
+            &every_edge(),
+            None,
+        )
+        .unwrap();
         let v = all(&e, 2);
         assert_eq!((count(&v, HARD), count(&v, REPEATED_HARD)), (3, 3));
+    }
+
+    #[test]
+    fn a_cut_across_a_flat_face_draws_no_line_and_a_crease_or_new_material_does() {
+        // One element: flat quad A (in the tile), flat quad B beside it, and wall C folded up at
+        // 90 degrees from A's far side. The tile draws A alone.
+        let p = |x: f32, y: f32, z: f32| [x, y, z];
+        let whole_positions = vec![
+            p(0., 0., 0.),
+            p(1., 0., 0.),
+            p(1., 1., 0.),
+            p(0., 1., 0.),
+            p(2., 0., 0.),
+            p(2., 1., 0.),
+            p(1., 1., 1.),
+            p(0., 1., 1.),
+        ];
+        let whole_indices = vec![0, 1, 2, 0, 2, 3, 1, 4, 5, 1, 5, 2, 3, 2, 6, 3, 6, 7];
+        let tile_positions = whole_positions[..4].to_vec();
+        let tile_indices = [0, 1, 2, 0, 2, 3];
+        let run = |face_materials: Vec<u32>| {
+            let whole = WholeSurface {
+                positions: whole_positions.clone(),
+                indices: whole_indices.clone(),
+                face_materials,
+            };
+            let find = |_: u32| Some(whole.clone());
+            let seams = Seams {
+                whole_surface: &find,
+                tolerance_m: 1e-4,
+            };
+            let e = edge_visibility(
+                &tile_positions,
+                &[0; 4],
+                &tile_indices,
+                &every_edge(),
+                Some(&seams),
+            )
+            .unwrap();
+            (all(&e, 2), e.hard_edges)
+        };
+        // Edges: k = 0 (p0-p1, a boundary), 1 (p1-p2, the cut towards B), 2 and 3 (the
+        // diagonal), 4 (p2-p3, the crease towards C), 5 (p3-p0, a boundary).
+        let (values, hard) = run(vec![7; 6]);
+        assert_eq!(values, vec![HARD, HIDDEN, HIDDEN, HIDDEN, HARD, HARD]);
+        assert_eq!(hard, 3);
+        // B of another material: the element has an edge there of its own.
+        let (values, _) = run(vec![7, 7, 8, 8, 7, 7]);
+        assert_eq!(values[1], HARD);
+        // Without the rest of the surface every boundary is hard.
+        let e = edge_visibility(&tile_positions, &[0; 4], &tile_indices, &every_edge(), None);
+        assert_eq!(e.unwrap().hard_edges, 4);
     }
 }

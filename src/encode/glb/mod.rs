@@ -320,8 +320,13 @@ fn write_glb(
     // The merged geometry: one mesh on the root node, a feature ID per vertex.
     if !content.primitives.is_empty() {
         let frame = w.frame_of(&content.primitives);
+        let drawn_by = DrawnBy {
+            features: &content.features,
+            center,
+        };
         w.write_mesh(
             &content.primitives,
+            Some(&drawn_by),
             Some(feature_count),
             table.is_some(),
             frame.as_ref(),
@@ -353,6 +358,39 @@ fn write_glb(
     w.finish(table, used, required)
 }
 
+/// The components a tile's merged geometry draws (by feature ID) and the origin of its positions:
+/// where the edge finder looks for the rest of an element cut between tiles.
+pub(super) struct DrawnBy<'a> {
+    features: &'a [crate::scene::ComponentId],
+    center: DVec3,
+}
+
+impl DrawnBy<'_> {
+    /// The whole surface of the component of feature `feature`, in the frame the tile draws it
+    /// in (glTF y-up, from the tile's origin).
+    pub(super) fn whole_surface(
+        &self,
+        scene: &Scene,
+        feature: u32,
+    ) -> Option<crate::encode::edges::WholeSurface> {
+        let component = scene.component(*self.features.get(feature as usize)?);
+        let mesh = scene.mesh(component.mesh);
+        let mut out = crate::encode::edges::WholeSurface::default();
+        for p in &mesh.primitives {
+            let material = p.material.map_or(u32::MAX, |m| m.0);
+            (out.face_materials).extend(std::iter::repeat_n(material, p.indices.len() / 3));
+            let base = out.positions.len() as u32;
+            out.positions.extend(p.positions.iter().map(|v| {
+                let at = DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+                let w = component.world.transform_point3(at) - self.center;
+                [w.x as f32, w.z as f32, -w.y as f32]
+            }));
+            out.indices.extend(p.indices.iter().map(|&i| base + i));
+        }
+        (!out.indices.is_empty()).then_some(out)
+    }
+}
+
 /// A tile's glTF while it is written: the binary buffer with its views and accessors, the
 /// materials, the meshes and the nodes.
 struct GlbWriter<'a> {
@@ -381,6 +419,7 @@ impl GlbWriter<'_> {
     fn write_mesh(
         &mut self,
         prims: &[ContentPrimitive],
+        drawn_by: Option<&DrawnBy>,
         feature_count: Option<usize>,
         property_table: bool,
         frame: Option<&QuantFrame>,
@@ -393,6 +432,7 @@ impl GlbWriter<'_> {
                 &mut self.b,
                 &mut self.mats,
                 m,
+                drawn_by,
                 feature_count,
                 property_table,
                 self.enc,
@@ -420,7 +460,7 @@ impl GlbWriter<'_> {
         // Decoded vertices of the shape (scene frame, z-up): every instance's copy of them
         // goes into the tile's box, so a rotated copy is bounded exactly, not by a turned box.
         let mut decoded_points: Vec<DVec3> = Vec::new();
-        self.write_mesh(&shape.primitives, None, false, frame.as_ref(), |p| {
+        self.write_mesh(&shape.primitives, None, None, false, frame.as_ref(), |p| {
             decoded_points.push(z_up(p))
         })?;
         let attributes =

@@ -19,6 +19,7 @@ pub(super) fn write_primitive(
     b: &mut GltfBuilder,
     mats: &mut MaterialTable,
     m: &ContentPrimitive,
+    drawn_by: Option<&DrawnBy>,
     feature_count: Option<usize>,
     property_table: bool,
     enc: &TileEncoding,
@@ -45,11 +46,23 @@ pub(super) fn write_primitive(
             (p, Some(bx), drawn)
         }
     };
+    // A drawn vertex lies within √3 per-axis position errors of its source; twice that is searched,
+    // so a seam's ends are found however the grid rounded them (too short an edge is not judged).
+    let grid_m = match enc.compression {
+        Compression::None => 0.0,
+        _ => 2.0 * enc.max_position_error_m * 3f64.sqrt(),
+    };
+    let whole = |feature: u32| drawn_by?.whole_surface(scene, feature);
+    let seams = crate::encode::edges::Seams {
+        whole_surface: &whole,
+        tolerance_m: crate::encode::edges::weld_tolerance_m() + grid_m,
+    };
     if let Some(edges) = crate::encode::edges::edge_visibility(
         &drawn.positions_y_up,
         &drawn.groups,
         &drawn.indices,
         &enc.edges,
+        drawn_by.is_some().then_some(&seams),
     ) {
         let mut ext = b.edge_visibility(&edges);
         ext["material"] = json!(mats.edge_index());
