@@ -221,13 +221,17 @@ screenshot: deps build
 # BENCH_RUNS=N changes the runs per model; BENCH_ARGS adds options (e.g. --runs-for NAME=1);
 # BENCH_THROTTLE=20:40 emulates a 20 Mbit/s network with 40 ms latency (no service worker then).
 # Each load is followed by the fly-in (bytes fetched at 20, 6, 2.5, 1.2, 0.6 bounding radii).
+# Models that are no GLB, textured city data beside the GLBs: a CityGML tile of buildings and an
+# OBJ district (their raw variant is our own single-tile GLB of each, see the script's header).
+BENCH_BROWSER_CITY = $(wildcard $(SHARED)/data/citygml/plateau-yokosuka-bldg-textured/52397519_bldg_6697_op.gml \
+  $(SHARED)/data/obj/alphaville-centerpart-textured/AlphaVille_CenterPart.obj)
 BENCH_RUNS ?= 3
 BENCH_THROTTLE ?=
 bench-browser: deps build
 	mkdir -p target/bench
 	@# A model that fails is listed in the table; the charts are drawn from the others, then make fails.
 	node tools/bench_browser.mjs --runs $(BENCH_RUNS) $(if $(BENCH_THROTTLE),--throttle $(BENCH_THROTTLE)) $(BENCH_ARGS) --json target/bench/browser.json \
-	  $(SAMPLE) $(wildcard $(SHARED)/data/*.glb) > target/bench/browser.stdout; rc=$$?; \
+	  $(SAMPLE) $(wildcard $(SHARED)/data/*.glb) $(BENCH_BROWSER_CITY) > target/bench/browser.stdout; rc=$$?; \
 	  $(CARGO) run --release --quiet --features charts --example bench_charts -- target/bench/browser.json target/bench && exit $$rc
 
 # Convert the sample and open it in the viewer at http://127.0.0.1:8080/

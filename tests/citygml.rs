@@ -4,7 +4,8 @@
 //! the 3D Tiles schemas pass; the gml:ids are in the property tables and PLATEAU's ADE attributes
 //! keep their `uro:` prefix; windows and doors are elements with their names; textured files keep
 //! images and UVs through the atlas; `--citygml-lod` reads one LoD and names those present when
-//! asked for one no object has. Element counts, polygon areas and placement against pyproj are
+//! asked for one no object has; a prototype's appearance keeps its placements one shape.
+//! Element counts, polygon areas and placement against pyproj are
 //! checked independently in `tests/python/test_citygml_pyproj.py`.
 
 use crate::common::*;
@@ -236,4 +237,41 @@ fn a_manifest_entry_reads_a_citygml_file_at_its_lod() {
         report["input"]["triangles"], lod1["input"]["triangles"],
         "the entry's LoD"
     );
+}
+
+#[test]
+fn a_prototype_with_a_material_stays_one_shape_on_its_placements() {
+    // Two placements of one panel, the second turned 90 degrees about z, with an X3DMaterial on
+    // the prototype's polygon: both copies wear it, so dedup still shares one mesh.
+    let dir = tmpdir("citygml-implicit-look");
+    let panel = r#"<gml:MultiSurface gml:id="panel"><gml:surfaceMember><gml:Polygon gml:id="panel-face">
+  <gml:exterior><gml:LinearRing><gml:posList srsDimension="3">0 0 0 1 0 0 1 0 1 0 0 1 0 0 0</gml:posList>
+  </gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"#;
+    let xml = format!(
+        r##"<?xml version="1.0" encoding="UTF-8"?>
+<CityModel xmlns="http://www.opengis.net/citygml/2.0" xmlns:gml="http://www.opengis.net/gml"
+  xmlns:frn="http://www.opengis.net/citygml/cityfurniture/2.0" xmlns:xlink="http://www.w3.org/1999/xlink"
+  xmlns:app="http://www.opengis.net/citygml/appearance/2.0">
+<cityObjectMember><frn:CityFurniture gml:id="sign-1"><frn:lod2ImplicitRepresentation><ImplicitGeometry>
+  <transformationMatrix>1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1</transformationMatrix>
+  <referencePoint><gml:Point><gml:pos>100 200 5</gml:pos></gml:Point></referencePoint>
+  <relativeGMLGeometry>{panel}</relativeGMLGeometry>
+</ImplicitGeometry></frn:lod2ImplicitRepresentation></frn:CityFurniture></cityObjectMember>
+<cityObjectMember><frn:CityFurniture gml:id="sign-2"><frn:lod2ImplicitRepresentation><ImplicitGeometry>
+  <transformationMatrix>0 -1 0 0 1 0 0 0 0 0 1 0 0 0 0 1</transformationMatrix>
+  <referencePoint><gml:Point><gml:pos>120 200 5</gml:pos></gml:Point></referencePoint>
+  <relativeGMLGeometry xlink:href="#panel"/>
+</ImplicitGeometry></frn:lod2ImplicitRepresentation></frn:CityFurniture></cityObjectMember>
+<app:appearanceMember><app:Appearance><app:surfaceDataMember><app:X3DMaterial>
+  <app:diffuseColor>0.2 0.4 0.6</app:diffuseColor><app:target>#panel-face</app:target>
+</app:X3DMaterial></app:surfaceDataMember></app:Appearance></app:appearanceMember>
+</CityModel>"##
+    );
+    let path = dir.join("signs.gml");
+    std::fs::write(&path, xml).unwrap();
+    let report = convert(&path, &dir.join("out"), &[]);
+    let dedup = &report["dedup"];
+    assert_eq!(dedup["components"], 2, "{dedup}");
+    assert_eq!(dedup["unique_shapes"], 1, "{dedup}");
+    assert_eq!(dedup["congruent_rewritten"], 1, "{dedup}");
 }

@@ -36,9 +36,11 @@
 //
 // A model that is no GLB (IFC, CityGML, CityJSON, OBJ, FBX) has no raw GLB: its raw variant is
 // bimtiles' own single-tile GLB of it (one octree cell: --max-tile-triangles and --max-tile-bytes
-// at their largest, no coarse root above it, Draco whatever our default, images embedded, the GLB a
-// file as a raw model is, not inlined in tileset.json). A model wider than the octree's leaf extent
-// (a district, a city tile) cannot be one tile: the run says so; give it a GLB with --raw-glb.
+// at their largest, and the hidden development option --max-leaf-extent-m inf, which lifts the
+// octree's leaf extent rule so that a model wider than a leaf, a district or a city tile, is one
+// cell too; no coarse root above it, Draco whatever our default, images embedded, the GLB a file
+// as a raw model is, not inlined in tileset.json). It is already in the tileset's frame (moved by
+// the same anchor as ours). A given --raw-glb, like a GLB model, is in the model's own frame.
 //
 // Fly-in (each run, each variant, after the cold load): the tileset is loaded again at a new URL
 // (nothing cached) with the camera at the first stop, then moved to each stop in turn (heading 0.6,
@@ -110,9 +112,12 @@ function defaultServeCmd(bimtiles) {
   }
 }
 
-/** A tileset whose single tile is the original GLB, placed like bimtiles' tileset. */
-function rawTileset(ours, glbName) {
-  const anchor = (ours.asset.extras && ours.asset.extras.bimtiles && ours.asset.extras.bimtiles.anchor_m) || [0, 0, 0];
+/**
+ * A tileset whose single tile is the original GLB, placed like bimtiles' tileset. `anchored`: the
+ * GLB is bimtiles' own, already moved by the anchor.
+ */
+function rawTileset(ours, glbName, anchored) {
+  const anchor = (!anchored && ours.asset.extras && ours.asset.extras.bimtiles && ours.asset.extras.bimtiles.anchor_m) || [0, 0, 0];
   const root = {
     boundingVolume: ours.root.boundingVolume,
     geometricError: 0,
@@ -148,7 +153,7 @@ function rawTileset(ours, glbName) {
  */
 function singleTileGlb(bimtiles, model, outDir) {
   const most = String(2 ** 32 - 1);
-  execFileSync(bimtiles, ["convert", model, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--no-coarse-root", "--no-inline-root", "--embed-textures"], { stdio: "inherit" });
+  execFileSync(bimtiles, ["convert", model, "--out", outDir, "--quiet", "--compression", "draco", "--max-tile-triangles", most, "--max-tile-bytes", most, "--max-leaf-extent-m", "inf", "--no-coarse-root", "--no-inline-root", "--embed-textures"], { stdio: "inherit" });
   const ts = JSON.parse(readFileSync(join(outDir, "tileset.json")));
   if (!ts.root.content || (ts.root.children && ts.root.children.length))
     throw new Error(`${model}: the single-tile conversion has more than one tile`);
@@ -482,13 +487,14 @@ async function main() {
       execFileSync(opts.bimtiles, ["convert", model, "--out", oursDir, "--quiet", ...extra], { stdio: "inherit" });
       entry.convertMs = Date.now() - t;
       // The raw variant: a given GLB, else the model itself when it is a GLB, else our own one-tile GLB.
-      const rawModel = opts.rawGlb[name] || (/\.glb$/i.test(model) ? model : singleTileGlb(opts.bimtiles, model, join(dir, "single")));
+      const rawIsOurs = !opts.rawGlb[name] && !/\.glb$/i.test(model);
+      const rawModel = opts.rawGlb[name] || (rawIsOurs ? singleTileGlb(opts.bimtiles, model, join(dir, "single")) : model);
       const ours = JSON.parse(readFileSync(join(oursDir, "tileset.json")));
       cpSync(join(oursDir, "tileset.json"), join(dir, "tileset.json")); // the server wants one at its root
       const rawDir = join(dir, "raw");
       mkdirSync(rawDir);
       copyFileSync(rawModel, join(rawDir, "model.glb"));
-      writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb"), null, 1));
+      writeFileSync(join(rawDir, "tileset.json"), JSON.stringify(rawTileset(ours, "model.glb", rawIsOurs), null, 1));
       // Everything a client could download: the whole tileset folder against the GLB.
       entry.diskBytes = { ours: dirBytes(oursDir), raw: statSync(rawModel).size };
 

@@ -220,6 +220,11 @@ struct ConvertArgs {
     /// Split an octree cell while its content is larger than this many (uncompressed) bytes.
     #[arg(long, default_value_t = OctreeOptions::default().max_tile_bytes, value_parser = parse_at_least_one)]
     max_tile_bytes: usize,
+    /// Development option (hidden): split an octree cell whose content spans more than this many
+    /// metres, even within the budgets. `inf` lifts the rule, so that a wide model within the
+    /// budgets can be one tile (the browser benchmark's single-tile raw variant).
+    #[arg(long, hide = true, default_value_t = OctreeOptions::default().max_leaf_extent_m, value_parser = parse_leaf_extent)]
+    max_leaf_extent_m: f64,
     /// Geometry compression of the tiles: meshopt (KHR_mesh_quantization attributes as
     /// EXT_meshopt_compression streams: decoded on the client's main thread, the fastest first
     /// view), draco (KHR_draco_mesh_compression: the smallest files, decoded in a worker one
@@ -598,6 +603,15 @@ fn parse_threads(text: &str) -> std::result::Result<usize, String> {
     }
 }
 
+fn parse_leaf_extent(text: &str) -> std::result::Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 => Ok(v),
+        _ => Err(format!(
+            "'{text}' is not a length in metres above 0 (or inf)"
+        )),
+    }
+}
+
 fn parse_at_least_one(text: &str) -> std::result::Result<usize, String> {
     match text.trim().parse::<usize>() {
         Ok(n) if n >= 1 => Ok(n),
@@ -789,6 +803,7 @@ fn convert_options(a: &ConvertArgs) -> Result<ConvertOptions> {
         octree: OctreeOptions {
             max_tile_triangles: a.max_tile_triangles,
             max_tile_bytes: a.max_tile_bytes.max(1),
+            max_leaf_extent_m: a.max_leaf_extent_m,
             ..OctreeOptions::default()
         },
         compression: compression_asked.unwrap_or_default(),

@@ -346,7 +346,8 @@ fn expand(doc: &Document, m: &Member, reversed: bool, depth: usize, out: &mut Ve
 
 /// Every ImplicitGeometry placement becomes polygons of its object at its LoD: the prototype's
 /// points through the row-major transformation, as offsets from the reference point (added once
-/// the CRS is known). Copies of one prototype are congruent, so dedup makes them instances.
+/// the CRS is known). Each copy keeps its prototype polygon's index for its appearance. Copies of
+/// one prototype are congruent, so dedup makes them instances.
 fn place_implicit_geometries(doc: &mut Document) {
     for o in 0..doc.objects.len() {
         for placement in std::mem::take(&mut doc.objects[o].implicit) {
@@ -375,6 +376,7 @@ fn place_implicit_geometries(doc: &mut Document) {
                     semantic: template.semantic,
                     template: false,
                     anchor: Some(placement.reference),
+                    prototype: Some(p),
                 });
                 placed.push(Member::Polygon(index, reversed));
             }
@@ -612,7 +614,10 @@ impl Builder<'_> {
         out: &mut ObjectTriangles,
     ) -> Result<()> {
         let polygon = &self.doc.polygons[p as usize];
-        let textured = looks.textured.get(&p);
+        // A placed copy has no gml:id of its own: it wears its prototype polygon's look, the same
+        // on every copy, so that the copies stay congruent in geometry and material (instances).
+        let look = polygon.prototype.unwrap_or(p);
+        let textured = looks.textured.get(&look);
         let mut points: Vec<DVec3> = Vec::new();
         let mut holes = Vec::new();
         let mut uvs: Option<Vec<[f32; 2]>> = textured.map(|_| Vec::new());
@@ -650,7 +655,7 @@ impl Builder<'_> {
             return Ok(());
         };
         let texture = textured.map(|(t, _)| t.clone()).filter(|_| uvs.is_some());
-        let colour = looks.colours.get(&p).copied();
+        let colour = looks.colours.get(&look).copied();
         let semantic = polygon.semantic;
         let key = (
             semantic,

@@ -106,6 +106,9 @@ pub(super) struct Polygon {
     /// A placed prototype's polygon: its rings are offsets in metres from this point of the
     /// file's CRS (the placement's reference point), until the CRS is known and they are placed.
     pub anchor: Option<DVec3>,
+    /// A placed prototype's polygon: the prototype's polygon it is a copy of, whose appearance
+    /// (targeted by that polygon's or its rings' gml:ids) it wears.
+    pub prototype: Option<u32>,
 }
 
 /// An ImplicitGeometry (CityGML 2.0 clause 8.2, 3.0 core): a prototype's surfaces, placed by a

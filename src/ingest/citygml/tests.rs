@@ -1,5 +1,6 @@
 //! Reader tests on small documents written here: ImplicitGeometry placements (CityGML 2.0
-//! clause 8.2) and the features and geometry of an Application Domain Extension.
+//! clause 8.2) and their prototype's appearance, and the features and geometry of an Application
+//! Domain Extension.
 
 use super::*;
 use crate::scene::ComponentId;
@@ -298,4 +299,120 @@ fn georeferenced_textures_lie_over_their_surfaces() {
     assert!(unplaced.images.is_empty(), "no placement, no image");
     let roof = &unplaced.components[0];
     assert!(unplaced.mesh(roof.mesh).primitives[0].uvs.is_none());
+}
+
+/// A prototype whose polygon and ring have gml:ids for appearances to target: the unit panel.
+const NAMED_PANEL: &str = r#"<gml:MultiSurface gml:id="panel"><gml:surfaceMember><gml:Polygon gml:id="panel-face">
+  <gml:exterior><gml:LinearRing gml:id="panel-ring"><gml:posList srsDimension="3">0 0 0 1 0 0 1 0 1 0 0 1 0 0 0</gml:posList>
+  </gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"#;
+
+/// The named panel placed twice (inline, then by xlink) with these matrices at these reference
+/// points, and `surface_data` (an app:_SurfaceData) in a city model's appearance.
+fn placed_twice(matrices: [&str; 2], references: [DVec3; 2], surface_data: &str) -> String {
+    let pos = |v: DVec3| format!("{} {} {}", v.x, v.y, v.z);
+    format!(
+        r##"{HEAD}
+<cityObjectMember><frn:CityFurniture gml:id="sign-1"><frn:lod2ImplicitRepresentation><ImplicitGeometry>
+  <transformationMatrix>{}</transformationMatrix>
+  <referencePoint><gml:Point><gml:pos>{}</gml:pos></gml:Point></referencePoint>
+  <relativeGMLGeometry>{NAMED_PANEL}</relativeGMLGeometry>
+</ImplicitGeometry></frn:lod2ImplicitRepresentation></frn:CityFurniture></cityObjectMember>
+<cityObjectMember><frn:CityFurniture gml:id="sign-2"><frn:lod2ImplicitRepresentation><ImplicitGeometry>
+  <transformationMatrix>{}</transformationMatrix>
+  <referencePoint><gml:Point><gml:pos>{}</gml:pos></gml:Point></referencePoint>
+  <relativeGMLGeometry xlink:href="#panel"/>
+</ImplicitGeometry></frn:lod2ImplicitRepresentation></frn:CityFurniture></cityObjectMember>
+<app:appearanceMember xmlns:app="http://www.opengis.net/citygml/appearance/2.0"><app:Appearance>
+  <app:theme>looks</app:theme><app:surfaceDataMember>{surface_data}</app:surfaceDataMember>
+</app:Appearance></app:appearanceMember>
+</CityModel>"##,
+        matrices[0],
+        pos(references[0]),
+        matrices[1],
+        pos(references[1]),
+    )
+}
+
+/// The materials of a component's primitives.
+fn materials_of(scene: &Scene, c: usize) -> Vec<crate::scene::MaterialId> {
+    let mesh = scene.mesh(scene.components[c].mesh);
+    mesh.primitives
+        .iter()
+        .map(|p| p.material.expect("a material"))
+        .collect()
+}
+
+#[test]
+fn a_prototype_material_is_worn_by_every_placement() {
+    // The second copy is the first turned 90 degrees about z.
+    let xml = placed_twice(
+        [
+            "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1",
+            "0 -1 0 0 1 0 0 0 0 0 1 0 0 0 0 1",
+        ],
+        [DVec3::new(100.0, 200.0, 5.0), DVec3::new(120.0, 200.0, 5.0)],
+        r#"<app:X3DMaterial><app:diffuseColor>0.2 0.4 0.6</app:diffuseColor>
+  <app:transparency>0.5</app:transparency><app:target>#panel-face</app:target></app:X3DMaterial>"#,
+    );
+    let scene = read(&xml).scene;
+    assert_eq!(scene.components.len(), 2);
+    let expected = [0.2f32.powf(2.2), 0.4f32.powf(2.2), 0.6f32.powf(2.2), 0.5];
+    for c in 0..2 {
+        let materials = materials_of(&scene, c);
+        assert_eq!(materials.len(), 1, "copy {c}: {materials:?}");
+        let colour = scene.materials[materials[0].0 as usize].base_color;
+        for (got, want) in colour.iter().zip(expected) {
+            assert!(
+                (got - want).abs() < 1e-5,
+                "copy {c}: {colour:?} vs {expected:?}"
+            );
+        }
+    }
+    // One material for both: the copies stay alike for dedup (tests/citygml.rs).
+    assert_eq!(materials_of(&scene, 0), materials_of(&scene, 1));
+}
+
+#[test]
+fn a_prototype_texture_is_worn_by_every_placement() {
+    let dir = tempfile::tempdir().unwrap();
+    image::RgbImage::from_pixel(2, 2, image::Rgb([40, 200, 40]))
+        .save(dir.path().join("sign.png"))
+        .unwrap();
+    // CityGML's (s, t) = the panel's own (x, z): t up, glTF's v down.
+    let references = [DVec3::new(100.0, 200.0, 5.0), DVec3::new(130.0, 210.0, 5.0)];
+    let identity = "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1";
+    let xml = placed_twice(
+        [identity, identity],
+        references,
+        r##"<app:ParameterizedTexture><app:imageURI>sign.png</app:imageURI>
+  <app:target uri="#panel-face"><app:TexCoordList>
+  <app:textureCoordinates ring="#panel-ring">0 0 1 0 1 1 0 1 0 0</app:textureCoordinates>
+  </app:TexCoordList></app:target></app:ParameterizedTexture>"##,
+    );
+    let path = dir.path().join("signs.gml");
+    std::fs::write(&path, xml).unwrap();
+    let scene = read_citygml(&path, CityGmlOptions::default())
+        .unwrap()
+        .scene;
+    assert_eq!(scene.images.len(), 1);
+    assert_eq!(scene.components.len(), 2);
+    for (c, reference) in references.iter().enumerate() {
+        let component = &scene.components[c];
+        let p = &scene.mesh(component.mesh).primitives[0];
+        let material = &scene.materials[p.material.expect("a material").0 as usize];
+        assert!(material.base_color_texture.is_some(), "copy {c} textured");
+        let uvs = p.uvs.as_ref().expect("copy has UVs");
+        assert_eq!(uvs.len(), p.positions.len());
+        for (v, uv) in p.positions.iter().zip(uvs) {
+            let local = component
+                .world
+                .transform_point3(DVec3::from_array(v.map(f64::from)))
+                - *reference;
+            let expected = [local.x as f32, (1.0 - local.z) as f32];
+            assert!(
+                (uv[0] - expected[0]).abs() < 1e-5 && (uv[1] - expected[1]).abs() < 1e-5,
+                "copy {c} at {local}: {uv:?} vs {expected:?}"
+            );
+        }
+    }
 }
