@@ -185,20 +185,12 @@ pub fn weld_tolerance_m() -> f64 {
 /// (input order decides, so the result is the same on every run).
 fn welded_corners(positions: &[[f32; 3]], groups: &[u32], tolerance: f64) -> Vec<u32> {
     let p64 = |p: [f32; 3]| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-    let inv = 1.0 / tolerance;
-    let cell = |p: DVec3| {
-        [
-            (p.x * inv).floor() as i64,
-            (p.y * inv).floor() as i64,
-            (p.z * inv).floor() as i64,
-        ]
-    };
     let mut cells: HashMap<(u32, [i64; 3]), Vec<u32>> = HashMap::new();
     let mut corner = vec![0u32; positions.len()];
     let tol2 = tolerance * tolerance;
     for (i, &p) in positions.iter().enumerate() {
         let (g, q) = (groups[i], p64(p));
-        let c = cell(q);
+        let c = cell_of(q, tolerance);
         let mut best = u32::MAX;
         for dx in -1..=1 {
             for dy in -1..=1 {
