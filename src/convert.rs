@@ -302,10 +302,10 @@ fn build_into(
             tile_cache_bytes: cache_bytes,
             tile_cache_note: match cache {
                 Some(_) => note,
-                None => Some(
-                    "no tile is taken from the tile cache: the tiles use textures or no HLOD"
-                        .into(),
-                ),
+                // Said only when there was a tileset to take tiles from.
+                None => opts.out_dir.join("tileset.json").is_file().then(|| {
+                    "no tile is taken from the tile cache: the tiles use textures or no HLOD".into()
+                }),
             },
             ..t.update
         };

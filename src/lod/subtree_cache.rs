@@ -93,11 +93,12 @@ impl KeyHasher {
         // Debug prints floats in the shortest form that reads back to the same bits: exact.
         self.bytes(format!("{v:?}").as_bytes());
     }
-    /// A tile's plan data but its content: path, depth, boxes, counts.
+    /// A tile's plan data but its content: path, boxes, counts. Not its depth: levels with one
+    /// child are folded into their parent, so a change elsewhere can move a tile's depth, and
+    /// only tileset.json, always written again, reads it.
     fn plan(&mut self, t: &PlannedTile) {
         self.bytes(t.path.as_bytes());
         self.debug(&(
-            t.depth,
             &t.cell,
             &t.content_bounds,
             &t.bounds,
