@@ -49,7 +49,7 @@ pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
 pub enum Updated {
     /// The inputs, options and tool are those of the tileset: no model read, only report.json
     /// rewritten.
-    UpToDate(UpdateReport),
+    UpToDate(Box<UpdateReport>),
     /// A tileset was built (a full build; with `--update`, published over the old one).
     Built(Box<Report>),
 }
@@ -88,7 +88,8 @@ pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Upda
         };
         match verdict {
             Verdict::Unchanged { state, hashed } => {
-                return up_to_date(staging, opts, &state, &hashed, t0).map(Updated::UpToDate)
+                return up_to_date(staging, opts, &state, &hashed, t0)
+                    .map(|u| Updated::UpToDate(Box::new(u)))
             }
             Verdict::Rebuild {
                 reason,
