@@ -12,6 +12,7 @@
 use crate::encode::{encode_tile, Compression, TileEncoding};
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
+use crate::lod::subtree_cache::{CacheTally, SubtreeCache};
 use crate::output_dir::StagingDir;
 use crate::prepare::{prepare, read_scene};
 use crate::scene::Scene;
@@ -48,7 +49,7 @@ pub fn convert_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
 pub enum Updated {
     /// The inputs, options and tool are those of the tileset: no model read, only report.json
     /// rewritten.
-    UpToDate(UpdateReport),
+    UpToDate(Box<UpdateReport>),
     /// A tileset was built (a full build; with `--update`, published over the old one).
     Built(Box<Report>),
 }
@@ -87,7 +88,8 @@ pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Upda
         };
         match verdict {
             Verdict::Unchanged { state, hashed } => {
-                return up_to_date(staging, opts, &state, &hashed, t0).map(Updated::UpToDate)
+                return up_to_date(staging, opts, &state, &hashed, t0)
+                    .map(|u| Updated::UpToDate(Box::new(u)))
             }
             Verdict::Rebuild {
                 reason,
@@ -238,9 +240,24 @@ fn build_into(
         crate::texture::TextureLevels::new(scene, &opts.texture, uses).shared_in(&tmp);
     // The HLOD figures from here on are this conversion's.
     crate::lod::clock::take();
+    let mut cache = None;
     let result = (|| {
         let t = Instant::now();
         let writer = TileWriter::new(scene, &prep, opts, &tmp, &texture_levels, plan.tiles.len())?;
+        // An update takes the HLOD tiles whose subtree did not change from the tile cache.
+        let digest = writer.cache_digest(&prep.origin, prep.anchor);
+        let writer = match (&tracked, digest) {
+            (Some(_), Some(global)) => {
+                let c = cache.insert(SubtreeCache::open(
+                    &opts.out_dir,
+                    &tmp,
+                    global,
+                    writer.appearance(),
+                ));
+                writer.with_cache(c)
+            }
+            _ => writer,
+        };
         let job = writer.build_subtrees(&[0], &Default::default(), Default::default())?;
         writer.finish_progress();
         let t_encode = t.elapsed().as_secs_f64();
@@ -268,7 +285,31 @@ fn build_into(
     report.hlod_timings_s = (opts.lod == crate::options::LodMode::Hlod).then_some(hlod_timings);
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
-    if let Some(t) = tracked {
+    if let Some(mut t) = tracked {
+        let written = match &cache {
+            Some(c) => c
+                .write_into(&tmp)
+                .map(|bytes| (bytes, c.tally(), c.note.clone())),
+            None => Ok((0, CacheTally::default(), None)),
+        };
+        let (cache_bytes, tally, note) = written.map_err(|e| e.relocated(&tmp, &opts.out_dir))?;
+        t.update = UpdateReport {
+            tiles_built: tally.tiles_built,
+            tile_bytes_built: tally.tile_bytes_built,
+            internal_tiles: tally.internal_tiles,
+            internal_tiles_built: tally.internal_tiles_built,
+            tiles_reused: tally.tiles_reused,
+            tile_bytes_reused: tally.tile_bytes_reused,
+            tile_cache_bytes: cache_bytes,
+            tile_cache_note: match cache {
+                Some(_) => note,
+                // Said only when there was a tileset to take tiles from.
+                None => opts.out_dir.join("tileset.json").is_file().then(|| {
+                    "no tile is taken from the tile cache: the tiles use textures or no HLOD".into()
+                }),
+            },
+            ..t.update
+        };
         let update = t.record(&tmp, opts, t0);
         report.update = Some(update.map_err(|e| e.relocated(&tmp, &opts.out_dir))?);
     }

@@ -12,6 +12,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 const STATE: &str = bimtiles::update::STATE_FILE;
+const TILE_CACHE: &str = ".bimtiles/tile-cache.bin";
 
 /// A campus manifest in its own folder, its models copied in (so they can be edited).
 struct Campus {
@@ -158,6 +159,7 @@ fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) 
     assert_eq!(u["files_written"], after.len() - reused, "{u}");
     assert_eq!(u["files_removed"], removed, "{u}");
     assert_eq!(u["mode"], "rebuilt", "{u}");
+    assert_tile_counts(out, &u);
     let state_bytes = std::fs::metadata(out.join(STATE)).unwrap().len();
     let tileset_bytes: usize = after.values().map(Vec::len).sum();
     assert!(
@@ -165,6 +167,27 @@ fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) 
         "the cache ({state_bytes} bytes) is at most 10 % of the tileset ({tileset_bytes})"
     );
     u
+}
+
+/// The update's tile counts agree with each other and with the tile cache written.
+fn assert_tile_counts(out: &Path, u: &Value) {
+    let n = |k: &str| u[k].as_u64().unwrap_or_else(|| panic!("{k} in {u}"));
+    assert_eq!(
+        n("internal_tiles_built") + n("tiles_reused"),
+        n("internal_tiles"),
+        "{u}"
+    );
+    assert!(n("tiles_built") >= n("internal_tiles_built"), "{u}");
+    let cache = std::fs::metadata(out.join(TILE_CACHE)).unwrap().len();
+    assert_eq!(n("tile_cache_bytes"), cache, "{u}");
+}
+
+/// An update that took some HLOD tiles from the tile cache: it built fewer than the tileset has.
+fn assert_some_tiles_reused(u: &Value) {
+    let n = |k: &str| u[k].as_u64().unwrap();
+    assert!(n("tiles_reused") > 0, "{u}");
+    assert!(n("internal_tiles_built") < n("internal_tiles"), "{u}");
+    assert!(n("tile_bytes_reused") > 0, "{u}");
 }
 
 /// Replace a model, move one, remove one, rename one element's property: each update equals a
@@ -178,10 +201,11 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     ) else {
         return;
     };
+    // Untextured models: tiles with textures are not taken from the tile cache.
     let mut campus = Campus::new("update-campus");
-    campus.add("a", &sample(), "a.glb", 0.0, 0.0);
+    campus.add("a", &duplex, "a.glb", 0.0, 0.0);
     campus.add("b", &duplex, "b.glb", 120.0, 0.0);
-    campus.add("c", &sample(), "a.glb", 0.0, 120.0);
+    campus.add("c", &duplex, "a.glb", 0.0, 120.0);
     campus.add("d", &fzk_ifc, "d.ifc", 120.0, 120.0);
     let out = campus.dir.join("out");
     let full = campus.dir.join("full");
@@ -216,11 +240,13 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
         u["changed_inputs"][0].as_str().unwrap().ends_with("b.glb"),
         "{u}"
     );
+    assert_some_tiles_reused(&u);
 
     // One building moved 50 m.
     campus.models[2]["east_m"] = json!(50.0);
     let u = update_and_compare(&campus, &out, &full, &[]);
     assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
+    assert_some_tiles_reused(&u);
 
     // One element's property value renamed in the IFC file.
     let d = campus.dir.join("d.ifc");
@@ -230,6 +256,7 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     std::fs::write(&d, text.replacen(old, "IFCLABEL('Spiral stair')", 1)).unwrap();
     let u = update_and_compare(&campus, &out, &full, &[]);
     assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
+    assert_some_tiles_reused(&u);
 
     // One building removed, the old files kept for clients that hold the old tileset.json; the
     // next update, without --keep-stale, removes them.
@@ -245,6 +272,7 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
         .collect();
     assert!(!stale.is_empty(), "removing a building removes some tile");
     assert_eq!(report(&out)["update"]["files_kept_stale"], stale.len());
+    assert_some_tiles_reused(&report(&out)["update"]);
     for (name, bytes) in &kept {
         assert!(
             expected.get(name).or(before.get(name)) == Some(bytes),
@@ -354,6 +382,58 @@ fn a_missing_or_corrupt_cache_is_a_full_build_with_one_line_note() {
         std::fs::read_to_string(mine.join("notes.txt")).unwrap(),
         "user data"
     );
+}
+
+/// A spoiled tile cache (the update state intact): every tile built, one line saying why, the
+/// full build's result; the next update takes tiles from the cache written again.
+#[test]
+fn a_spoiled_tile_cache_is_a_full_build_with_one_line_note() {
+    let Some(duplex) = shared_file("duplex.glb") else {
+        return;
+    };
+    let mut campus = Campus::new("update-tile-cache");
+    campus.add("a", &duplex, "a.glb", 0.0, 0.0);
+    campus.add("b", &duplex, "a.glb", 120.0, 0.0);
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    campus.convert(&out, &["--update", "--quiet"]);
+    let note = |o: &std::process::Output| {
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        let notes: Vec<&str> = err
+            .lines()
+            .filter(|l| l.starts_with("note: update:"))
+            .collect();
+        assert_eq!(notes.len(), 1, "{err}");
+        notes[0].to_string()
+    };
+    // A spoiled tile cache, with an input changed: every tile built, one line saying why, and
+    // the full build's result.
+    for (spoil, reason) in [
+        (b"BIMTCAC1 cut".as_slice(), "the tile cache is corrupt"),
+        (b"not a cache".as_slice(), "the tile cache is corrupt"),
+    ] {
+        campus.models[1]["east_m"] = json!(campus.models[1]["east_m"].as_f64().unwrap() + 10.0);
+        std::fs::write(out.join(TILE_CACHE), spoil).unwrap();
+        let line = note(&campus.convert(&out, &["--update"]));
+        assert!(line.contains("full build: 1 input file changed"), "{line}");
+        assert!(line.contains(reason), "{line}");
+        let u = &report(&out)["update"];
+        assert_eq!(u["tiles_reused"], 0, "{u}");
+        assert!(u["tile_cache_note"].as_str().unwrap().contains(reason));
+        let _ = std::fs::remove_dir_all(&full);
+        campus.convert(&full, &["--update", "--quiet"]);
+        assert_eq!(tileset_files(&out), tileset_files(&full));
+        // The cache is written again, and the next update takes tiles from it.
+        campus.models[1]["east_m"] = json!(campus.models[1]["east_m"].as_f64().unwrap() + 10.0);
+        let line = note(&campus.convert(&out, &["--update"]));
+        assert!(
+            line.contains("HLOD tiles reused from the tile cache"),
+            "{line}"
+        );
+        let _ = std::fs::remove_dir_all(&full);
+        campus.convert(&full, &["--update", "--quiet"]);
+        assert_eq!(tileset_files(&out), tileset_files(&full));
+    }
 }
 
 /// An update killed (SIGKILL) at spread-out moments leaves the old tileset or the new one, never

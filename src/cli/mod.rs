@@ -768,8 +768,8 @@ fn run_convert(a: ConvertArgs) -> Result<()> {
         }
     };
     if !a.quiet {
-        if let Some(reason) = r.update.as_ref().and_then(|u| u.full_build_reason.as_ref()) {
-            eprintln!("note: update: full build: {reason}");
+        if let Some(note) = r.update.as_ref().and_then(|u| u.build_note()) {
+            eprintln!("note: update: {note}");
         }
         print_warnings(&r);
         print_summary(&a, &r)?;

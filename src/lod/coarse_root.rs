@@ -101,6 +101,7 @@ pub(crate) fn coarse_root(
         stop: &BTreeSet::from([1]),
         provided: Mutex::new(BTreeMap::from([(1, full)])),
         allowed_m,
+        cache: None,
     };
     builder.build(0)?;
     drop(builder);

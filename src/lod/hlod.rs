@@ -13,6 +13,7 @@
 
 use super::gather;
 use super::hlod_content::{simplify_children, ErrorReference, HlodContent, TileError};
+use super::subtree_cache::{SubtreeCache, SubtreeKey};
 use crate::encode::glb::{grid_flattens, DEFAULT_MAX_POSITION_ERROR_M};
 use crate::encode::Compression;
 use crate::encode::TileRecord;
@@ -58,6 +59,8 @@ pub(crate) struct HlodBuilder<'a> {
     pub(crate) provided: std::sync::Mutex<BTreeMap<usize, BuiltSubtree>>,
     /// Per plan tile, the error its content is aimed at ([`allowed_errors_m`]).
     pub(crate) allowed_m: Vec<Option<f64>>,
+    /// The update's tile cache: internal tiles whose subtree did not change are taken from it.
+    pub(crate) cache: Option<&'a SubtreeCache>,
 }
 
 /// The error each tile of `plan` is allowed (`None` for all when `--hlod-error-fraction` is 0):
@@ -104,8 +107,8 @@ impl HlodBuilder<'_> {
         out
     }
 
-    /// A leaf: its content at full detail, written as it is.
-    fn build_leaf(&self, i: usize) -> Result<BuiltSubtree> {
+    /// A leaf: its content at full detail, written as it is; its key when there is a cache.
+    fn build_leaf(&self, i: usize) -> Result<(BuiltSubtree, Option<SubtreeKey>)> {
         let tile = &self.plan.tiles[i];
         let content = gather(
             self.scene,
@@ -120,15 +123,20 @@ impl HlodBuilder<'_> {
             }
         }
         let written = (self.write)(i, &content, TileRecord::default())?;
-        *self.slots[i].lock().expect("slot") = Some(written);
-        Ok(BuiltSubtree {
+        let built = BuiltSubtree {
             // Parents simplify one surface: instances go up as plain geometry.
             content: content.expand(),
             geometric_error_m: 0.0,
             coarse_to_full_m: 0.0,
             max_folding_edge_m: 0.0,
             cut_triangles,
-        })
+        };
+        let key = match self.cache {
+            Some(cache) => Some(cache.leaf_key(self.scene, tile, &built, &written)?),
+            None => None,
+        };
+        *self.slots[i].lock().expect("slot") = Some(written);
+        Ok((built, key))
     }
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
@@ -164,27 +172,69 @@ impl HlodBuilder<'_> {
     }
 
     pub(crate) fn build(&self, i: usize) -> Result<BuiltSubtree> {
+        self.build_keyed(i).map(|(built, _)| built)
+    }
+
+    /// Builds the subtree of tile `i`; with a cache, also its key (`None` below a tile built
+    /// elsewhere).
+    fn build_keyed(&self, i: usize) -> Result<(BuiltSubtree, Option<SubtreeKey>)> {
         let tile = &self.plan.tiles[i];
         let path = || format!("tiles/{}.glb", tile.path);
         if self.stop.contains(&i) {
             let done = self.provided.lock().expect("provided").remove(&i);
-            return done.ok_or_else(|| Error::output(path(), "no job built this subtree"));
+            let done = done.ok_or_else(|| Error::output(path(), "no job built this subtree"))?;
+            return Ok((done, None));
         }
-        let built = if tile.children.is_empty() {
-            self.build_leaf(i)?
-        } else {
-            let kids: Vec<BuiltSubtree> = tile
-                .children
-                .par_iter()
-                .map(|&c| self.build(c))
-                .collect::<Result<_>>()?;
-            let mut cut_triangles: BTreeMap<ComponentId, usize> = BTreeMap::new();
-            for k in &kids {
-                for (&c, &n) in &k.cut_triangles {
-                    *cut_triangles.entry(c).or_default() += n;
-                }
+        if tile.children.is_empty() {
+            return self.build_leaf(i);
+        }
+        let (kids, keys): (Vec<BuiltSubtree>, Vec<Option<SubtreeKey>>) = tile
+            .children
+            .par_iter()
+            .map(|&c| self.build_keyed(c))
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .unzip();
+        let mut cut_triangles: BTreeMap<ComponentId, usize> = BTreeMap::new();
+        for k in &kids {
+            for (&c, &n) in &k.cut_triangles {
+                *cut_triangles.entry(c).or_default() += n;
             }
-            let continuing = continuing(self.scene, &cut_triangles);
+        }
+        let continuing = continuing(self.scene, &cut_triangles);
+        let allowed_m = self.allowed_m.get(i).copied().flatten();
+        let keyed = match (self.cache, keys.into_iter().collect::<Option<Vec<_>>>()) {
+            (Some(cache), Some(keys)) => {
+                Some((cache, cache.node_key(tile, allowed_m, &keys, &continuing)))
+            }
+            _ => None,
+        };
+        if let Some((cache, key)) = &keyed {
+            if let Some((record, built)) = cache.reuse(i, tile, key) {
+                *self.slots[i].lock().expect("slot") = Some(record);
+                return Ok((built, Some(*key)));
+            }
+        }
+        let (built, record) = self.build_internal(i, kids, cut_triangles, &continuing)?;
+        if let Some((cache, key)) = &keyed {
+            cache.store(i, tile, *key, &record, &built)?;
+        }
+        *self.slots[i].lock().expect("slot") = Some(record);
+        Ok((built, keyed.map(|(_, key)| key)))
+    }
+
+    /// An internal tile: its children's content simplified and measured, written; what it hands
+    /// up and the record of what it wrote.
+    fn build_internal(
+        &self,
+        i: usize,
+        kids: Vec<BuiltSubtree>,
+        cut_triangles: BTreeMap<ComponentId, usize>,
+        continuing: &[ComponentId],
+    ) -> Result<(BuiltSubtree, TileRecord)> {
+        let tile = &self.plan.tiles[i];
+        let path = || format!("tiles/{}.glb", tile.path);
+        {
             let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
             let children: Vec<(&TileContent, f64)> = kids
                 .iter()
@@ -211,7 +261,7 @@ impl HlodBuilder<'_> {
                 let r = simplify_children(
                     from,
                     tile.bounds.center(),
-                    &continuing,
+                    continuing,
                     target,
                     simplify_opts,
                 )
@@ -267,14 +317,14 @@ impl HlodBuilder<'_> {
                     geometric_error_m: ge,
                     ..Default::default()
                 };
-                *self.slots[i].lock().expect("slot") = Some(record);
-                return Ok(BuiltSubtree {
+                let built = BuiltSubtree {
                     content: r.content,
                     geometric_error_m: ge,
                     coarse_to_full_m: tile.bounds.diagonal(),
                     max_folding_edge_m: folding,
                     cut_triangles,
-                });
+                };
+                return Ok((built, record));
             }
             let record = TileRecord {
                 geometric_error_m: ge,
@@ -288,16 +338,15 @@ impl HlodBuilder<'_> {
                 ..Default::default()
             };
             let written = (self.write)(i, &r.content, record)?;
-            *self.slots[i].lock().expect("slot") = Some(written);
-            BuiltSubtree {
+            let built = BuiltSubtree {
                 content: r.content,
                 geometric_error_m: ge,
                 coarse_to_full_m: err.coarse_to_full_m,
                 max_folding_edge_m: folding,
                 cut_triangles,
-            }
-        };
-        Ok(built)
+            };
+            Ok((built, written))
+        }
     }
 }
 

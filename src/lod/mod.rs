@@ -16,6 +16,8 @@ pub mod clock;
 pub mod coarse_root;
 pub mod hlod;
 pub mod hlod_content;
+pub(crate) mod subtree_cache;
+pub(crate) mod wire;
 
 use crate::options::Settings;
 use crate::partition::content::TileContent;

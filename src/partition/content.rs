@@ -132,6 +132,13 @@ impl AppearanceClasses {
         AppearanceClasses { twin }
     }
 
+    /// The appearance class of scene material `m` (`None`: textured, or not a scene material):
+    /// its index among the classes and its white twin.
+    pub fn class_of(&self, m: MaterialId) -> Option<(usize, MaterialId)> {
+        let twin = self.twin.get(m.index()).copied().flatten()?;
+        Some((twin.index() - self.twin.len(), twin))
+    }
+
     /// `content` with the plain primitives of each appearance class merged into one, base colours
     /// moved into the vertex colours; `None` when no class has two primitives in this tile.
     /// Instanced shapes are left as they are (a shape is one mesh already).

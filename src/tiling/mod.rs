@@ -13,6 +13,7 @@ use crate::lod::chains::build_chains;
 use crate::lod::coarse_root::{coarse_root, RootInputs};
 use crate::lod::gather;
 use crate::lod::hlod::{self, BuiltSubtree, HlodBuilder};
+use crate::lod::subtree_cache::{global_digest, SubtreeCache, SubtreeKey};
 use crate::options::{CoarseTileProperties, LodMode, Settings};
 use crate::output_dir::write_renamed;
 use crate::partition::content::{AppearanceClasses, TileContent};
@@ -79,6 +80,8 @@ pub(crate) struct TileWriter<'a> {
     schema_placement: SchemaPlacement,
     encoding: TileEncoding,
     pb: indicatif::ProgressBar,
+    /// The update's tile cache (HLOD only; `None` for a plain build and for sharded jobs).
+    cache: Option<&'a SubtreeCache>,
 }
 
 /// What building some subtrees gave: the record of every tile written (with its plan index), and
@@ -128,7 +131,48 @@ impl<'a> TileWriter<'a> {
                 ..TileEncoding::default()
             },
             pb: progress_bar(opts.progress, progress_len, "tiles"),
+            cache: None,
         })
+    }
+
+    /// The scene's appearance classes.
+    pub(crate) fn appearance(&self) -> &AppearanceClasses {
+        self.appearance
+    }
+
+    /// Builds HLOD tiles through the update's tile cache.
+    pub(crate) fn with_cache(mut self, cache: &'a SubtreeCache) -> Self {
+        self.cache = Some(cache);
+        self
+    }
+
+    /// What every tile's output depends on beside its own inputs (the tile cache's global
+    /// digest): the tool, the options that shape the output, the tileset's frame, the metadata
+    /// schema's properties and its placement (the appearance classes are in the leaves' keys). `None` when tiles may not be taken
+    /// from the cache: the tiles use textures, whose files and levels are chosen over all tiles.
+    pub(crate) fn cache_digest(&self, origin: &GeoOrigin, anchor: DVec3) -> Option<SubtreeKey> {
+        let textured = !self.scene.images.is_empty()
+            || self
+                .scene
+                .materials
+                .iter()
+                .any(|m| m.base_color_texture.is_some());
+        if textured || self.opts.lod != LodMode::Hlod {
+            return None;
+        }
+        Some(global_digest(&[
+            crate::update::tool_version().as_bytes(),
+            crate::update::options_fingerprint(self.opts).as_bytes(),
+            format!("{origin:?} {anchor:?}").as_bytes(),
+            // The schema's properties (a tile's table has a column per property it fills) and
+            // its placement. Not its enums' values: a feature's codes are written in its leaf's
+            // table, in every leaf's key (a value added or removed elsewhere changes no code).
+            format!(
+                "{:?} {:?} {:?}",
+                self.schema.properties, self.schema.pset_keys, self.schema_placement
+            )
+            .as_bytes(),
+        ]))
     }
 
     pub(crate) fn finish_progress(&self) {
@@ -257,6 +301,7 @@ impl<'a> TileWriter<'a> {
                     stop,
                     provided: std::sync::Mutex::new(provided),
                     allowed_m: hlod::allowed_errors_m(plan, opts),
+                    cache: self.cache,
                 };
                 let built = roots
                     .par_iter()

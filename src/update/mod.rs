@@ -111,6 +111,22 @@ pub struct UpdateReport {
     pub files_kept_stale: usize,
     /// Size of the update state file.
     pub state_bytes: u64,
+    /// Tiles built (every leaf, and the internal tiles not taken from the tile cache), and their
+    /// files' bytes.
+    pub tiles_built: usize,
+    pub tile_bytes_built: u64,
+    /// Internal (HLOD) tiles of the tileset, and those built.
+    pub internal_tiles: usize,
+    pub internal_tiles_built: usize,
+    /// Internal tiles taken from the tile cache (not simplified, measured or encoded), and their
+    /// files' bytes.
+    pub tiles_reused: usize,
+    pub tile_bytes_reused: u64,
+    /// Size of the tile cache file written.
+    pub tile_cache_bytes: u64,
+    /// Why the tile cache could not be used (absent when it was, or there was no tileset yet).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_cache_note: Option<String>,
     pub seconds: f64,
 }
 
@@ -130,10 +146,36 @@ impl UpdateReport {
         if self.files_kept_stale > 0 {
             s += &format!(", {} stale kept", self.files_kept_stale);
         }
-        if let Some(r) = &self.full_build_reason {
-            s += &format!("\nupdate: full build: {r}");
+        if self.mode == "rebuilt" {
+            s += &format!(
+                "\nupdate: {} tiles built ({} bytes), of them {} of {} HLOD tiles; {} HLOD tiles reused from the tile cache ({} bytes); tile cache {} bytes",
+                self.tiles_built,
+                self.tile_bytes_built,
+                self.internal_tiles_built,
+                self.internal_tiles,
+                self.tiles_reused,
+                self.tile_bytes_reused,
+                self.tile_cache_bytes
+            );
+        }
+        if let Some(r) = self.build_note() {
+            s += &format!("\nupdate: {r}");
         }
         s
+    }
+
+    /// Why the tileset was built again, and whether that was a full build (no tile taken from
+    /// the tile cache, and why); one line.
+    pub fn build_note(&self) -> Option<String> {
+        let reason = self.full_build_reason.as_ref()?;
+        Some(match (self.tiles_reused, &self.tile_cache_note) {
+            (0, Some(note)) => format!("full build: {reason}; {note}"),
+            (0, None) => format!("full build: {reason}"),
+            (n, _) => format!(
+                "{reason}; {n} of {} HLOD tiles reused from the tile cache",
+                self.internal_tiles
+            ),
+        })
     }
 }
 
@@ -430,6 +472,13 @@ fn same_bytes(a: &Path, b: &Path, len: u64) -> bool {
 
 /// Replaces `at` by a hard link to `from` (through a temporary name, so `at` is never missing).
 fn link_over(from: &Path, at: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    // Already that file (a tile taken from the tile cache): renaming a link over another link
+    // of the same file does nothing, and would leave the temporary name.
+    let (a, b) = (std::fs::metadata(from)?, std::fs::metadata(at)?);
+    if (a.dev(), a.ino()) == (b.dev(), b.ino()) {
+        return Ok(());
+    }
     let name = at
         .file_name()
         .map(|n| n.to_string_lossy().to_string())

@@ -1,0 +1,538 @@
+//! The update's tile cache (`.bimtiles/tile-cache.bin`): an HLOD tile whose whole subtree is
+//! what it was at the last `--update` build is not simplified, measured and encoded again; its
+//! written file is taken from the live tileset and its record and hand-over from the cache.
+//!
+//! Every tile gets a subtree key, a SHA-256 of everything its file and its hand-over depend on.
+//! A leaf's key covers its plan data (path, boxes), the scene data of its content (each
+//! component, the raw geometry of its mesh, the materials it uses and their appearance classes, the
+//! triangles kept), the
+//! bit-exact hand-over and record it made, and the bytes of its written file (which carry its
+//! features' metadata and its materials as written). An internal tile's key covers its plan data,
+//! its allowed error, the components its simplification keeps locked, and its children's keys in
+//! order; so it changes whenever anything below it changes, and two equal subtrees at different
+//! places get different keys (their paths differ). Every key also covers a global digest: the
+//! tool's version, the options that shape the output, the tileset's frame, and the metadata
+//! schema's properties and placement. Global indices (component, mesh and material
+//! ids) are covered as they are: a tile reused from the cache hands up the same ids its children
+//! hand up now.
+//!
+//! Leaves are always built (gathering and encoding them is cheap, and their keys need what they
+//! make). The cache keeps the internal tiles only, each entry compressed on its own: its key, its
+//! path, the SHA-256 of its file, its record and its hand-over in the encoding of
+//! [`super::wire`]. A tile is reused only when the live file still has the bytes the cache
+//! recorded. A missing, corrupt or foreign cache reuses nothing: every tile is built.
+
+use crate::encode::TileRecord;
+use crate::error::{Error, Result};
+use crate::lod::hlod::BuiltSubtree;
+use crate::lod::wire::{WireError, R, W};
+use crate::partition::content::AppearanceClasses;
+use crate::partition::PlannedTile;
+use crate::scene::{ComponentId, Scene};
+use sha2::{Digest, Sha256};
+use std::collections::{BTreeMap, HashMap};
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+/// The tile cache, relative to the output folder (beside the update state).
+pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
+const MAGIC: &[u8; 8] = b"BIMTCAC1";
+const END: &[u8; 4] = b"END.";
+
+/// A SHA-256 of everything a subtree's output depends on.
+pub(crate) type SubtreeKey = [u8; 32];
+
+/// What the cache saved and cost in one build.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct CacheTally {
+    /// Tiles built (every leaf, and the internal tiles not found in the cache), their files'
+    /// bytes.
+    pub tiles_built: usize,
+    pub tile_bytes_built: u64,
+    /// Internal tiles built, and internal tiles in the plan.
+    pub internal_tiles_built: usize,
+    pub internal_tiles: usize,
+    /// Internal tiles reused from the cache, their files' bytes.
+    pub tiles_reused: usize,
+    pub tile_bytes_reused: u64,
+}
+
+/// The previous build's tile cache, and the entries of the one being built.
+pub(crate) struct SubtreeCache {
+    global: SubtreeKey,
+    /// The scene's appearance classes (a parent merges its primitives by class).
+    appearance: AppearanceClasses,
+    /// Compressed entries of the previous build, by key.
+    previous: HashMap<SubtreeKey, Vec<u8>>,
+    live: PathBuf,
+    staging: PathBuf,
+    /// Entries of this build, by plan index.
+    fresh: Mutex<BTreeMap<usize, (SubtreeKey, Vec<u8>)>>,
+    tally: Mutex<CacheTally>,
+    /// Why the previous cache could not be used (`None`: it was, or there was no tileset).
+    pub(crate) note: Option<String>,
+}
+
+/// The hasher of keys.
+struct KeyHasher(Sha256);
+
+impl KeyHasher {
+    fn new(kind: &str, global: &SubtreeKey) -> Self {
+        let mut h = KeyHasher(Sha256::new());
+        h.bytes(kind.as_bytes());
+        h.0.update(global);
+        h
+    }
+    /// Length-prefixed, so that consecutive fields cannot run into each other.
+    fn bytes(&mut self, b: &[u8]) {
+        self.0.update((b.len() as u64).to_le_bytes());
+        self.0.update(b);
+    }
+    fn debug(&mut self, v: &impl std::fmt::Debug) {
+        // Debug prints floats in the shortest form that reads back to the same bits: exact.
+        self.bytes(format!("{v:?}").as_bytes());
+    }
+    /// A tile's plan data but its content: path, boxes, counts. Not its depth: levels with one
+    /// child are folded into their parent, so a change elsewhere can move a tile's depth, and
+    /// only tileset.json, always written again, reads it.
+    fn plan(&mut self, t: &PlannedTile) {
+        self.bytes(t.path.as_bytes());
+        self.debug(&(
+            &t.cell,
+            &t.content_bounds,
+            &t.bounds,
+            t.content_triangles,
+            t.omitted_size_m.to_bits(),
+        ));
+    }
+    fn finish(self) -> SubtreeKey {
+        self.0.finalize().into()
+    }
+}
+
+fn sha256_file(path: &Path) -> std::io::Result<SubtreeKey> {
+    let mut h = Sha256::new();
+    std::io::copy(&mut std::fs::File::open(path)?, &mut h)?;
+    Ok(h.finalize().into())
+}
+
+/// The global digest: what every tile's output depends on beside its own inputs, given as its
+/// parts' text (each part exact: floats in Debug form).
+pub(crate) fn global_digest(parts: &[&[u8]]) -> SubtreeKey {
+    let mut h = KeyHasher(Sha256::new());
+    h.bytes(MAGIC);
+    for p in parts {
+        h.bytes(p);
+    }
+    h.finish()
+}
+
+impl SubtreeCache {
+    /// The cache of the live tileset `live` (if any), for a build in `staging` whose global digest
+    /// is `global`.
+    pub(crate) fn open(
+        live: &Path,
+        staging: &Path,
+        global: SubtreeKey,
+        appearance: &AppearanceClasses,
+    ) -> SubtreeCache {
+        let path = live.join(TILE_CACHE_FILE);
+        let (previous, note) = match std::fs::read(&path) {
+            Ok(bytes) => match decode_file(&bytes) {
+                Ok((g, entries)) if g == global => (entries, None),
+                Ok(_) => (
+                    HashMap::new(),
+                    Some(
+                        "the tile cache is of another tool version, options, frame or schema"
+                            .to_string(),
+                    ),
+                ),
+                Err(e) => (
+                    HashMap::new(),
+                    Some(format!("the tile cache is corrupt ({e})")),
+                ),
+            },
+            Err(_) if !live.join("tileset.json").is_file() => (HashMap::new(), None),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (
+                HashMap::new(),
+                Some(format!("no tile cache ({TILE_CACHE_FILE}) in the output")),
+            ),
+            Err(e) => (
+                HashMap::new(),
+                Some(format!("the tile cache cannot be read ({e})")),
+            ),
+        };
+        SubtreeCache {
+            global,
+            appearance: appearance.clone(),
+            previous,
+            live: live.to_path_buf(),
+            staging: staging.to_path_buf(),
+            fresh: Mutex::default(),
+            tally: Mutex::default(),
+            note,
+        }
+    }
+
+    /// A cache that reuses nothing and stores what it is given (unit tests).
+    #[cfg(test)]
+    pub(crate) fn empty(global: SubtreeKey) -> SubtreeCache {
+        let none = Path::new("/nonexistent");
+        SubtreeCache::open(none, none, global, &AppearanceClasses::default())
+    }
+
+    /// The key of leaf `tile`, which handed up `built` and wrote `record` (its file in the
+    /// staging folder).
+    pub(crate) fn leaf_key(
+        &self,
+        scene: &Scene,
+        tile: &PlannedTile,
+        built: &BuiltSubtree,
+        record: &TileRecord,
+    ) -> Result<SubtreeKey> {
+        let mut h = KeyHasher::new("leaf", &self.global);
+        h.plan(tile);
+        let mut materials = std::collections::BTreeSet::new();
+        for item in &tile.content {
+            let comp = scene.component(item.component);
+            h.debug(comp);
+            h.debug(&item.triangles);
+            let mesh = scene.mesh(comp.mesh);
+            h.0.update((mesh.primitives.len() as u64).to_le_bytes());
+            for p in &mesh.primitives {
+                h.debug(&p.material);
+                materials.extend(p.material);
+                h.bytes(bytemuck::cast_slice(&p.positions));
+                h.bytes(bytemuck::cast_slice(
+                    p.normals.as_deref().unwrap_or_default(),
+                ));
+                h.bytes(bytemuck::cast_slice(p.uvs.as_deref().unwrap_or_default()));
+                h.bytes(bytemuck::cast_slice(
+                    p.colors.as_deref().unwrap_or_default(),
+                ));
+                h.bytes(bytemuck::cast_slice(&p.indices));
+                h.debug(&(p.normals.is_some(), p.uvs.is_some(), p.colors.is_some()));
+            }
+        }
+        // A material by value, and its appearance class by its rank among the classes (the
+        // twins' ids all move when a material is added or removed; their order does not).
+        for m in materials {
+            let class = self.appearance.class_of(m);
+            h.debug(&(
+                scene.materials.get(m.index()),
+                class.map(|(rank, twin)| (rank, scene.materials.get(twin.index()))),
+            ));
+        }
+        let mut w = W::default();
+        w.subtree(built);
+        w.record(record);
+        h.bytes(&w.0);
+        h.bytes(&self.file_digest(record)?.unwrap_or_default());
+        self.tally_built(record, false);
+        Ok(h.finish())
+    }
+
+    /// The key of internal tile `tile` over its children's keys (in plan order): `allowed_m` is
+    /// its allowed error and `continuing` the components its simplification keeps locked.
+    pub(crate) fn node_key(
+        &self,
+        tile: &PlannedTile,
+        allowed_m: Option<f64>,
+        children: &[SubtreeKey],
+        continuing: &[ComponentId],
+    ) -> SubtreeKey {
+        let mut h = KeyHasher::new("node", &self.global);
+        h.plan(tile);
+        h.debug(&allowed_m.map(f64::to_bits));
+        h.debug(&continuing);
+        h.0.update((children.len() as u64).to_le_bytes());
+        for k in children {
+            h.0.update(k);
+        }
+        h.finish()
+    }
+
+    /// The SHA-256 of the file `record` names in the staging folder (`None`: no file).
+    fn file_digest(&self, record: &TileRecord) -> Result<Option<SubtreeKey>> {
+        let Some(uri) = &record.uri else {
+            return Ok(None);
+        };
+        let path = self.staging.join(uri);
+        sha256_file(&path)
+            .map(Some)
+            .map_err(|e| Error::output_from(&path, "cannot read the written tile", e))
+    }
+
+    fn tally_built(&self, record: &TileRecord, internal: bool) {
+        let mut t = self.tally.lock().expect("tally");
+        t.tiles_built += 1;
+        t.tile_bytes_built += record.content.bytes;
+        if internal {
+            t.internal_tiles_built += 1;
+            t.internal_tiles += 1;
+        }
+    }
+
+    /// Internal tile `i` (`tile`) as the previous build made it, when its key is in the cache and
+    /// the live tileset still has its file as written: the file is put in the staging folder
+    /// (a hard link, or a copy) and the record and hand-over returned.
+    pub(crate) fn reuse(
+        &self,
+        i: usize,
+        tile: &PlannedTile,
+        key: &SubtreeKey,
+    ) -> Option<(TileRecord, BuiltSubtree)> {
+        let packed = self.previous.get(key)?;
+        let (path, file, record, built) = decode_entry(packed).ok()?;
+        if path != tile.path {
+            return None;
+        }
+        if let (Some(sha), Some(uri)) = (file, &record.uri) {
+            let (from, at) = (self.live.join(uri), self.staging.join(uri));
+            if sha256_file(&from).ok()? != sha {
+                return None;
+            }
+            std::fs::create_dir_all(at.parent()?).ok()?;
+            let _ = std::fs::remove_file(&at);
+            if std::fs::hard_link(&from, &at).is_err() {
+                std::fs::copy(&from, &at).ok()?;
+            }
+        } else if file.is_some() != record.uri.is_some() {
+            return None;
+        }
+        self.fresh
+            .lock()
+            .expect("fresh")
+            .insert(i, (*key, packed.clone()));
+        let mut t = self.tally.lock().expect("tally");
+        t.tiles_reused += 1;
+        t.tile_bytes_reused += record.content.bytes;
+        t.internal_tiles += 1;
+        Some((record, built))
+    }
+
+    /// Records internal tile `i` (`tile`), just built, for the next build.
+    pub(crate) fn store(
+        &self,
+        i: usize,
+        tile: &PlannedTile,
+        key: SubtreeKey,
+        record: &TileRecord,
+        built: &BuiltSubtree,
+    ) -> Result<()> {
+        let file = self.file_digest(record)?;
+        let mut w = W::default();
+        w.str(&tile.path);
+        w.opt(&file, |w, sha| w.0.extend_from_slice(sha));
+        w.record(record);
+        w.subtree(built);
+        let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
+        let packed = z
+            .write_all(&w.0)
+            .and_then(|()| z.finish())
+            .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))?;
+        self.fresh.lock().expect("fresh").insert(i, (key, packed));
+        self.tally_built(record, true);
+        Ok(())
+    }
+
+    /// What this build saved.
+    pub(crate) fn tally(&self) -> CacheTally {
+        self.tally.lock().expect("tally").clone()
+    }
+
+    /// Writes this build's cache into `dir` (the staging folder); returns its size.
+    pub(crate) fn write_into(&self, dir: &Path) -> Result<u64> {
+        let fresh = self.fresh.lock().expect("fresh");
+        let mut w = W::default();
+        w.0.extend_from_slice(MAGIC);
+        w.0.extend_from_slice(&self.global);
+        w.n(fresh.len());
+        for (key, packed) in fresh.values() {
+            w.0.extend_from_slice(key);
+            w.n(packed.len());
+            w.0.extend_from_slice(packed);
+        }
+        w.0.extend_from_slice(END);
+        let path = dir.join(TILE_CACHE_FILE);
+        if let Some(folder) = path.parent() {
+            std::fs::create_dir_all(folder)
+                .map_err(|e| Error::output_from(folder, "cannot create the folder", e))?;
+        }
+        crate::output_dir::write_renamed(&path, &w.0)?;
+        Ok(w.0.len() as u64)
+    }
+}
+
+fn key_from(r: &mut R) -> std::result::Result<SubtreeKey, WireError> {
+    Ok(r.take(32)?.try_into().expect("32 bytes"))
+}
+
+/// The global digest and the compressed entries of a cache file.
+#[allow(clippy::type_complexity)]
+fn decode_file(
+    bytes: &[u8],
+) -> std::result::Result<(SubtreeKey, HashMap<SubtreeKey, Vec<u8>>), WireError> {
+    let mut r = R(bytes);
+    if r.take(8)? != MAGIC {
+        return Err(WireError::NotATileCache);
+    }
+    let global = key_from(&mut r)?;
+    let entries = r.vec(40, |r| {
+        let key = key_from(r)?;
+        let n = r.n(1)?;
+        Ok((key, r.take(n)?.to_vec()))
+    })?;
+    if r.0 != END {
+        return Err(WireError::NoEndMark);
+    }
+    Ok((global, entries.into_iter().collect()))
+}
+
+/// One compressed entry: path, file digest, record, hand-over.
+#[allow(clippy::type_complexity)]
+fn decode_entry(
+    packed: &[u8],
+) -> std::result::Result<(String, Option<SubtreeKey>, TileRecord, BuiltSubtree), WireError> {
+    let mut bytes = Vec::new();
+    flate2::read::ZlibDecoder::new(packed)
+        .read_to_end(&mut bytes)
+        .map_err(|_| WireError::Truncated)?;
+    let mut r = R(&bytes);
+    let path = r.str()?;
+    let file = match r.flag()? {
+        true => Some(key_from(&mut r)?),
+        false => None,
+    };
+    let record = r.record()?;
+    let built = r.subtree()?;
+    if !r.0.is_empty() {
+        return Err(WireError::NoEndMark);
+    }
+    Ok((path, file, record, built))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::partition::content::{ContentPrimitive, TileContent};
+
+    fn planned(path: &str) -> PlannedTile {
+        PlannedTile {
+            path: path.into(),
+            depth: path.len() as u32 - 1,
+            cell: Default::default(),
+            content: Vec::new(),
+            children: Vec::new(),
+            content_bounds: Default::default(),
+            bounds: Default::default(),
+            content_triangles: 0,
+            omitted_size_m: 0.0,
+        }
+    }
+
+    fn subtree(x: f32) -> BuiltSubtree {
+        BuiltSubtree {
+            content: TileContent {
+                primitives: vec![ContentPrimitive {
+                    positions: vec![[0.0, 0.0, 0.0], [x, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                    feature_ids: vec![0; 3],
+                    indices: vec![0, 1, 2],
+                    ..Default::default()
+                }],
+                features: vec![ComponentId(0)],
+                ..Default::default()
+            },
+            geometric_error_m: 0.0,
+            coarse_to_full_m: 0.0,
+            max_folding_edge_m: 0.0,
+            cut_triangles: BTreeMap::new(),
+        }
+    }
+
+    #[test]
+    fn a_parent_key_follows_its_childrens_content_and_its_own_path() {
+        let cache = SubtreeCache::empty(global_digest(&[b"options"]));
+        let scene = Scene::default();
+        let leaf = |path: &str, x: f32| {
+            cache
+                .leaf_key(&scene, &planned(path), &subtree(x), &TileRecord::default())
+                .unwrap()
+        };
+        let parent =
+            |path: &str, kids: &[SubtreeKey]| cache.node_key(&planned(path), None, kids, &[]);
+        let a = parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]);
+        assert_eq!(a, parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]));
+        // One child's content moved by one float step: another key.
+        let moved = parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0 + f32::EPSILON)]);
+        assert_ne!(a, moved);
+        // The same subtree elsewhere in the tree: another key (its path).
+        assert_ne!(a, parent("r1", &[leaf("r10", 1.0), leaf("r11", 1.0)]));
+        assert_ne!(a, parent("r1", &[leaf("r00", 1.0), leaf("r01", 1.0)]));
+        // Children order, allowed error and locked components count.
+        assert_ne!(a, parent("r0", &[leaf("r01", 1.0), leaf("r00", 1.0)]));
+        let kids = [leaf("r00", 1.0), leaf("r01", 1.0)];
+        assert_ne!(a, cache.node_key(&planned("r0"), Some(0.5), &kids, &[]));
+        assert_ne!(
+            a,
+            cache.node_key(&planned("r0"), None, &kids, &[ComponentId(0)])
+        );
+        // Other options, tool or schema: another key.
+        let other = SubtreeCache::empty(global_digest(&[b"other options"]));
+        let other_leaf = |path: &str| {
+            other
+                .leaf_key(
+                    &scene,
+                    &planned(path),
+                    &subtree(1.0),
+                    &TileRecord::default(),
+                )
+                .unwrap()
+        };
+        let b = other.node_key(
+            &planned("r0"),
+            None,
+            &[other_leaf("r00"), other_leaf("r01")],
+            &[],
+        );
+        assert_ne!(a, b);
+    }
+
+    #[test]
+    fn an_entry_reads_back_exactly_and_a_spoiled_file_is_refused() {
+        let dir = std::env::temp_dir().join(format!("bimtiles-tile-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let global = global_digest(&[b"x"]);
+        let cache = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        let record = TileRecord {
+            geometric_error_m: 0.1 + 0.2,
+            ..Default::default()
+        };
+        let built = subtree(0.3);
+        cache
+            .store(2, &planned("r0"), [7; 32], &record, &built)
+            .unwrap();
+        cache.write_into(&dir).unwrap();
+        std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
+        let again = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert_eq!(again.note, None);
+        assert_eq!(again.reuse(2, &planned("r1"), &[7; 32]), None, "path");
+        assert_eq!(again.reuse(2, &planned("r0"), &[8; 32]), None, "key");
+        assert_eq!(
+            again.reuse(2, &planned("r0"), &[7; 32]),
+            Some((record, built))
+        );
+        let other = SubtreeCache::open(&dir, &dir, global_digest(&[b"y"]), &Default::default());
+        assert!(other.note.unwrap().contains("another tool version"));
+        let bytes = std::fs::read(dir.join(TILE_CACHE_FILE)).unwrap();
+        std::fs::write(dir.join(TILE_CACHE_FILE), &bytes[..bytes.len() - 3]).unwrap();
+        let cut = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert!(cut.note.unwrap().contains("corrupt"));
+        std::fs::remove_file(dir.join(TILE_CACHE_FILE)).unwrap();
+        let none = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert!(none.note.unwrap().contains("no tile cache"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
