@@ -289,6 +289,7 @@ impl HlodBuilder<'_> {
             }
             let (mut r, mut err, _) = tried;
             let per_axis_m = self.fit_grid(&reference, &mut r.content, &mut err);
+            err.coarse_to_full_m = reference.exact_coarse_to_full_m(&r.content);
             let (position_error, measured) = (per_axis_m, err.error_m + per_axis_m * 3f64.sqrt());
             // The measurement's reference (children's BVHs) and inputs are not needed to write.
             drop(reference);

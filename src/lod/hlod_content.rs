@@ -118,10 +118,26 @@ impl<'a> ErrorReference<'a> {
     }
 
     /// Declared error of `content` (the tile's simplified geometry, P) with respect to the full
-    /// detail it stands for.
+    /// detail it stands for, with its P -> F part exact ([`Self::exact_coarse_to_full_m`]).
     pub fn measure(&self, content: &TileContent, opts: &SimplifyOptions) -> TileError {
-        self.measure_within(content, opts, f64::INFINITY)
-            .expect("no error exceeds infinity")
+        let mut error = self
+            .measure_within(content, opts, f64::INFINITY)
+            .expect("no error exceeds infinity");
+        error.coarse_to_full_m = self.exact_coarse_to_full_m(content);
+        error
+    }
+
+    /// The P -> F bound of `content` (see [`Self::measure_within`]) found exactly, not only up to
+    /// the share of the error it would raise: the content a tile keeps hands it to its parent,
+    /// whose own P -> F bound adds it.
+    pub fn exact_coarse_to_full_m(&self, content: &TileContent) -> f64 {
+        if content.triangle_count() == 0 {
+            return 0.0;
+        }
+        let (pp, pi) = soup(content);
+        clock::timed(Part::CoarseToFull, || {
+            self.coarse_to_full_sampled(TriMesh::new(&pp, &pi), 0.0, f64::INFINITY)
+        })
     }
 
     /// [`measure`](Self::measure), given up (`None`) as soon as the declared error is sure to
@@ -171,8 +187,15 @@ impl<'a> ErrorReference<'a> {
         // child is only searched below the best term so far: most samples lie in one child, and
         // an exact query on a far one descends much of its tree (most of the full queries here,
         // and most of the measurement's time).
+        // Below the distance at which it would raise the declared error, P -> F needs no exact
+        // value to decide a try: its samples only show they are under it (most of them at once,
+        // through the children's triangles their neighbours were settled by), and it is given as
+        // that distance. The content a tile keeps is measured exactly (`exact_coarse_to_full_m`).
+        let c2f_matters_m =
+            (FULL_TO_COARSE_SAFETY * full_to_coarse_m).max(opts.error_floor_m) / opts.error_safety;
         let t_coarse = std::time::Instant::now();
-        let coarse_to_full_m = self.coarse_to_full_sampled(TriMesh::new(&pp, &pi), c2f_limit);
+        let coarse_to_full_m =
+            self.coarse_to_full_sampled(TriMesh::new(&pp, &pi), c2f_matters_m, c2f_limit);
         clock::add(Part::CoarseToFull, t_coarse);
         let error = TileError {
             error_m: (FULL_TO_COARSE_SAFETY * full_to_coarse_m)
@@ -239,11 +262,12 @@ impl ErrorReference<'_> {
         f64::from_bits(run.load(Relaxed))
     }
 
-    /// The largest `min over children (distance + its bound)` of a dense sample of `coarse`, or
-    /// some value over `c2f_limit` as soon as one shows it (see [`ErrorReference::measure_within`]).
-    fn coarse_to_full_sampled(&self, coarse: TriMesh<'_>, c2f_limit: f64) -> f64 {
+    /// The largest `min over children (distance + its bound)` of a dense sample of `coarse`, at
+    /// least `from_m`, or some value over `c2f_limit` as soon as one shows it (see
+    /// [`ErrorReference::measure_within`]).
+    fn coarse_to_full_sampled(&self, coarse: TriMesh<'_>, from_m: f64, c2f_limit: f64) -> f64 {
         let sample_count = (coarse.indices.len() / 3).clamp(20_000, 250_000);
-        let run = AtomicU64::new(0.0f64.to_bits());
+        let run = AtomicU64::new(from_m.max(0.0).to_bits());
         let samples = DenseSamples::new(coarse, sample_count);
         // Per thread: each child's last triangle, the scratch order, and the child that settled
         // the last sample.
@@ -315,12 +339,17 @@ impl ErrorReference<'_> {
     /// distance of the samples (every vertex among them). Per full-detail triangle, two bounds of
     /// the distance anywhere on it: the distance is 1-Lipschitz (at most the largest corner's
     /// distance plus the longest edge over √3), and the distance to one coarse triangle is convex
-    /// (at most the largest corner's distance to a corner's nearest triangle). A triangle whose
-    /// bound is over [`FULL_TO_COARSE_SAFETY`] times `sampled_m` is split in four at its edge
-    /// midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times), so
-    /// the declared error covers every face, edge and open border. Samples alone missed peaks
-    /// between corners, declaring less than the real distance. Exact distances and a threshold
-    /// fixed before the pass: the same result whatever the threads do.
+    /// (at most the largest corner's distance to that triangle). A triangle whose bound is over
+    /// the certified distance ([`FULL_TO_COARSE_SAFETY`] times `sampled_m`) is split in four at its
+    /// edge midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times),
+    /// so the declared error covers every face, edge and open border. Samples alone missed peaks
+    /// between corners, declaring less than the real distance.
+    ///
+    /// Most triangles lie within the certified distance of the coarse triangle the last one was
+    /// certified by (a nearby one): three point-triangle distances then certify them, with no
+    /// search. Only the others get their corners' exact distances. The result takes only
+    /// distances over the certified one, which no certified triangle has, so it is the same
+    /// whatever the threads do.
     fn faces_within(&self, coarse: &MeshBvh, sampled_m: f64, floor_m: f64) -> f64 {
         type Corner = (DVec3, f64, u32);
         let certified_m = (FULL_TO_COARSE_SAFETY * sampled_m).max(floor_m);
@@ -331,6 +360,12 @@ impl ErrorReference<'_> {
             coarse
                 .closest_near(x, hint)
                 .map_or((x, f64::INFINITY, u32::MAX), |c| (x, c.0, c.1))
+        };
+        // Every point of the triangle within the certified distance of coarse triangle `t`.
+        let within_of = |c: &[DVec3; 3], t: u32| {
+            t != u32::MAX
+                && c.iter()
+                    .all(|&v| surely_below(coarse.distance_to_triangle(v, t), certified_m))
         };
         let bound = |c: &[Corner; 3]| {
             let far = c.iter().map(|k| k.1).fold(0.0, f64::max);
@@ -355,6 +390,8 @@ impl ErrorReference<'_> {
                 .fold(f64::INFINITY, f64::min);
             lipschitz.min(convex)
         };
+        // Triangles this small are within the bound whatever their corners (<= sampled).
+        let small_m = (certified_m - sampled_m) * 3f64.sqrt();
         for items in self.leaves.iter() {
             let leaf = TileContent::gather(self.scene, items, self.center);
             let (lp, li) = soup(&leaf);
@@ -362,45 +399,26 @@ impl ErrorReference<'_> {
                 let v = lp[i as usize];
                 DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
             };
-            // Triangles this small are within the bound whatever their corners (<= sampled).
-            let small_m = (certified_m - sampled_m) * 3f64.sqrt();
-            let large = |t: &[u32]| {
-                (0..3).any(|k| (point(t[k]) - point(t[(k + 1) % 3])).length() > small_m)
-            };
-            let mut on_large = vec![false; lp.len()];
-            for t in li.chunks_exact(3).filter(|t| large(t)) {
-                for &v in t {
-                    on_large[v as usize] = true;
-                }
-            }
-            let corners: Vec<Corner> = (0..lp.len() as u32)
-                .into_par_iter()
-                .with_min_len(256)
-                .map_init(
-                    || u32::MAX,
-                    |hint, v| {
-                        if on_large[v as usize] {
-                            exact(point(v), hint)
-                        } else {
-                            (point(v), 0.0, u32::MAX)
-                        }
-                    },
-                )
-                .collect();
             li.par_chunks_exact(3).with_min_len(64).for_each_init(
                 || (Vec::new(), u32::MAX),
                 |(stack, hint), t| {
-                    if !large(t) {
+                    let p = [point(t[0]), point(t[1]), point(t[2])];
+                    let large = (0..3).any(|k| (p[k] - p[(k + 1) % 3]).length() > small_m);
+                    if !large || within_of(&p, *hint) {
                         return;
                     }
-                    stack.push(([t[0], t[1], t[2]].map(|v| corners[v as usize]), 0));
+                    let c = p.map(|v| exact(v, hint));
+                    if c.iter().any(|k| within_of(&p, k.2)) {
+                        return;
+                    }
+                    stack.push((c, 0));
                     while let Some((c, splits)) = stack.pop() {
                         if splits >= FACE_SPLITS || bound(&c) <= certified_m {
                             continue;
                         }
                         let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5, hint));
                         for k in &m {
-                            if k.1.is_finite() {
+                            if k.1.is_finite() && k.1 > certified_m {
                                 run.fetch_max(k.1.to_bits(), Relaxed);
                             }
                         }
