@@ -246,8 +246,8 @@ struct ConvertArgs {
     /// Edges drawn the way CAD and BIM tools draw them (EXT_mesh_primitive_edge_visibility on
     /// every primitive, shown by CesiumJS's edgeDisplayMode): all (outlines and creases, and the
     /// silhouettes of curved surfaces), hard (outlines and creases only) or none.
-    /// Off by default for now, for what silhouettes cost on models with many curved faces (book:
-    /// guide/edges.md).
+    /// Off by default: on some BIM models even hard adds more bytes to the gzipped tiles than a
+    /// default may (book: guide/edges.md, "What edges cost").
     #[arg(long, value_enum, default_value = "none")]
     edges: EdgesArg,
     /// Two faces of one element that meet at more than this angle (degrees) draw a hard edge;

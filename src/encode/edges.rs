@@ -97,6 +97,15 @@ pub fn silhouette_normal_i8(n: [f32; 3]) -> [i8; 3] {
     })
 }
 
+/// Whether a silhouette whose faces have these normals can ever be drawn: a client draws it
+/// where one face turns to the viewer and the other away, which two faces written with one
+/// normal never do. Where a curve's faces are finer than the normals' steps, the outline is drawn
+/// on the edges where the written normal changes, so no view loses its outline; the edges in
+/// between would cost their normals and draw nothing.
+pub fn silhouette_can_draw(normals: [[f32; 3]; 2]) -> bool {
+    silhouette_normal_i8(normals[0]) != silhouette_normal_i8(normals[1])
+}
+
 /// Twice the area (m²) below which a triangle has no direction: a sliver whose normal is noise.
 const MIN_DOUBLE_AREA_M2: f64 = 1e-12;
 
@@ -142,7 +151,8 @@ pub struct EdgeVisibility {
     /// The bitfield: `ceil(6 N / 8)` bytes for N triangles, unused bits zero.
     pub visibility: Vec<u8>,
     /// Per edge encoded `1`, in the order they are met, the normals of the face that encodes it
-    /// and of the face across it (unit vectors, the positions' frame).
+    /// and of the face across it, turned to the first's side where the two are wound against
+    /// each other (unit vectors, the positions' frame).
     pub silhouette_normals: Vec<[[f32; 3]; 2]>,
     /// Edges (welded) that are hard and silhouettes.
     pub hard_edges: usize,
@@ -286,14 +296,19 @@ pub fn edge_visibility(
                 } else {
                     -n0.dot(n1)
                 };
+                // The face across, turned as the encoding face's surface runs.
+                let across = if dir0 != dir1 { n1 } else { -n1 };
+                let pair = [n0, across].map(|n| n.as_vec3().to_array());
                 if cos < cos_crease {
                     true
-                } else if cos >= cos_coplanar || opts.mode != EdgeMode::All {
+                } else if cos >= cos_coplanar
+                    || opts.mode != EdgeMode::All
+                    || !silhouette_can_draw(pair)
+                {
                     false
                 } else {
                     values[*k0 as usize] = SILHOUETTE;
-                    let f = |n: DVec3| n.as_vec3().to_array();
-                    silhouettes.push((*k0, [f(n0), f(n1)]));
+                    silhouettes.push((*k0, pair));
                     silhouette_edges += 1;
                     false
                 }
@@ -474,6 +489,7 @@ fn cell_of(p: DVec3, size_m: f64) -> [i64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f32::consts::{FRAC_PI_2, TAU};
 
     /// Hard edges and silhouettes (`--edges all`), the default crease angle.
     fn every_edge() -> EdgeOptions {
@@ -630,6 +646,64 @@ mod tests {
         };
         let s = edge_visibility(&positions, &groups, &indices, &sharp, None).unwrap();
         assert_eq!((s.hard_edges, s.silhouette_edges), (72, 0));
+    }
+
+    #[test]
+    fn a_finely_faceted_cylinder_keeps_its_outlines_with_fewer_silhouettes() {
+        // 3° a facet: finer than the written normals' steps, so neighbouring faces often share
+        // a written normal, and an edge between two such faces is never drawn.
+        let segments = 120;
+        let (positions, indices) = cylinder(segments);
+        let groups = vec![0; positions.len()];
+        let e = edge_visibility(&positions, &groups, &indices, &every_edge(), None).unwrap();
+        assert!(e.silhouette_edges > 0 && e.silhouette_edges < segments as usize);
+        // From every side, the written normals still draw an edge within a few facets of each
+        // of the cylinder's two outlines (where the view grazes the surface).
+        let written: Vec<[glam::Vec3; 2]> = (e.silhouette_normals.iter())
+            .map(|p| p.map(|n| glam::Vec3::from(silhouette_normal_i8(n).map(|x| x as f32))))
+            .collect();
+        for step in 0..500 {
+            let azimuth = step as f32 * 0.72f32.to_radians();
+            let view = glam::Vec3::new(azimuth.cos(), azimuth.sin(), 0.3);
+            let drawn: Vec<f32> = (written.iter())
+                .filter(|[a, b]| (view.dot(*a) > 0.0) != (view.dot(*b) > 0.0))
+                .map(|[a, b]| (*a + *b).y.atan2((*a + *b).x))
+                .collect();
+            for outline in [azimuth + FRAC_PI_2, azimuth - FRAC_PI_2] {
+                let near = |d: &f32| {
+                    let off = (d - outline).rem_euclid(TAU);
+                    off.min(TAU - off) < 8f32.to_radians()
+                };
+                assert!(
+                    drawn.iter().any(near),
+                    "no outline near {outline} ({drawn:?})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_silhouette_across_a_face_wound_the_other_way_turns_its_normal() {
+        // Two facets of a curve 15° apart, the second wound against the first.
+        let a = 7.5f32.to_radians();
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [a.cos(), 0.0, a.sin()],
+            [-a.cos(), 0.0, a.sin()],
+        ];
+        let e = edge_visibility(
+            &positions,
+            &[0; 4],
+            &[0, 1, 2, 0, 1, 3],
+            &every_edge(),
+            None,
+        )
+        .unwrap();
+        assert_eq!(e.silhouette_edges, 1);
+        let [n0, n1] = e.silhouette_normals[0].map(glam::Vec3::from);
+        // Both on one side of the surface, 15° apart.
+        assert!((n0.dot(n1) - 15f32.to_radians().cos()).abs() < 1e-4);
     }
 
     #[test]
