@@ -251,21 +251,33 @@ impl HlodBuilder<'_> {
                 target_ratio: 1.0,
                 ..self.opts.simplify.clone()
             };
-            let build_at = |from: &[&TileContent], target: usize, limit_m: f64| -> Result<_> {
+            let simplify_at = |from: &[&TileContent], target: usize| -> Result<HlodContent> {
                 let input: usize = from.iter().map(|c| c.triangle_count()).sum();
                 let simplify_opts = if 2 * target > input {
                     &finer_opts
                 } else {
                     &self.opts.simplify
                 };
-                let r = simplify_children(
+                simplify_children(
                     from,
                     tile.bounds.center(),
                     continuing,
                     target,
                     simplify_opts,
                 )
-                .map_err(|e| Error::simplify(path(), e))?;
+                .map_err(|e| Error::simplify(path(), e))
+            };
+            // The children simplified to the first finer try's count, made before the first try
+            // (see below) and taken by the finer try if it comes.
+            let prepared: std::sync::Mutex<Option<(usize, HlodContent)>> = Default::default();
+            let build_at = |from: &[&TileContent], target: usize, limit_m: f64| -> Result<_> {
+                let made = prepared.lock().expect("prepared").take_if(|(t, _)| {
+                    *t == target && std::ptr::eq(from.as_ptr(), contents.as_ptr())
+                });
+                let r = match made {
+                    Some((_, r)) => r,
+                    None => simplify_at(from, target)?,
+                };
                 let err = reference.measure_within(&r.content, &self.opts.simplify, limit_m);
                 Ok(err.map(|e| (r, e)))
             };
@@ -276,15 +288,36 @@ impl HlodBuilder<'_> {
                 .max_tile_triangles
                 .min(input_triangles.div_ceil(HLOD_CHILDREN_DIVISOR))
                 .max(1);
-            let (r, err) = build_at(&contents, target, f64::INFINITY)?.expect("no limit");
+            let most = self.opts.octree.max_tile_triangles.min(input_triangles);
+            // Most tiles need the first finer try (twice the triangles) too: the children are
+            // simplified once, to that count, and the first try is simplified from it (a quarter
+            // of the children or less to simplify, not all of them again).
+            let (r, err) = if allowed_m.is_some() && 2 * target <= most {
+                let finer = simplify_at(&contents, 2 * target)?;
+                let first = simplify_at(&[&finer.content], target)?;
+                let first = HlodContent {
+                    input_triangles: finer.input_triangles,
+                    max_collapsed_edge_m: first
+                        .max_collapsed_edge_m
+                        .max(finer.max_collapsed_edge_m),
+                    content: first.content,
+                };
+                *prepared.lock().expect("prepared") = Some((2 * target, finer));
+                let err = reference
+                    .measure_within(&first.content, &self.opts.simplify, f64::INFINITY)
+                    .expect("no limit");
+                (first, err)
+            } else {
+                build_at(&contents, target, f64::INFINITY)?.expect("no limit")
+            };
             let mut tried = (r, err, target);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             if let Some(allowed) = allowed_m {
                 // The tile declares at least twice its children's error (the ladder), so content
                 // finer than that buys nothing but bytes in the first view.
                 let aim_m = allowed.max(children_max / LADDER_CHILD_RATIO);
-                let most = self.opts.octree.max_tile_triangles.min(input_triangles);
                 tried = refine(&build_at, &contents, most, aim_m, tried)?;
+                drop(prepared.lock().expect("prepared").take());
                 tried = coarsen(&build_at, aim_m, tried)?;
             }
             let (mut r, mut err, _) = tried;
@@ -364,8 +397,8 @@ type Tried = (HlodContent, TileError, usize);
 /// times between a first try (a quarter of the children's) and all of them. Doubling, not the
 /// 1/triangles prediction [`coarsen`] uses: a building's error falls much faster than that as its
 /// small elements come back, and the prediction jumped past the count that met the error to every
-/// triangle, a root no coarser than its child. Each try starts again from the children, and is
-/// kept when it meets the allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]):
+/// triangle, a root no coarser than its child. Each try starts again from the children (the first
+/// was made before the first try, which is simplified from it), and is kept when it meets the allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]):
 /// halving buys the parent a rung (it declares at least twice its children's error), while a
 /// finer tile that gains less costs its bytes in every view for nothing. The tries' effect on
 /// measured models: docs/benchmarks.md.
