@@ -293,15 +293,7 @@ impl HlodBuilder<'_> {
             // simplified once, to that count, and the first try is simplified from it (a quarter
             // of the children or less to simplify, not all of them again).
             let (r, err) = if allowed_m.is_some() && 2 * target <= most {
-                let finer = simplify_at(&contents, 2 * target)?;
-                let first = simplify_at(&[&finer.content], target)?;
-                let first = HlodContent {
-                    input_triangles: finer.input_triangles,
-                    max_collapsed_edge_m: first
-                        .max_collapsed_edge_m
-                        .max(finer.max_collapsed_edge_m),
-                    content: first.content,
-                };
+                let (first, finer) = first_through_finer(&simplify_at, &contents, target)?;
                 *prepared.lock().expect("prepared") = Some((2 * target, finer));
                 let err = reference
                     .measure_within(&first.content, &self.opts.simplify, f64::INFINITY)
@@ -382,6 +374,24 @@ impl HlodBuilder<'_> {
             Ok((built, written))
         }
     }
+}
+
+/// The first try at an HLOD tile (`target` triangles) simplified from the children's content
+/// simplified to twice that, which is returned too (the first finer try's content), with the
+/// figures of the whole chain.
+fn first_through_finer(
+    simplify_at: &dyn Fn(&[&TileContent], usize) -> Result<HlodContent>,
+    contents: &[&TileContent],
+    target: usize,
+) -> Result<(HlodContent, HlodContent)> {
+    let finer = simplify_at(contents, 2 * target)?;
+    let first = simplify_at(&[&finer.content], target)?;
+    let first = HlodContent {
+        input_triangles: finer.input_triangles,
+        max_collapsed_edge_m: first.max_collapsed_edge_m.max(finer.max_collapsed_edge_m),
+        content: first.content,
+    };
+    Ok((first, finer))
 }
 
 /// One try at an HLOD tile: its content simplified from `from` to a triangle target, with its
