@@ -402,6 +402,11 @@
       msaaSamples: Number.isFinite(msaa) ? msaa : 4,
     });
     const scene = viewer.scene;
+    // A light from the camera, as BIM viewers light a model: the sun of the current time of day
+    // left a model dark where it stands at night, and its look changed with the clock.
+    const headlight = new Cesium.DirectionalLight({ direction: Cesium.Cartesian3.clone(scene.camera.directionWC) });
+    scene.light = headlight;
+    scene.preRender.addEventListener(() => { Cesium.Cartesian3.clone(scene.camera.directionWC, headlight.direction); });
     rendererName = BimtilesAdaptive.renderer(viewer.canvas);
     scene.globe.baseColor = Cesium.Color.fromCssColorString("#5a6068");
     scene.backgroundColor = Cesium.Color.fromCssColorString("#1b1e23");
