@@ -408,10 +408,11 @@ type Tried = (HlodContent, TileError, usize);
 /// 1/triangles prediction [`coarsen`] uses: a building's error falls much faster than that as its
 /// small elements come back, and the prediction jumped past the count that met the error to every
 /// triangle, a root no coarser than its child. Each try starts again from the children (the first
-/// was made before the first try, which is simplified from it), and is kept when it meets the allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]):
-/// halving buys the parent a rung (it declares at least twice its children's error), while a
-/// finer tile that gains less costs its bytes in every view for nothing. The tries' effect on
-/// measured models: docs/benchmarks.md.
+/// was made before the first try, which is simplified from it), and is kept when it meets the
+/// allowed error or at least halves the error so far ([`REFINE_MIN_GAIN`]): halving buys the parent
+/// a rung (it declares at least twice its children's error), while a finer tile that gains less
+/// costs its bytes in every view for nothing. The tries' effect on measured models:
+/// docs/benchmarks.md.
 fn refine(
     build_at: &BuildAt,
     contents: &[&TileContent],

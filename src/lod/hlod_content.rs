@@ -407,11 +407,8 @@ impl ErrorReference<'_> {
                     if !large || within_of(&p, *hint) {
                         return;
                     }
-                    let c = p.map(|v| exact(v, hint));
-                    if c.iter().any(|k| within_of(&p, k.2)) {
-                        return;
-                    }
-                    stack.push((c, 0));
+                    // The corners' own nearest triangles are tried by `bound` (convexity).
+                    stack.push((p.map(|v| exact(v, hint)), 0));
                     while let Some((c, splits)) = stack.pop() {
                         if splits >= FACE_SPLITS || bound(&c) <= certified_m {
                             continue;
