@@ -139,8 +139,14 @@ fn main() {
         report["input"]["files"].as_array().map_or(0, Vec::len),
         report["output"]["bytes"],
     );
-    println!("| change | update (s) | of a full build | files written | of all files | tiles written | bytes written | reused | removed | full build because |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let cache_bytes = dir_bytes(&out.join(".bimtiles"));
+    let tileset_bytes = dir_bytes(&out) - cache_bytes;
+    println!(
+        "Update cache (`.bimtiles/`): {cache_bytes} bytes, {:.1} % of the tileset's {tileset_bytes} bytes\n",
+        100.0 * cache_bytes as f64 / tileset_bytes as f64
+    );
+    println!("| change | update (s) | of a full build | files written | of all files | tiles written | bytes written | reused | removed | HLOD tiles built / taken (simplified again) | full build because |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut rows = Vec::new();
     let middle = buildings / 2;
     let ifc = (0..buildings)
@@ -216,10 +222,14 @@ fn main() {
             "bytes_written": u["bytes_written"],
             "files_reused": u["files_reused"],
             "files_removed": u["files_removed"],
+            "internal_tiles_built": u["internal_tiles_built"],
+            "internal_tiles": u["internal_tiles"],
+            "tiles_reused": u["tiles_reused"],
+            "tiles_remade": u["tiles_remade"],
             "reason": u["full_build_reason"],
         });
         println!(
-            "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} |",
+            "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} of {} / {} ({}) | {} |",
             100.0 * seconds / full_s,
             100.0 * written as f64 / after.len().max(1) as f64,
             row["tiles_written"],
@@ -227,6 +237,10 @@ fn main() {
             row["bytes_written"],
             row["files_reused"],
             row["files_removed"],
+            u["internal_tiles_built"],
+            u["internal_tiles"],
+            u["tiles_reused"],
+            u["tiles_remade"],
             u["full_build_reason"].as_str().unwrap_or("-"),
         );
         rows.push(row);
@@ -237,6 +251,19 @@ fn main() {
         serde_json::to_vec_pretty(&json).unwrap(),
     )
     .unwrap();
+}
+
+/// The bytes of the files below `dir`.
+fn dir_bytes(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => dir_bytes(&e.path()),
+            _ => e.metadata().map_or(0, |m| m.len()),
+        })
+        .sum()
 }
 
 /// The inode of each file of the tileset in `dir`, by path.

@@ -160,11 +160,14 @@ fn update_and_compare(campus: &Campus, out: &Path, full: &Path, extra: &[&str]) 
     assert_eq!(u["files_removed"], removed, "{u}");
     assert_eq!(u["mode"], "rebuilt", "{u}");
     assert_tile_counts(out, &u);
-    let state_bytes = std::fs::metadata(out.join(STATE)).unwrap().len();
+    let cache_bytes: u64 = [STATE, TILE_CACHE]
+        .iter()
+        .map(|f| std::fs::metadata(out.join(f)).unwrap().len())
+        .sum();
     let tileset_bytes: usize = after.values().map(Vec::len).sum();
     assert!(
-        state_bytes as f64 <= 0.1 * tileset_bytes as f64,
-        "the cache ({state_bytes} bytes) is at most 10 % of the tileset ({tileset_bytes})"
+        cache_bytes as f64 <= 0.1 * tileset_bytes as f64,
+        "the cache ({cache_bytes} bytes) is at most 10 % of the tileset ({tileset_bytes})"
     );
     u
 }
@@ -183,11 +186,14 @@ fn assert_tile_counts(out: &Path, u: &Value) {
 }
 
 /// An update that took some HLOD tiles from the tile cache: it built fewer than the tileset has.
-fn assert_some_tiles_reused(u: &Value) {
+/// Returns how many of them had their hand-over made again from its recipe.
+fn assert_some_tiles_reused(u: &Value) -> u64 {
     let n = |k: &str| u[k].as_u64().unwrap();
     assert!(n("tiles_reused") > 0, "{u}");
+    assert!(n("tiles_remade") <= n("tiles_reused"), "{u}");
     assert!(n("internal_tiles_built") < n("internal_tiles"), "{u}");
     assert!(n("tile_bytes_reused") > 0, "{u}");
+    n("tiles_remade")
 }
 
 /// Replace a model, move one, remove one, rename one element's property: each update equals a
@@ -240,13 +246,14 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
         u["changed_inputs"][0].as_str().unwrap().ends_with("b.glb"),
         "{u}"
     );
-    assert_some_tiles_reused(&u);
+    // Tiles whose hand-over a built parent needed, not kept in the cache: made again.
+    let mut remade = assert_some_tiles_reused(&u);
 
     // One building moved 50 m.
     campus.models[2]["east_m"] = json!(50.0);
     let u = update_and_compare(&campus, &out, &full, &[]);
     assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
-    assert_some_tiles_reused(&u);
+    remade += assert_some_tiles_reused(&u);
 
     // One element's property value renamed in the IFC file.
     let d = campus.dir.join("d.ifc");
@@ -256,7 +263,7 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     std::fs::write(&d, text.replacen(old, "IFCLABEL('Spiral stair')", 1)).unwrap();
     let u = update_and_compare(&campus, &out, &full, &[]);
     assert!(u["files_reused"].as_u64().unwrap() > 0, "{u}");
-    assert_some_tiles_reused(&u);
+    remade += assert_some_tiles_reused(&u);
 
     // One building removed, the old files kept for clients that hold the old tileset.json; the
     // next update, without --keep-stale, removes them.
@@ -272,7 +279,8 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
         .collect();
     assert!(!stale.is_empty(), "removing a building removes some tile");
     assert_eq!(report(&out)["update"]["files_kept_stale"], stale.len());
-    assert_some_tiles_reused(&report(&out)["update"]);
+    remade += assert_some_tiles_reused(&report(&out)["update"]);
+    assert!(remade > 0, "some hand-over made again from its recipe");
     for (name, bytes) in &kept {
         assert!(
             expected.get(name).or(before.get(name)) == Some(bytes),
@@ -409,8 +417,12 @@ fn a_spoiled_tile_cache_is_a_full_build_with_one_line_note() {
     // A spoiled tile cache, with an input changed: every tile built, one line saying why, and
     // the full build's result.
     for (spoil, reason) in [
-        (b"BIMTCAC1 cut".as_slice(), "the tile cache is corrupt"),
+        (b"BIMTCAC2 cut".as_slice(), "the tile cache is corrupt"),
         (b"not a cache".as_slice(), "the tile cache is corrupt"),
+        (
+            b"BIMTCAC1 old".as_slice(),
+            "the tile cache is of another format",
+        ),
     ] {
         campus.models[1]["east_m"] = json!(campus.models[1]["east_m"].as_f64().unwrap() + 10.0);
         std::fs::write(out.join(TILE_CACHE), spoil).unwrap();

@@ -13,7 +13,7 @@
 
 use super::gather;
 use super::hlod_content::{simplify_children, ErrorReference, HlodContent, TileError};
-use super::subtree_cache::{SubtreeCache, SubtreeKey};
+use super::subtree_cache::SubtreeCache;
 use crate::encode::glb::{grid_flattens, DEFAULT_MAX_POSITION_ERROR_M};
 use crate::encode::Compression;
 use crate::encode::TileRecord;
@@ -40,6 +40,19 @@ pub(crate) struct BuiltSubtree {
     pub max_folding_edge_m: f64,
     /// Triangles per cut component in the subtree (only components cut across tiles).
     pub cut_triangles: BTreeMap<ComponentId, usize>,
+}
+
+/// How an internal tile's hand-over was made, to make it again without measuring
+/// ([`HlodBuilder::replay`]): the simplifications in turn, each to a triangle count, from the
+/// children's content (`true`) or from the step before; the grid whose flattened triangles were
+/// then dropped; and the figures it handed up.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct Recipe {
+    pub steps: Vec<(bool, usize)>,
+    pub flattened_grid_m: Option<f64>,
+    pub geometric_error_m: f64,
+    pub coarse_to_full_m: f64,
+    pub max_folding_edge_m: f64,
 }
 
 pub(crate) type WriteTile<'a> =
@@ -107,8 +120,8 @@ impl HlodBuilder<'_> {
         out
     }
 
-    /// A leaf: its content at full detail, written as it is; its key when there is a cache.
-    fn build_leaf(&self, i: usize) -> Result<(BuiltSubtree, Option<SubtreeKey>)> {
+    /// A leaf's content at full detail, as it is written, and what it hands its parent.
+    pub(super) fn leaf_content(&self, i: usize) -> (TileContent, BuiltSubtree) {
         let tile = &self.plan.tiles[i];
         let content = gather(
             self.scene,
@@ -122,21 +135,24 @@ impl HlodBuilder<'_> {
                 *cut_triangles.entry(item.component).or_default() += t.len();
             }
         }
-        let written = (self.write)(i, &content, TileRecord::default())?;
         let built = BuiltSubtree {
             // Parents simplify one surface: instances go up as plain geometry.
-            content: content.expand(),
+            content: content.clone().expand(),
             geometric_error_m: 0.0,
             coarse_to_full_m: 0.0,
             max_folding_edge_m: 0.0,
             cut_triangles,
         };
-        let key = match self.cache {
-            Some(cache) => Some(cache.leaf_key(self.scene, tile, &built, &written)?),
-            None => None,
-        };
-        *self.slots[i].lock().expect("slot") = Some(written);
-        Ok((built, key))
+        (content, built)
+    }
+
+    /// A leaf: its content at full detail, written as it is; what it hands up and the record of
+    /// what it wrote.
+    pub(super) fn build_leaf(&self, i: usize) -> Result<(BuiltSubtree, TileRecord)> {
+        let (content, built) = self.leaf_content(i);
+        let written = (self.write)(i, &content, TileRecord::default())?;
+        *self.slots[i].lock().expect("slot") = Some(written.clone());
+        Ok((built, written))
     }
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
@@ -150,90 +166,140 @@ impl HlodBuilder<'_> {
         reference: &ErrorReference,
         content: &mut TileContent,
         err: &mut TileError,
-    ) -> f64 {
+    ) -> (f64, Option<f64>) {
         let fine_m = fine_grid_m(self.opts.compression);
         let mut per_axis_m = coarse_grid_m(self.opts.compression, err.error_m);
         // A measurement over the limit stops as soon as it shows it.
         let limit_m = err.error_m * (1.0 + COARSE_QUANTIZATION_SHARE);
         for _ in 0..GRID_TRIES {
             if per_axis_m <= fine_m {
-                return fine_m;
+                return (fine_m, None);
             }
             let Some(kept) = without_flattened(self.opts.compression, content, per_axis_m) else {
-                return per_axis_m;
+                return (per_axis_m, None);
             };
             if let Some(kept_err) = reference.measure_within(&kept, &self.opts.simplify, limit_m) {
                 (*content, *err) = (kept, kept_err);
-                return per_axis_m;
+                return (per_axis_m, Some(per_axis_m));
             }
             per_axis_m /= GRID_FALLBACK_STEP;
         }
-        with_quantization(self.opts.compression, err.error_m, content).0
+        let per_axis_m = with_quantization(self.opts.compression, err.error_m, content).0;
+        (per_axis_m, None)
     }
 
-    pub(crate) fn build(&self, i: usize) -> Result<BuiltSubtree> {
-        self.build_keyed(i).map(|(built, _)| built)
-    }
-
-    /// Builds the subtree of tile `i`; with a cache, also its key (`None` below a tile built
-    /// elsewhere).
-    fn build_keyed(&self, i: usize) -> Result<(BuiltSubtree, Option<SubtreeKey>)> {
+    /// The children's content `from` of internal tile `i` simplified to `target` triangles, the
+    /// components of `continuing` locked.
+    fn simplify_to(
+        &self,
+        i: usize,
+        from: &[&TileContent],
+        target: usize,
+        continuing: &[ComponentId],
+    ) -> Result<HlodContent> {
         let tile = &self.plan.tiles[i];
-        let path = || format!("tiles/{}.glb", tile.path);
-        if self.stop.contains(&i) {
-            let done = self.provided.lock().expect("provided").remove(&i);
-            let done = done.ok_or_else(|| Error::output(path(), "no job built this subtree"))?;
-            return Ok((done, None));
-        }
-        if tile.children.is_empty() {
-            return self.build_leaf(i);
-        }
-        let (kids, keys): (Vec<BuiltSubtree>, Vec<Option<SubtreeKey>>) = tile
-            .children
-            .par_iter()
-            .map(|&c| self.build_keyed(c))
-            .collect::<Result<Vec<_>>>()?
-            .into_iter()
-            .unzip();
-        let mut cut_triangles: BTreeMap<ComponentId, usize> = BTreeMap::new();
-        for k in &kids {
-            for (&c, &n) in &k.cut_triangles {
-                *cut_triangles.entry(c).or_default() += n;
-            }
-        }
-        let continuing = continuing(self.scene, &cut_triangles);
-        let allowed_m = self.allowed_m.get(i).copied().flatten();
-        let keyed = match (self.cache, keys.into_iter().collect::<Option<Vec<_>>>()) {
-            (Some(cache), Some(keys)) => {
-                Some((cache, cache.node_key(tile, allowed_m, &keys, &continuing)))
-            }
-            _ => None,
+        let input: usize = from.iter().map(|c| c.triangle_count()).sum();
+        // Finer tries may keep more than the simplifier's default share of the input.
+        let finer_opts;
+        let simplify_opts = if 2 * target > input {
+            finer_opts = crate::simplify::SimplifyOptions {
+                target_ratio: 1.0,
+                ..self.opts.simplify.clone()
+            };
+            &finer_opts
+        } else {
+            &self.opts.simplify
         };
-        if let Some((cache, key)) = &keyed {
-            if let Some((record, built)) = cache.reuse(i, tile, key) {
-                *self.slots[i].lock().expect("slot") = Some(record);
-                return Ok((built, Some(*key)));
-            }
-        }
-        let (built, record) = self.build_internal(i, kids, cut_triangles, &continuing)?;
-        if let Some((cache, key)) = &keyed {
-            cache.store(i, tile, *key, &record, &built)?;
-        }
-        *self.slots[i].lock().expect("slot") = Some(record);
-        Ok((built, keyed.map(|(_, key)| key)))
+        simplify_children(
+            from,
+            tile.bounds.center(),
+            continuing,
+            target,
+            simplify_opts,
+        )
+        .map_err(|e| Error::simplify(format!("tiles/{}.glb", tile.path), e))
     }
 
-    /// An internal tile: its children's content simplified and measured, written; what it hands
-    /// up and the record of what it wrote.
-    fn build_internal(
+    /// What internal tile `i` handed up when it was built as `recipe` says, made again from its
+    /// children's hand-overs `kids` (simplified, not measured).
+    pub(super) fn replay(
         &self,
         i: usize,
         kids: Vec<BuiltSubtree>,
-        cut_triangles: BTreeMap<ComponentId, usize>,
-        continuing: &[ComponentId],
-    ) -> Result<(BuiltSubtree, TileRecord)> {
+        recipe: &Recipe,
+    ) -> Result<BuiltSubtree> {
+        let cut_triangles = cut_triangles(kids.iter().map(|k| &k.cut_triangles));
+        let continuing = continuing(self.scene, &cut_triangles);
+        let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
+        let mut made: Option<TileContent> = None;
+        for &(from_children, target) in &recipe.steps {
+            let r = match &made {
+                Some(last) if !from_children => {
+                    self.simplify_to(i, &[last], target, &continuing)?
+                }
+                _ => self.simplify_to(i, &contents, target, &continuing)?,
+            };
+            made = Some(r.content);
+        }
+        let mut content = made.unwrap_or_default();
+        if let Some(per_axis_m) = recipe.flattened_grid_m {
+            if let Some(kept) = without_flattened(self.opts.compression, &content, per_axis_m) {
+                content = kept;
+            }
+        }
+        Ok(BuiltSubtree {
+            content,
+            geometric_error_m: recipe.geometric_error_m,
+            coarse_to_full_m: recipe.coarse_to_full_m,
+            max_folding_edge_m: recipe.max_folding_edge_m,
+            cut_triangles,
+        })
+    }
+
+    /// Builds the subtree of tile `i`; what it hands up (`None`: with a tile cache, when
+    /// nothing above needs it).
+    pub(crate) fn build(&self, i: usize) -> Result<Option<BuiltSubtree>> {
+        match self.cache {
+            Some(cache) if self.stop.is_empty() => self.build_updated(cache, i),
+            _ => self.build_all(i).map(Some),
+        }
+    }
+
+    /// Builds every tile of the subtree of tile `i` but those of `stop`.
+    fn build_all(&self, i: usize) -> Result<BuiltSubtree> {
         let tile = &self.plan.tiles[i];
-        let path = || format!("tiles/{}.glb", tile.path);
+        if self.stop.contains(&i) {
+            let done = self.provided.lock().expect("provided").remove(&i);
+            return done.ok_or_else(|| {
+                Error::output(
+                    format!("tiles/{}.glb", tile.path),
+                    "no job built this subtree",
+                )
+            });
+        }
+        if tile.children.is_empty() {
+            return self.build_leaf(i).map(|(built, _)| built);
+        }
+        let kids: Vec<BuiltSubtree> = tile
+            .children
+            .par_iter()
+            .map(|&c| self.build_all(c))
+            .collect::<Result<_>>()?;
+        let (built, record, _) = self.build_internal(i, kids)?;
+        *self.slots[i].lock().expect("slot") = Some(record);
+        Ok(built)
+    }
+
+    /// An internal tile: its children's content simplified and measured, written; what it hands
+    /// up, the record of what it wrote, and how to make its hand-over again.
+    pub(super) fn build_internal(
+        &self,
+        i: usize,
+        kids: Vec<BuiltSubtree>,
+    ) -> Result<(BuiltSubtree, TileRecord, Recipe)> {
+        let tile = &self.plan.tiles[i];
+        let cut_triangles = cut_triangles(kids.iter().map(|k| &k.cut_triangles));
+        let continuing = &continuing(self.scene, &cut_triangles);
         {
             let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
             let children: Vec<(&TileContent, f64)> = kids
@@ -245,27 +311,8 @@ impl HlodBuilder<'_> {
             let allowed_m = self.allowed_m.get(i).copied().flatten();
             let reference =
                 ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
-            // A try over `limit_m` is given up as soon as its measurement shows it (`None`).
-            // Finer tries may keep more than the simplifier's default share of the input.
-            let finer_opts = crate::simplify::SimplifyOptions {
-                target_ratio: 1.0,
-                ..self.opts.simplify.clone()
-            };
-            let simplify_at = |from: &[&TileContent], target: usize| -> Result<HlodContent> {
-                let input: usize = from.iter().map(|c| c.triangle_count()).sum();
-                let simplify_opts = if 2 * target > input {
-                    &finer_opts
-                } else {
-                    &self.opts.simplify
-                };
-                simplify_children(
-                    from,
-                    tile.bounds.center(),
-                    continuing,
-                    target,
-                    simplify_opts,
-                )
-                .map_err(|e| Error::simplify(path(), e))
+            let simplify_at = |from: &[&TileContent], target: usize| {
+                self.simplify_to(i, from, target, continuing)
             };
             // The children simplified to the first finer try's count, made before the first try
             // (see below) and taken by the finer try if it comes.
@@ -292,17 +339,17 @@ impl HlodBuilder<'_> {
             // Most tiles need the first finer try (twice the triangles) too: the children are
             // simplified once, to that count, and the first try is simplified from it (a quarter
             // of the children or less to simplify, not all of them again).
-            let (r, err) = if allowed_m.is_some() && 2 * target <= most {
+            let mut tried = if allowed_m.is_some() && 2 * target <= most {
                 let (first, finer) = first_through_finer(&simplify_at, &contents, target)?;
                 *prepared.lock().expect("prepared") = Some((2 * target, finer));
                 let err = reference
                     .measure_within(&first.content, &self.opts.simplify, f64::INFINITY)
                     .expect("no limit");
-                (first, err)
+                (first, err, vec![(true, 2 * target), (false, target)])
             } else {
-                build_at(&contents, target, f64::INFINITY)?.expect("no limit")
+                let (r, err) = build_at(&contents, target, f64::INFINITY)?.expect("no limit");
+                (r, err, vec![(true, target)])
             };
-            let mut tried = (r, err, target);
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
             if let Some(allowed) = allowed_m {
                 // The tile declares at least twice its children's error (the ladder), so content
@@ -312,8 +359,8 @@ impl HlodBuilder<'_> {
                 drop(prepared.lock().expect("prepared").take());
                 tried = coarsen(&build_at, aim_m, tried)?;
             }
-            let (mut r, mut err, _) = tried;
-            let per_axis_m = self.fit_grid(&reference, &mut r.content, &mut err);
+            let (mut r, mut err, steps) = tried;
+            let (per_axis_m, flattened) = self.fit_grid(&reference, &mut r.content, &mut err);
             err.coarse_to_full_m = reference.exact_coarse_to_full_m(&r.content);
             let (position_error, measured) = (per_axis_m, err.error_m + per_axis_m * 3f64.sqrt());
             // The measurement's reference (children's BVHs) and inputs are not needed to write.
@@ -334,7 +381,7 @@ impl HlodBuilder<'_> {
             // Content that draws nothing is not written: the tile stands for everything below it
             // missing, at most its box's diagonal away from anything drawn.
             let empty = r.content.triangle_count() == 0;
-            if empty {
+            let (built, record) = if empty {
                 ge = tile
                     .bounds
                     .diagonal()
@@ -350,28 +397,37 @@ impl HlodBuilder<'_> {
                     max_folding_edge_m: folding,
                     cut_triangles,
                 };
-                return Ok((built, record));
-            }
-            let record = TileRecord {
-                geometric_error_m: ge,
-                simplified_from_triangles: Some(r.input_triangles),
-                full_to_coarse_m: Some(err.full_to_coarse_m),
-                coarse_to_full_bound_m: Some(err.coarse_to_full_m),
-                measured_error_m: Some(measured),
-                max_folding_edge_m: Some(folding),
-                paper_error_m: Some(paper),
-                max_position_error_m: Some(position_error),
-                ..Default::default()
+                (built, record)
+            } else {
+                let record = TileRecord {
+                    geometric_error_m: ge,
+                    simplified_from_triangles: Some(r.input_triangles),
+                    full_to_coarse_m: Some(err.full_to_coarse_m),
+                    coarse_to_full_bound_m: Some(err.coarse_to_full_m),
+                    measured_error_m: Some(measured),
+                    max_folding_edge_m: Some(folding),
+                    paper_error_m: Some(paper),
+                    max_position_error_m: Some(position_error),
+                    ..Default::default()
+                };
+                let written = (self.write)(i, &r.content, record)?;
+                let built = BuiltSubtree {
+                    content: r.content,
+                    geometric_error_m: ge,
+                    coarse_to_full_m: err.coarse_to_full_m,
+                    max_folding_edge_m: folding,
+                    cut_triangles,
+                };
+                (built, written)
             };
-            let written = (self.write)(i, &r.content, record)?;
-            let built = BuiltSubtree {
-                content: r.content,
-                geometric_error_m: ge,
-                coarse_to_full_m: err.coarse_to_full_m,
-                max_folding_edge_m: folding,
-                cut_triangles,
+            let recipe = Recipe {
+                steps,
+                flattened_grid_m: flattened,
+                geometric_error_m: built.geometric_error_m,
+                coarse_to_full_m: built.coarse_to_full_m,
+                max_folding_edge_m: built.max_folding_edge_m,
             };
-            Ok((built, written))
+            Ok((built, record, recipe))
         }
     }
 }
@@ -399,8 +455,13 @@ fn first_through_finer(
 type BuildAt<'a> =
     dyn Fn(&[&TileContent], usize, f64) -> Result<Option<(HlodContent, TileError)>> + Sync + 'a;
 
-/// A try's content, measured error and triangle target.
-type Tried = (HlodContent, TileError, usize);
+/// A try's content, measured error and how it was made ([`Recipe::steps`]; the last count is its
+/// triangle target).
+type Tried = (HlodContent, TileError, Vec<(bool, usize)>);
+
+fn target_of(steps: &[(bool, usize)]) -> usize {
+    steps.last().map_or(0, |&(_, target)| target)
+}
 
 /// Finer while over the `allowed` error: twice the triangles of the last try, up to `most` (the
 /// budget, or all of the children's, which then stand as they are), so the tries span the four
@@ -418,9 +479,9 @@ fn refine(
     contents: &[&TileContent],
     most: usize,
     allowed: f64,
-    (mut r, mut err, mut target): Tried,
+    (mut r, mut err, mut steps): Tried,
 ) -> Result<Tried> {
-    let mut tried = target;
+    let mut tried = target_of(&steps);
     for _ in 0..HLOD_REFINE_TRIES {
         if err.error_m <= allowed || tried >= most {
             break;
@@ -429,10 +490,10 @@ fn refine(
         tried = next;
         if let Some(met) = build_at(contents, next, allowed.max(err.error_m * REFINE_MIN_GAIN))? {
             (r, err) = met;
-            target = next;
+            steps = vec![(true, next)];
         }
     }
-    Ok((r, err, target))
+    Ok((r, err, steps))
 }
 
 /// Coarser while the measured error leaves room under `allowed`: the first view of a model is its
@@ -444,8 +505,9 @@ fn refine(
 /// first simplifications. A rejected try is followed by one between it and the last accepted count
 /// (their geometric mean), once: the halving steps otherwise leave a tile up to twice the triangles
 /// its error allows, and a finer tile below can move the steps.
-fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut target): Tried) -> Result<Tried> {
+fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut steps): Tried) -> Result<Tried> {
     let mut tries = 0;
+    let mut target = target_of(&steps);
     let mut too_coarse: Option<usize> = None;
     while tries < HLOD_COARSEN_TRIES || too_coarse.is_some() {
         let next = match too_coarse {
@@ -479,8 +541,22 @@ fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut target): Tried
             err2,
             next,
         );
+        steps.push((false, next));
     }
-    Ok((r, err, target))
+    Ok((r, err, steps))
+}
+
+/// Triangles per cut component of a tile, from its children's.
+pub(super) fn cut_triangles<'a>(
+    kids: impl Iterator<Item = &'a BTreeMap<ComponentId, usize>>,
+) -> BTreeMap<ComponentId, usize> {
+    let mut sum: BTreeMap<ComponentId, usize> = BTreeMap::new();
+    for k in kids {
+        for (&c, &n) in k {
+            *sum.entry(c).or_default() += n;
+        }
+    }
+    sum
 }
 
 /// Components of `cut_triangles` (triangles per component cut across tiles, in a subtree) that go
@@ -671,10 +747,11 @@ mod tests {
     #[test]
     fn finer_tries_double_and_stop_at_the_first_count_that_meets_the_error() {
         let (r, err) = steep(&[], 7_229, f64::INFINITY).unwrap().unwrap();
-        let (_, err, target) = refine(&steep, &[], 28_916, 0.2, (r, err, 7_229)).unwrap();
+        let (_, err, steps) =
+            refine(&steep, &[], 28_916, 0.2, (r, err, vec![(true, 7_229)])).unwrap();
         // Not every triangle (the 1/triangles prediction asked for 32k): a root that keeps them
         // all is no coarser than the tile below it.
-        assert_eq!(target, 14_458);
+        assert_eq!(steps, [(true, 14_458)]);
         assert!(err.error_m <= 0.2);
     }
 
@@ -683,8 +760,9 @@ mod tests {
         let (r, err) = steep(&[], 7_229, f64::INFINITY).unwrap().unwrap();
         // An allowance only every triangle meets, and a budget of 20k: 14.5k halves the error
         // (0.63 -> 0.03 m) and is kept; 20k gains nothing more and is not.
-        let (_, err, target) = refine(&steep, &[], 20_000, 0.01, (r, err, 7_229)).unwrap();
-        assert_eq!(target, 14_458);
+        let (_, err, steps) =
+            refine(&steep, &[], 20_000, 0.01, (r, err, vec![(true, 7_229)])).unwrap();
+        assert_eq!(steps, [(true, 14_458)]);
         assert!((err.error_m - 0.03).abs() < 1e-12);
     }
 }

@@ -3,6 +3,8 @@
 //! - [`hlod_content`]: a tile's children merged and simplified with our QEM, the error measured;
 //! - [`hlod`]: the HLOD builder, with the ladder of errors between levels, the coarser and finer
 //!   tries, and the position grid of simplified content;
+//! - [`hlod_update`] and [`subtree_cache`]: an update builds only what changed, and takes the
+//!   rest from the tile cache ([`wire`]: the encoding of what it keeps);
 //! - [`coarse_root`]: a simplified root above a model the budgets keep to one heavy tile;
 //! - [`chain_levels`] and [`chains`]: the paper's discrete LOD chains (`--lod-ratios`);
 //! - [`clock`]: the seconds each part of the HLOD stage took (report.json).
@@ -16,6 +18,7 @@ pub mod clock;
 pub mod coarse_root;
 pub mod hlod;
 pub mod hlod_content;
+pub(crate) mod hlod_update;
 pub(crate) mod subtree_cache;
 pub(crate) mod wire;
 

@@ -17,14 +17,22 @@
 //! hand up now.
 //!
 //! Leaves are always built (gathering and encoding them is cheap, and their keys need what they
-//! make). The cache keeps the internal tiles only, each entry compressed on its own: its key, its
-//! path, the SHA-256 of its file, its record and its hand-over in the encoding of
-//! [`super::wire`]. A tile is reused only when the live file still has the bytes the cache
+//! make). The cache keeps the internal tiles only: its key, then, compressed on their own, its
+//! path, the SHA-256 of its file, its record and its hand-over's recipe, and its hand-over, in
+//! the encoding of [`super::wire`]. A tile is reused only when the live file still has the bytes the cache
 //! recorded. A missing, corrupt or foreign cache reuses nothing: every tile is built.
+//!
+//! A hand-over is the tile's content at full precision, several times its file's size, and it is
+//! read only when the tile's parent is built ([`super::hlod_update`]). So the cache keeps the
+//! hand-overs of the upper levels only, from the root down, as many as fit in
+//! [`HANDOVER_SHARE`] of the tiles' bytes: an upper tile stands for a large subtree, which its
+//! hand-over spares making again, and the levels below hold most of the bytes. Any other
+//! hand-over is made again from its recipe ([`Recipe`]): the same simplifications from its
+//! children's hand-overs, without the measurements, which cost most of a tile.
 
 use crate::encode::TileRecord;
 use crate::error::{Error, Result};
-use crate::lod::hlod::BuiltSubtree;
+use crate::lod::hlod::{BuiltSubtree, Recipe};
 use crate::lod::wire::{WireError, R, W};
 use crate::partition::content::AppearanceClasses;
 use crate::partition::PlannedTile;
@@ -37,7 +45,11 @@ use std::sync::Mutex;
 
 /// The tile cache, relative to the output folder (beside the update state).
 pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
-const MAGIC: &[u8; 8] = b"BIMTCAC1";
+const MAGIC: &[u8; 8] = b"BIMTCAC2";
+/// What every version of the cache file starts with.
+const MAGIC_STEM: &[u8; 7] = b"BIMTCAC";
+/// The hand-overs the cache keeps, at most, as a share of the bytes of the tileset's tiles.
+pub const HANDOVER_SHARE: f64 = 0.08;
 const END: &[u8; 4] = b"END.";
 
 /// A SHA-256 of everything a subtree's output depends on.
@@ -56,6 +68,23 @@ pub struct CacheTally {
     /// Internal tiles reused from the cache, their files' bytes.
     pub tiles_reused: usize,
     pub tile_bytes_reused: u64,
+    /// Of the tiles reused, those whose hand-over was made again from its recipe.
+    pub tiles_remade: usize,
+}
+
+/// What a tile taken from the cache hands its parent: kept in the cache, or to be made again.
+#[derive(Debug, PartialEq)]
+pub(crate) enum HandOver {
+    Kept(BuiltSubtree),
+    Remade(Recipe),
+}
+
+/// One tile in the cache, each part compressed: what taking it needs (its path, its file's
+/// SHA-256, its record, its hand-over's recipe), and what it hands its parent, if kept.
+#[derive(Clone)]
+struct Entry {
+    head: Vec<u8>,
+    handover: Option<Vec<u8>>,
 }
 
 /// The previous build's tile cache, and the entries of the one being built.
@@ -63,12 +92,12 @@ pub(crate) struct SubtreeCache {
     global: SubtreeKey,
     /// The scene's appearance classes (a parent merges its primitives by class).
     appearance: AppearanceClasses,
-    /// Compressed entries of the previous build, by key.
-    previous: HashMap<SubtreeKey, Vec<u8>>,
+    /// Entries of the previous build, by key.
+    previous: HashMap<SubtreeKey, Entry>,
     live: PathBuf,
     staging: PathBuf,
-    /// Entries of this build, by plan index.
-    fresh: Mutex<BTreeMap<usize, (SubtreeKey, Vec<u8>)>>,
+    /// Entries of this build, by plan index, with their keys and tile paths.
+    fresh: Mutex<BTreeMap<usize, (SubtreeKey, String, Entry)>>,
     tally: Mutex<CacheTally>,
     /// Why the previous cache could not be used (`None`: it was, or there was no tileset).
     pub(crate) note: Option<String>,
@@ -147,6 +176,10 @@ impl SubtreeCache {
                         "the tile cache is of another tool version, options, frame or schema"
                             .to_string(),
                     ),
+                ),
+                Err(WireError::NotATileCache) if bytes.starts_with(MAGIC_STEM) => (
+                    HashMap::new(),
+                    Some("the tile cache is of another format".to_string()),
                 ),
                 Err(e) => (
                     HashMap::new(),
@@ -275,16 +308,23 @@ impl SubtreeCache {
     }
 
     /// Internal tile `i` (`tile`) as the previous build made it, when its key is in the cache and
-    /// the live tileset still has its file as written: the file is put in the staging folder
-    /// (a hard link, or a copy) and the record and hand-over returned.
+    /// the live tileset still has its file as written: the file is put in the staging folder (a
+    /// hard link, or a copy) and the record returned, with its hand-over if `need`.
     pub(crate) fn reuse(
         &self,
         i: usize,
         tile: &PlannedTile,
         key: &SubtreeKey,
-    ) -> Option<(TileRecord, BuiltSubtree)> {
-        let packed = self.previous.get(key)?;
-        let (path, file, record, built) = decode_entry(packed).ok()?;
+        need: bool,
+    ) -> Option<(TileRecord, Option<HandOver>)> {
+        let entry = self.previous.get(key)?;
+        let (path, file, record, recipe) = decode_head(&entry.head).ok()?;
+        let handover = match (need, &entry.handover) {
+            (false, _) => None,
+            (true, Some(packed)) => Some(HandOver::Kept(decode_handover(packed).ok()?)),
+            (true, None) => Some(HandOver::Remade(recipe)),
+        };
+        let remade = matches!(handover, Some(HandOver::Remade(_)));
         if path != tile.path {
             return None;
         }
@@ -304,35 +344,53 @@ impl SubtreeCache {
         self.fresh
             .lock()
             .expect("fresh")
-            .insert(i, (*key, packed.clone()));
+            .insert(i, (*key, path, entry.clone()));
         let mut t = self.tally.lock().expect("tally");
         t.tiles_reused += 1;
         t.tile_bytes_reused += record.content.bytes;
         t.internal_tiles += 1;
-        Some((record, built))
+        t.tiles_remade += remade as usize;
+        Some((record, handover))
     }
 
-    /// Records internal tile `i` (`tile`), just built, for the next build.
+    /// Records internal tile `i` (`tile`), just built as `recipe` says, for the next build.
     pub(crate) fn store(
         &self,
         i: usize,
         tile: &PlannedTile,
         key: SubtreeKey,
-        record: &TileRecord,
-        built: &BuiltSubtree,
+        (record, built, recipe): (&TileRecord, &BuiltSubtree, &Recipe),
     ) -> Result<()> {
         let file = self.file_digest(record)?;
-        let mut w = W::default();
-        w.str(&tile.path);
-        w.opt(&file, |w, sha| w.0.extend_from_slice(sha));
-        w.record(record);
-        w.subtree(built);
-        let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
-        let packed = z
-            .write_all(&w.0)
-            .and_then(|()| z.finish())
-            .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))?;
-        self.fresh.lock().expect("fresh").insert(i, (key, packed));
+        let mut head = W::default();
+        head.str(&tile.path);
+        head.opt(&file, |w, sha| w.0.extend_from_slice(sha));
+        head.record(record);
+        head.n(recipe.steps.len());
+        for &(from_children, target) in &recipe.steps {
+            head.0.push(from_children as u8);
+            head.n(target);
+        }
+        head.opt(&recipe.flattened_grid_m, |w, &g| w.f64(g));
+        head.f64(recipe.geometric_error_m);
+        head.f64(recipe.coarse_to_full_m);
+        head.f64(recipe.max_folding_edge_m);
+        let mut handover = W::default();
+        handover.subtree(built);
+        let compressed = |w: W| {
+            let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
+            z.write_all(&w.0)
+                .and_then(|()| z.finish())
+                .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))
+        };
+        let entry = Entry {
+            head: compressed(head)?,
+            handover: Some(compressed(handover)?),
+        };
+        self.fresh
+            .lock()
+            .expect("fresh")
+            .insert(i, (key, tile.path.clone(), entry));
         self.tally_built(record, true);
         Ok(())
     }
@@ -342,17 +400,36 @@ impl SubtreeCache {
         self.tally.lock().expect("tally").clone()
     }
 
-    /// Writes this build's cache into `dir` (the staging folder); returns its size.
+    /// Writes this build's cache into `dir` (the staging folder), with the hand-overs of the
+    /// upper levels that fit in [`HANDOVER_SHARE`] of the tiles' bytes; returns its size.
     pub(crate) fn write_into(&self, dir: &Path) -> Result<u64> {
         let fresh = self.fresh.lock().expect("fresh");
+        let tile_bytes = {
+            let t = self.tally.lock().expect("tally");
+            t.tile_bytes_built + t.tile_bytes_reused
+        };
+        let kept = kept_handovers(
+            fresh
+                .values()
+                .map(|(_, path, e)| (path.as_str(), e.handover.as_ref().map(Vec::len))),
+            (tile_bytes as f64 * HANDOVER_SHARE) as usize,
+        );
         let mut w = W::default();
         w.0.extend_from_slice(MAGIC);
         w.0.extend_from_slice(&self.global);
         w.n(fresh.len());
-        for (key, packed) in fresh.values() {
+        for (key, path, entry) in fresh.values() {
             w.0.extend_from_slice(key);
-            w.n(packed.len());
-            w.0.extend_from_slice(packed);
+            w.n(entry.head.len());
+            w.0.extend_from_slice(&entry.head);
+            let handover = entry
+                .handover
+                .as_ref()
+                .filter(|_| kept.contains(path.as_str()));
+            w.opt(&handover, |w, h| {
+                w.n(h.len());
+                w.0.extend_from_slice(h);
+            });
         }
         w.0.extend_from_slice(END);
         let path = dir.join(TILE_CACHE_FILE);
@@ -365,24 +442,52 @@ impl SubtreeCache {
     }
 }
 
+/// The tiles (by path) whose hand-overs are kept: from the root down, level by level and in path
+/// order within a level, until the next one would pass `budget_bytes`. `tiles` gives each
+/// tile's hand-over size, if it has one.
+fn kept_handovers<'a>(
+    tiles: impl Iterator<Item = (&'a str, Option<usize>)>,
+    budget_bytes: usize,
+) -> std::collections::HashSet<&'a str> {
+    let mut order: Vec<(&str, usize)> = tiles.filter_map(|(p, h)| Some((p, h?))).collect();
+    order.sort_by_key(|&(path, _)| (path.len(), path));
+    let mut used_bytes = 0;
+    order
+        .into_iter()
+        .take_while(|&(_, bytes)| {
+            used_bytes += bytes;
+            used_bytes <= budget_bytes
+        })
+        .map(|(path, _)| path)
+        .collect()
+}
+
 fn key_from(r: &mut R) -> std::result::Result<SubtreeKey, WireError> {
     Ok(r.take(32)?.try_into().expect("32 bytes"))
 }
 
-/// The global digest and the compressed entries of a cache file.
+/// The global digest and the entries of a cache file.
 #[allow(clippy::type_complexity)]
 fn decode_file(
     bytes: &[u8],
-) -> std::result::Result<(SubtreeKey, HashMap<SubtreeKey, Vec<u8>>), WireError> {
+) -> std::result::Result<(SubtreeKey, HashMap<SubtreeKey, Entry>), WireError> {
     let mut r = R(bytes);
     if r.take(8)? != MAGIC {
         return Err(WireError::NotATileCache);
     }
     let global = key_from(&mut r)?;
-    let entries = r.vec(40, |r| {
+    let entries = r.vec(41, |r| {
         let key = key_from(r)?;
         let n = r.n(1)?;
-        Ok((key, r.take(n)?.to_vec()))
+        let head = r.take(n)?.to_vec();
+        let handover = match r.flag()? {
+            true => {
+                let n = r.n(1)?;
+                Some(r.take(n)?.to_vec())
+            }
+            false => None,
+        };
+        Ok((key, Entry { head, handover }))
     })?;
     if r.0 != END {
         return Err(WireError::NoEndMark);
@@ -390,15 +495,20 @@ fn decode_file(
     Ok((global, entries.into_iter().collect()))
 }
 
-/// One compressed entry: path, file digest, record, hand-over.
-#[allow(clippy::type_complexity)]
-fn decode_entry(
-    packed: &[u8],
-) -> std::result::Result<(String, Option<SubtreeKey>, TileRecord, BuiltSubtree), WireError> {
+fn inflate(packed: &[u8]) -> std::result::Result<Vec<u8>, WireError> {
     let mut bytes = Vec::new();
     flate2::read::ZlibDecoder::new(packed)
         .read_to_end(&mut bytes)
         .map_err(|_| WireError::Truncated)?;
+    Ok(bytes)
+}
+
+/// An entry's head: path, file digest, record, recipe.
+#[allow(clippy::type_complexity)]
+fn decode_head(
+    packed: &[u8],
+) -> std::result::Result<(String, Option<SubtreeKey>, TileRecord, Recipe), WireError> {
+    let bytes = inflate(packed)?;
     let mut r = R(&bytes);
     let path = r.str()?;
     let file = match r.flag()? {
@@ -406,11 +516,29 @@ fn decode_entry(
         false => None,
     };
     let record = r.record()?;
+    let steps = r.vec(9, |r| Ok((r.flag()?, r.u64()? as usize)))?;
+    let recipe = Recipe {
+        steps,
+        flattened_grid_m: r.opt_f64()?,
+        geometric_error_m: r.f64()?,
+        coarse_to_full_m: r.f64()?,
+        max_folding_edge_m: r.f64()?,
+    };
+    if !r.0.is_empty() {
+        return Err(WireError::NoEndMark);
+    }
+    Ok((path, file, record, recipe))
+}
+
+/// An entry's hand-over.
+fn decode_handover(packed: &[u8]) -> std::result::Result<BuiltSubtree, WireError> {
+    let bytes = inflate(packed)?;
+    let mut r = R(&bytes);
     let built = r.subtree()?;
     if !r.0.is_empty() {
         return Err(WireError::NoEndMark);
     }
-    Ok((path, file, record, built))
+    Ok(built)
 }
 
 #[cfg(test)]
@@ -500,29 +628,80 @@ mod tests {
     }
 
     #[test]
+    fn hand_overs_are_kept_from_the_root_down_within_the_budget() {
+        let tiles = [
+            ("r010", Some(10)),
+            ("r0", Some(10)),
+            ("r1", None),
+            ("r00", Some(30)),
+            ("r01", Some(10)),
+        ];
+        let kept = |budget| {
+            let mut k: Vec<&str> = kept_handovers(tiles.iter().copied(), budget)
+                .into_iter()
+                .collect();
+            k.sort();
+            k
+        };
+        assert_eq!(kept(9), Vec::<&str>::new());
+        assert_eq!(kept(10), ["r0"]);
+        // A level is taken in path order, and the first tile over the budget ends it.
+        assert_eq!(kept(45), ["r0", "r00"]);
+        assert_eq!(kept(50), ["r0", "r00", "r01"]);
+        assert_eq!(kept(60), ["r0", "r00", "r01", "r010"]);
+    }
+
+    #[test]
     fn an_entry_reads_back_exactly_and_a_spoiled_file_is_refused() {
         let dir = std::env::temp_dir().join(format!("bimtiles-tile-cache-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let global = global_digest(&[b"x"]);
         let cache = SubtreeCache::open(&dir, &dir, global, &Default::default());
-        let record = TileRecord {
+        let mut record = TileRecord {
             geometric_error_m: 0.1 + 0.2,
             ..Default::default()
         };
+        // The tileset's bytes, of which the hand-overs may take a share.
+        record.content.bytes = 1 << 20;
         let built = subtree(0.3);
+        let recipe = Recipe {
+            steps: vec![(true, 20), (false, 10)],
+            flattened_grid_m: Some(0.1 + 0.2),
+            geometric_error_m: 1.0 / 3.0,
+            ..Default::default()
+        };
         cache
-            .store(2, &planned("r0"), [7; 32], &record, &built)
+            .store(2, &planned("r0"), [7; 32], (&record, &built, &recipe))
             .unwrap();
         cache.write_into(&dir).unwrap();
         std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
         let again = SubtreeCache::open(&dir, &dir, global, &Default::default());
         assert_eq!(again.note, None);
-        assert_eq!(again.reuse(2, &planned("r1"), &[7; 32]), None, "path");
-        assert_eq!(again.reuse(2, &planned("r0"), &[8; 32]), None, "key");
+        assert_eq!(again.reuse(2, &planned("r1"), &[7; 32], true), None, "path");
+        assert_eq!(again.reuse(2, &planned("r0"), &[8; 32], true), None, "key");
         assert_eq!(
-            again.reuse(2, &planned("r0"), &[7; 32]),
-            Some((record, built))
+            again.reuse(2, &planned("r0"), &[7; 32], true),
+            Some((record.clone(), Some(HandOver::Kept(built.clone()))))
+        );
+        assert_eq!(
+            again.reuse(2, &planned("r0"), &[7; 32], false),
+            Some((record, None))
+        );
+        // A hand-over over the budget (a tileset of no bytes) is not kept.
+        let small = TileRecord::default();
+        let lean = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        lean.store(2, &planned("r0"), [7; 32], (&small, &built, &recipe))
+            .unwrap();
+        lean.write_into(&dir).unwrap();
+        let lean = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert_eq!(
+            lean.reuse(2, &planned("r0"), &[7; 32], true),
+            Some((small.clone(), Some(HandOver::Remade(recipe))))
+        );
+        assert_eq!(
+            lean.reuse(2, &planned("r0"), &[7; 32], false),
+            Some((small, None))
         );
         let other = SubtreeCache::open(&dir, &dir, global_digest(&[b"y"]), &Default::default());
         assert!(other.note.unwrap().contains("another tool version"));
@@ -530,6 +709,11 @@ mod tests {
         std::fs::write(dir.join(TILE_CACHE_FILE), &bytes[..bytes.len() - 3]).unwrap();
         let cut = SubtreeCache::open(&dir, &dir, global, &Default::default());
         assert!(cut.note.unwrap().contains("corrupt"));
+        let mut older = bytes.clone();
+        older[7] = b'1';
+        std::fs::write(dir.join(TILE_CACHE_FILE), &older).unwrap();
+        let older = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert!(older.note.unwrap().contains("another format"));
         std::fs::remove_file(dir.join(TILE_CACHE_FILE)).unwrap();
         let none = SubtreeCache::open(&dir, &dir, global, &Default::default());
         assert!(none.note.unwrap().contains("no tile cache"));

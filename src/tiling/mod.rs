@@ -318,7 +318,11 @@ impl<'a> TileWriter<'a> {
                     .collect();
                 Ok(JobOutput {
                     tiles,
-                    roots: roots.iter().copied().zip(built).collect(),
+                    roots: roots
+                        .iter()
+                        .zip(built)
+                        .filter_map(|(&r, built)| Some((r, built?)))
+                        .collect(),
                 })
             }
             LodMode::Ratios(ratios) => {

@@ -122,6 +122,9 @@ pub struct UpdateReport {
     /// files' bytes.
     pub tiles_reused: usize,
     pub tile_bytes_reused: u64,
+    /// Of the tiles reused, those whose hand-over (the geometry a parent built again simplifies)
+    /// was made again from its recipe: simplified, not measured or encoded.
+    pub tiles_remade: usize,
     /// Size of the tile cache file written.
     pub tile_cache_bytes: u64,
     /// Why the tile cache could not be used (absent when it was, or there was no tileset yet).
@@ -148,13 +151,14 @@ impl UpdateReport {
         }
         if self.mode == "rebuilt" {
             s += &format!(
-                "\nupdate: {} tiles built ({} bytes), of them {} of {} HLOD tiles; {} HLOD tiles reused from the tile cache ({} bytes); tile cache {} bytes",
+                "\nupdate: {} tiles built ({} bytes), of them {} of {} HLOD tiles; {} HLOD tiles reused from the tile cache ({} bytes, {} simplified again for their parents); tile cache {} bytes",
                 self.tiles_built,
                 self.tile_bytes_built,
                 self.internal_tiles_built,
                 self.internal_tiles,
                 self.tiles_reused,
                 self.tile_bytes_reused,
+                self.tiles_remade,
                 self.tile_cache_bytes
             );
         }

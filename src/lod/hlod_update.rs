@@ -1,0 +1,110 @@
+//! HLOD in an update (`convert --update`, book: guide/updating.md): what changed is built, the
+//! rest is taken from the tile cache ([`super::subtree_cache`]).
+//!
+//! Two passes. First every leaf is built (gathering and encoding a leaf is cheap, and its key
+//! needs what it makes) and every tile's subtree key computed, bottom-up. Then, from the root
+//! down, a tile whose key is in the cache, and whose file the live tileset still has, is taken
+//! from it with its whole subtree; any other tile is built, from its children's hand-overs. A
+//! taken tile's hand-over is needed only when its parent is built: it is read from the cache
+//! (upper levels), or made again from its recipe, from its own children's hand-overs, down to
+//! tiles whose hand-over is kept, or leaves.
+
+use super::hlod::{continuing, cut_triangles, BuiltSubtree, HlodBuilder};
+use super::subtree_cache::{HandOver, SubtreeCache, SubtreeKey};
+use crate::error::Result;
+use crate::scene::ComponentId;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+impl HlodBuilder<'_> {
+    /// Brings the subtree of tile `i` up to date with `cache`; what it hands up when its parent
+    /// needs it (a single-leaf plan's root: the coarse root simplifies it).
+    pub(super) fn build_updated(
+        &self,
+        cache: &SubtreeCache,
+        i: usize,
+    ) -> Result<Option<BuiltSubtree>> {
+        let keys: Vec<Mutex<Option<SubtreeKey>>> =
+            self.plan.tiles.iter().map(|_| Mutex::default()).collect();
+        self.key_subtree(cache, i, &keys)?;
+        let keys: Vec<Option<SubtreeKey>> = keys
+            .into_iter()
+            .map(|k| k.into_inner().expect("no poisoned key"))
+            .collect();
+        let need = self.plan.tiles[i].children.is_empty();
+        self.build_changed(cache, &keys, i, need)
+    }
+
+    /// Builds the leaves of the subtree of tile `i` and keys all its tiles into `keys`; returns
+    /// the key of tile `i` and the triangles of the cut components below it.
+    fn key_subtree(
+        &self,
+        cache: &SubtreeCache,
+        i: usize,
+        keys: &[Mutex<Option<SubtreeKey>>],
+    ) -> Result<(SubtreeKey, BTreeMap<ComponentId, usize>)> {
+        let tile = &self.plan.tiles[i];
+        let (key, cut) = if tile.children.is_empty() {
+            let (built, record) = self.build_leaf(i)?;
+            let key = cache.leaf_key(self.scene, tile, &built, &record)?;
+            (key, built.cut_triangles)
+        } else {
+            let kids: Vec<(SubtreeKey, BTreeMap<ComponentId, usize>)> = tile
+                .children
+                .par_iter()
+                .map(|&c| self.key_subtree(cache, c, keys))
+                .collect::<Result<_>>()?;
+            let cut = cut_triangles(kids.iter().map(|(_, cut)| cut));
+            let child_keys: Vec<SubtreeKey> = kids.iter().map(|(key, _)| *key).collect();
+            let allowed_m = self.allowed_m.get(i).copied().flatten();
+            let locked = continuing(self.scene, &cut);
+            (cache.node_key(tile, allowed_m, &child_keys, &locked), cut)
+        };
+        *keys[i].lock().expect("key") = Some(key);
+        Ok((key, cut))
+    }
+
+    /// Takes or builds tile `i` and its subtree; its hand-over when `need` (its parent is built).
+    fn build_changed(
+        &self,
+        cache: &SubtreeCache,
+        keys: &[Option<SubtreeKey>],
+        i: usize,
+        need: bool,
+    ) -> Result<Option<BuiltSubtree>> {
+        let tile = &self.plan.tiles[i];
+        if tile.children.is_empty() {
+            // Written with the keys: only its hand-over is made again.
+            return Ok(need.then(|| self.leaf_content(i).1));
+        }
+        let key = keys[i].expect("every tile of the subtree is keyed");
+        let handed = |need: bool| -> Result<Vec<Option<BuiltSubtree>>> {
+            tile.children
+                .par_iter()
+                .map(|&c| self.build_changed(cache, keys, c, need))
+                .collect()
+        };
+        let all = |kids: Vec<Option<BuiltSubtree>>| -> Vec<BuiltSubtree> {
+            kids.into_iter()
+                .map(|k| k.expect("a hand-over asked for is made"))
+                .collect()
+        };
+        // The subtree is the cached one: its tiles are taken too.
+        if let Some((record, handover)) = cache.reuse(i, tile, &key, need) {
+            *self.slots[i].lock().expect("slot") = Some(record);
+            return match handover {
+                None => handed(false).map(|_| None),
+                Some(HandOver::Kept(built)) => handed(false).map(|_| Some(built)),
+                Some(HandOver::Remade(recipe)) => {
+                    let kids = all(handed(true)?);
+                    self.replay(i, kids, &recipe).map(Some)
+                }
+            };
+        }
+        let (built, record, recipe) = self.build_internal(i, all(handed(true)?))?;
+        cache.store(i, tile, key, (&record, &built, &recipe))?;
+        *self.slots[i].lock().expect("slot") = Some(record);
+        Ok(Some(built))
+    }
+}
