@@ -140,12 +140,16 @@ fn main() {
         report["output"]["bytes"],
     );
     let cache_bytes = dir_bytes(&out.join(".bimtiles"));
-    let tileset_bytes = dir_bytes(&out) - cache_bytes;
+    let tileset_bytes: u64 = bimtiles::update::tileset_files(&out)
+        .unwrap()
+        .iter()
+        .map(|f| f.bytes)
+        .sum();
     println!(
-        "Update cache (`.bimtiles/`): {cache_bytes} bytes, {:.1} % of the tileset's {tileset_bytes} bytes\n",
+        "Update cache (`.bimtiles/`): {cache_bytes} bytes, {:.1} % of the tileset's files ({tileset_bytes} bytes)\n",
         100.0 * cache_bytes as f64 / tileset_bytes as f64
     );
-    println!("| change | update (s) | of a full build | files written | of all files | tiles written | bytes written | reused | removed | HLOD tiles built / taken (simplified again) | full build because |");
+    println!("| change | update (s) | of a full build | files written | of all files | tiles written | bytes written | reused | removed | HLOD tiles built / written again / taken (simplified again) | full build because |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut rows = Vec::new();
     let middle = buildings / 2;
@@ -224,12 +228,13 @@ fn main() {
             "files_removed": u["files_removed"],
             "internal_tiles_built": u["internal_tiles_built"],
             "internal_tiles": u["internal_tiles"],
+            "tiles_rewritten": u["tiles_rewritten"],
             "tiles_reused": u["tiles_reused"],
             "tiles_remade": u["tiles_remade"],
             "reason": u["full_build_reason"],
         });
         println!(
-            "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} of {} / {} ({}) | {} |",
+            "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} of {} / {} / {} ({}) | {} |",
             100.0 * seconds / full_s,
             100.0 * written as f64 / after.len().max(1) as f64,
             row["tiles_written"],
@@ -239,6 +244,7 @@ fn main() {
             row["files_removed"],
             u["internal_tiles_built"],
             u["internal_tiles"],
+            u["tiles_rewritten"],
             u["tiles_reused"],
             u["tiles_remade"],
             u["full_build_reason"].as_str().unwrap_or("-"),

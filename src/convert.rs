@@ -300,6 +300,7 @@ fn build_into(
             internal_tiles_built: tally.internal_tiles_built,
             tiles_reused: tally.tiles_reused,
             tile_bytes_reused: tally.tile_bytes_reused,
+            tiles_rewritten: tally.tiles_rewritten,
             tiles_remade: tally.tiles_remade,
             tile_cache_bytes: cache_bytes,
             tile_cache_note: match cache {

@@ -259,6 +259,11 @@ impl HlodBuilder<'_> {
     /// Builds the subtree of tile `i`; what it hands up (`None`: with a tile cache, when
     /// nothing above needs it).
     pub(crate) fn build(&self, i: usize) -> Result<Option<BuiltSubtree>> {
+        if self.stop.contains(&i) {
+            // Built before (convert builds its whole tree, then merges it): what it handed up, if
+            // anything above needs it.
+            return Ok(self.provided.lock().expect("provided").remove(&i));
+        }
         match self.cache {
             Some(cache) if self.stop.is_empty() => self.build_updated(cache, i),
             _ => self.build_all(i).map(Some),

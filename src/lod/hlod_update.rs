@@ -7,10 +7,11 @@
 //! from it with its whole subtree; any other tile is built, from its children's hand-overs. A
 //! taken tile's hand-over is needed only when its parent is built: it is read from the cache
 //! (upper levels), or made again from its recipe, from its own children's hand-overs, down to
-//! tiles whose hand-over is kept, or leaves.
+//! tiles whose hand-over is kept, or leaves. A tile whose geometry key alone is in the cache (an
+//! element's metadata changed below it) gets its content the same way and is only written again.
 
 use super::hlod::{continuing, cut_triangles, BuiltSubtree, HlodBuilder};
-use super::subtree_cache::{HandOver, SubtreeCache, SubtreeKey};
+use super::subtree_cache::{Found, HandOver, SubtreeCache, TileKeys};
 use crate::error::Result;
 use crate::scene::ComponentId;
 use rayon::prelude::*;
@@ -25,10 +26,10 @@ impl HlodBuilder<'_> {
         cache: &SubtreeCache,
         i: usize,
     ) -> Result<Option<BuiltSubtree>> {
-        let keys: Vec<Mutex<Option<SubtreeKey>>> =
+        let keys: Vec<Mutex<Option<TileKeys>>> =
             self.plan.tiles.iter().map(|_| Mutex::default()).collect();
         self.key_subtree(cache, i, &keys)?;
-        let keys: Vec<Option<SubtreeKey>> = keys
+        let keys: Vec<Option<TileKeys>> = keys
             .into_iter()
             .map(|k| k.into_inner().expect("no poisoned key"))
             .collect();
@@ -42,24 +43,24 @@ impl HlodBuilder<'_> {
         &self,
         cache: &SubtreeCache,
         i: usize,
-        keys: &[Mutex<Option<SubtreeKey>>],
-    ) -> Result<(SubtreeKey, BTreeMap<ComponentId, usize>)> {
+        keys: &[Mutex<Option<TileKeys>>],
+    ) -> Result<(TileKeys, BTreeMap<ComponentId, usize>)> {
         let tile = &self.plan.tiles[i];
         let (key, cut) = if tile.children.is_empty() {
             let (built, record) = self.build_leaf(i)?;
-            let key = cache.leaf_key(self.scene, tile, &built, &record)?;
+            let key = cache.leaf_keys(self.scene, tile, &built, &record)?;
             (key, built.cut_triangles)
         } else {
-            let kids: Vec<(SubtreeKey, BTreeMap<ComponentId, usize>)> = tile
+            let kids: Vec<(TileKeys, BTreeMap<ComponentId, usize>)> = tile
                 .children
                 .par_iter()
                 .map(|&c| self.key_subtree(cache, c, keys))
                 .collect::<Result<_>>()?;
             let cut = cut_triangles(kids.iter().map(|(_, cut)| cut));
-            let child_keys: Vec<SubtreeKey> = kids.iter().map(|(key, _)| *key).collect();
+            let child_keys: Vec<TileKeys> = kids.iter().map(|(key, _)| *key).collect();
             let allowed_m = self.allowed_m.get(i).copied().flatten();
             let locked = continuing(self.scene, &cut);
-            (cache.node_key(tile, allowed_m, &child_keys, &locked), cut)
+            (cache.node_keys(tile, allowed_m, &child_keys, &locked), cut)
         };
         *keys[i].lock().expect("key") = Some(key);
         Ok((key, cut))
@@ -69,7 +70,7 @@ impl HlodBuilder<'_> {
     fn build_changed(
         &self,
         cache: &SubtreeCache,
-        keys: &[Option<SubtreeKey>],
+        keys: &[Option<TileKeys>],
         i: usize,
         need: bool,
     ) -> Result<Option<BuiltSubtree>> {
@@ -90,20 +91,37 @@ impl HlodBuilder<'_> {
                 .map(|k| k.expect("a hand-over asked for is made"))
                 .collect()
         };
-        // The subtree is the cached one: its tiles are taken too.
-        if let Some((record, handover)) = cache.reuse(i, tile, &key, need) {
-            *self.slots[i].lock().expect("slot") = Some(record);
-            return match handover {
-                None => handed(false).map(|_| None),
-                Some(HandOver::Kept(built)) => handed(false).map(|_| Some(built)),
-                Some(HandOver::Remade(recipe)) => {
-                    let kids = all(handed(true)?);
-                    self.replay(i, kids, &recipe).map(Some)
-                }
+        if let Some(found) = cache.reuse(i, tile, &key, need) {
+            let Found {
+                record,
+                recipe,
+                file_taken,
+                handover,
+            } = found;
+            // Its children are the cached ones: they are taken too, and hand it their content if
+            // it is made again.
+            let built = match handover {
+                None => handed(false).map(|_| None)?,
+                Some(HandOver::Kept(built)) => handed(false).map(|_| Some(built))?,
+                Some(HandOver::Remade) => Some(self.replay(i, all(handed(true)?), &recipe)?),
             };
+            let record = match (&built, file_taken) {
+                (Some(built), false) => {
+                    // Only its elements' metadata changed: the same content, written again.
+                    let written = match record.uri {
+                        Some(_) => (self.write)(i, &built.content, record)?,
+                        None => record,
+                    };
+                    cache.store(i, tile, &key, (&written, built, &recipe), true)?;
+                    written
+                }
+                _ => record,
+            };
+            *self.slots[i].lock().expect("slot") = Some(record);
+            return Ok(built.filter(|_| need));
         }
         let (built, record, recipe) = self.build_internal(i, all(handed(true)?))?;
-        cache.store(i, tile, key, (&record, &built, &recipe))?;
+        cache.store(i, tile, &key, (&record, &built, &recipe), false)?;
         *self.slots[i].lock().expect("slot") = Some(record);
         Ok(Some(built))
     }

@@ -55,11 +55,19 @@ const END: &[u8; 4] = b"END.";
 /// A SHA-256 of everything a subtree's output depends on.
 pub(crate) type SubtreeKey = [u8; 32];
 
+/// A tile's two keys: `geometry` covers what its content, figures and hand-over depend on (all
+/// but the elements' metadata), `whole` covers its file too.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct TileKeys {
+    pub geometry: SubtreeKey,
+    pub whole: SubtreeKey,
+}
+
 /// What the cache saved and cost in one build.
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct CacheTally {
-    /// Tiles built (every leaf, and the internal tiles not found in the cache), their files'
-    /// bytes.
+    /// Tiles built (every leaf, the internal tiles not found in the cache, and those written
+    /// again), their files' bytes.
     pub tiles_built: usize,
     pub tile_bytes_built: u64,
     /// Internal tiles built, and internal tiles in the plan.
@@ -68,21 +76,40 @@ pub struct CacheTally {
     /// Internal tiles reused from the cache, their files' bytes.
     pub tiles_reused: usize,
     pub tile_bytes_reused: u64,
-    /// Of the tiles reused, those whose hand-over was made again from its recipe.
+    /// Internal tiles whose file was written again from their cached geometry (only their
+    /// elements' metadata changed).
+    pub tiles_rewritten: usize,
+    /// Internal tiles found in the cache whose hand-over was made again from its recipe.
     pub tiles_remade: usize,
 }
 
-/// What a tile taken from the cache hands its parent: kept in the cache, or to be made again.
+/// What a tile found in the cache hands its parent: kept in the cache, or to be made again from
+/// its recipe.
 #[derive(Debug, PartialEq)]
 pub(crate) enum HandOver {
     Kept(BuiltSubtree),
-    Remade(Recipe),
+    Remade,
+}
+
+/// A tile found in the cache.
+#[derive(Debug, PartialEq)]
+pub(crate) struct Found {
+    /// Its record as the previous build wrote it.
+    pub record: TileRecord,
+    pub recipe: Recipe,
+    /// Whether its file was taken: when not, only its geometry is the same (an element's
+    /// metadata changed), and the file is to be written again from its hand-over's content.
+    pub file_taken: bool,
+    /// Its hand-over, when asked for or when its file is to be written again.
+    pub handover: Option<HandOver>,
 }
 
 /// One tile in the cache, each part compressed: what taking it needs (its path, its file's
-/// SHA-256, its record, its hand-over's recipe), and what it hands its parent, if kept.
+/// SHA-256, its record, its hand-over's recipe), and what it hands its parent, if kept; with its
+/// geometry key.
 #[derive(Clone)]
 struct Entry {
+    geometry: SubtreeKey,
     head: Vec<u8>,
     handover: Option<Vec<u8>>,
 }
@@ -92,8 +119,9 @@ pub(crate) struct SubtreeCache {
     global: SubtreeKey,
     /// The scene's appearance classes (a parent merges its primitives by class).
     appearance: AppearanceClasses,
-    /// Entries of the previous build, by key.
+    /// Entries of the previous build, by whole key, and their whole keys by geometry key.
     previous: HashMap<SubtreeKey, Entry>,
+    by_geometry: HashMap<SubtreeKey, SubtreeKey>,
     live: PathBuf,
     staging: PathBuf,
     /// Entries of this build, by plan index, with their keys and tile paths.
@@ -199,6 +227,7 @@ impl SubtreeCache {
         SubtreeCache {
             global,
             appearance: appearance.clone(),
+            by_geometry: previous.iter().map(|(k, e)| (e.geometry, *k)).collect(),
             previous,
             live: live.to_path_buf(),
             staging: staging.to_path_buf(),
@@ -215,15 +244,15 @@ impl SubtreeCache {
         SubtreeCache::open(none, none, global, &AppearanceClasses::default())
     }
 
-    /// The key of leaf `tile`, which handed up `built` and wrote `record` (its file in the
+    /// The keys of leaf `tile`, which handed up `built` and wrote `record` (its file in the
     /// staging folder).
-    pub(crate) fn leaf_key(
+    pub(crate) fn leaf_keys(
         &self,
         scene: &Scene,
         tile: &PlannedTile,
         built: &BuiltSubtree,
         record: &TileRecord,
-    ) -> Result<SubtreeKey> {
+    ) -> Result<TileKeys> {
         let mut h = KeyHasher::new("leaf", &self.global);
         h.plan(tile);
         let mut materials = std::collections::BTreeSet::new();
@@ -259,31 +288,46 @@ impl SubtreeCache {
         }
         let mut w = W::default();
         w.subtree(built);
+        h.bytes(&w.0);
+        let geometry = h.finish();
+        let mut h = KeyHasher::new("leaf file", &geometry);
+        let mut w = W::default();
         w.record(record);
         h.bytes(&w.0);
         h.bytes(&self.file_digest(record)?.unwrap_or_default());
         self.tally_built(record, false);
-        Ok(h.finish())
+        Ok(TileKeys {
+            geometry,
+            whole: h.finish(),
+        })
     }
 
-    /// The key of internal tile `tile` over its children's keys (in plan order): `allowed_m` is
+    /// The keys of internal tile `tile` over its children's keys (in plan order): `allowed_m` is
     /// its allowed error and `continuing` the components its simplification keeps locked.
-    pub(crate) fn node_key(
+    pub(crate) fn node_keys(
         &self,
         tile: &PlannedTile,
         allowed_m: Option<f64>,
-        children: &[SubtreeKey],
+        children: &[TileKeys],
         continuing: &[ComponentId],
-    ) -> SubtreeKey {
+    ) -> TileKeys {
         let mut h = KeyHasher::new("node", &self.global);
         h.plan(tile);
         h.debug(&allowed_m.map(f64::to_bits));
         h.debug(&continuing);
         h.0.update((children.len() as u64).to_le_bytes());
         for k in children {
-            h.0.update(k);
+            h.0.update(k.geometry);
         }
-        h.finish()
+        let geometry = h.finish();
+        let mut h = KeyHasher::new("node file", &geometry);
+        for k in children {
+            h.0.update(k.whole);
+        }
+        TileKeys {
+            geometry,
+            whole: h.finish(),
+        }
     }
 
     /// The SHA-256 of the file `record` names in the staging folder (`None`: no file).
@@ -307,59 +351,84 @@ impl SubtreeCache {
         }
     }
 
-    /// Internal tile `i` (`tile`) as the previous build made it, when its key is in the cache and
-    /// the live tileset still has its file as written: the file is put in the staging folder (a
-    /// hard link, or a copy) and the record returned, with its hand-over if `need`.
+    /// Internal tile `i` (`tile`) as the previous build made it, when its whole key, or only its
+    /// geometry key, is in the cache. With the whole key, and the live tileset still holding its
+    /// file as written, the file is put in the staging folder (a hard link, or a copy) and the
+    /// tile counted as reused; the hand-over comes if `need`. Otherwise the hand-over always
+    /// comes, for the caller to write the file again and [`Self::store`] the tile.
     pub(crate) fn reuse(
         &self,
         i: usize,
         tile: &PlannedTile,
-        key: &SubtreeKey,
+        keys: &TileKeys,
         need: bool,
-    ) -> Option<(TileRecord, Option<HandOver>)> {
-        let entry = self.previous.get(key)?;
-        let (path, file, record, recipe) = decode_head(&entry.head).ok()?;
-        let handover = match (need, &entry.handover) {
-            (false, _) => None,
-            (true, Some(packed)) => Some(HandOver::Kept(decode_handover(packed).ok()?)),
-            (true, None) => Some(HandOver::Remade(recipe)),
+    ) -> Option<Found> {
+        let (entry, same_file) = match self.previous.get(&keys.whole) {
+            Some(entry) => (entry, true),
+            None => (
+                self.previous.get(self.by_geometry.get(&keys.geometry)?)?,
+                false,
+            ),
         };
-        let remade = matches!(handover, Some(HandOver::Remade(_)));
+        let (path, file, record, recipe) = decode_head(&entry.head).ok()?;
         if path != tile.path {
             return None;
         }
-        if let (Some(sha), Some(uri)) = (file, &record.uri) {
-            let (from, at) = (self.live.join(uri), self.staging.join(uri));
-            if sha256_file(&from).ok()? != sha {
-                return None;
-            }
-            std::fs::create_dir_all(at.parent()?).ok()?;
-            let _ = std::fs::remove_file(&at);
-            if std::fs::hard_link(&from, &at).is_err() {
-                std::fs::copy(&from, &at).ok()?;
-            }
-        } else if file.is_some() != record.uri.is_some() {
-            return None;
-        }
-        self.fresh
-            .lock()
-            .expect("fresh")
-            .insert(i, (*key, path, entry.clone()));
+        let file_taken = same_file && self.take_file(file, &record).is_some();
+        let handover = match (need || !file_taken, &entry.handover) {
+            (false, _) => None,
+            (true, Some(packed)) => Some(HandOver::Kept(decode_handover(packed).ok()?)),
+            (true, None) => Some(HandOver::Remade),
+        };
         let mut t = self.tally.lock().expect("tally");
-        t.tiles_reused += 1;
-        t.tile_bytes_reused += record.content.bytes;
-        t.internal_tiles += 1;
-        t.tiles_remade += remade as usize;
-        Some((record, handover))
+        t.tiles_remade += (handover == Some(HandOver::Remade)) as usize;
+        if file_taken {
+            self.fresh
+                .lock()
+                .expect("fresh")
+                .insert(i, (keys.whole, path, entry.clone()));
+            t.tiles_reused += 1;
+            t.tile_bytes_reused += record.content.bytes;
+            t.internal_tiles += 1;
+        }
+        Some(Found {
+            record,
+            recipe,
+            file_taken,
+            handover,
+        })
     }
 
-    /// Records internal tile `i` (`tile`), just built as `recipe` says, for the next build.
+    /// Puts the live file `record` names, if it still has the SHA-256 `file`, in the staging
+    /// folder (a hard link, or a copy).
+    fn take_file(&self, file: Option<SubtreeKey>, record: &TileRecord) -> Option<()> {
+        match (file, &record.uri) {
+            (Some(sha), Some(uri)) => {
+                let (from, at) = (self.live.join(uri), self.staging.join(uri));
+                if sha256_file(&from).ok()? != sha {
+                    return None;
+                }
+                std::fs::create_dir_all(at.parent()?).ok()?;
+                let _ = std::fs::remove_file(&at);
+                if std::fs::hard_link(&from, &at).is_err() {
+                    std::fs::copy(&from, &at).ok()?;
+                }
+                Some(())
+            }
+            (None, None) => Some(()),
+            _ => None,
+        }
+    }
+
+    /// Records internal tile `i` (`tile`), just built as `recipe` says (or its file written
+    /// again, when `rewritten`), for the next build.
     pub(crate) fn store(
         &self,
         i: usize,
         tile: &PlannedTile,
-        key: SubtreeKey,
+        keys: &TileKeys,
         (record, built, recipe): (&TileRecord, &BuiltSubtree, &Recipe),
+        rewritten: bool,
     ) -> Result<()> {
         let file = self.file_digest(record)?;
         let mut head = W::default();
@@ -384,14 +453,23 @@ impl SubtreeCache {
                 .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))
         };
         let entry = Entry {
+            geometry: keys.geometry,
             head: compressed(head)?,
             handover: Some(compressed(handover)?),
         };
         self.fresh
             .lock()
             .expect("fresh")
-            .insert(i, (key, tile.path.clone(), entry));
-        self.tally_built(record, true);
+            .insert(i, (keys.whole, tile.path.clone(), entry));
+        if rewritten {
+            let mut t = self.tally.lock().expect("tally");
+            t.tiles_rewritten += 1;
+            t.tiles_built += 1;
+            t.internal_tiles += 1;
+            t.tile_bytes_built += record.content.bytes;
+        } else {
+            self.tally_built(record, true);
+        }
         Ok(())
     }
 
@@ -420,6 +498,7 @@ impl SubtreeCache {
         w.n(fresh.len());
         for (key, path, entry) in fresh.values() {
             w.0.extend_from_slice(key);
+            w.0.extend_from_slice(&entry.geometry);
             w.n(entry.head.len());
             w.0.extend_from_slice(&entry.head);
             let handover = entry
@@ -476,8 +555,9 @@ fn decode_file(
         return Err(WireError::NotATileCache);
     }
     let global = key_from(&mut r)?;
-    let entries = r.vec(41, |r| {
+    let entries = r.vec(73, |r| {
         let key = key_from(r)?;
+        let geometry = key_from(r)?;
         let n = r.n(1)?;
         let head = r.take(n)?.to_vec();
         let handover = match r.flag()? {
@@ -487,7 +567,14 @@ fn decode_file(
             }
             false => None,
         };
-        Ok((key, Entry { head, handover }))
+        Ok((
+            key,
+            Entry {
+                geometry,
+                head,
+                handover,
+            },
+        ))
     })?;
     if r.0 != END {
         return Err(WireError::NoEndMark);
@@ -583,34 +670,45 @@ mod tests {
     fn a_parent_key_follows_its_childrens_content_and_its_own_path() {
         let cache = SubtreeCache::empty(global_digest(&[b"options"]));
         let scene = Scene::default();
-        let leaf = |path: &str, x: f32| {
+        let leaf_with = |path: &str, x: f32, record: &TileRecord| {
             cache
-                .leaf_key(&scene, &planned(path), &subtree(x), &TileRecord::default())
+                .leaf_keys(&scene, &planned(path), &subtree(x), record)
                 .unwrap()
         };
+        let leaf = |path: &str, x: f32| leaf_with(path, x, &TileRecord::default());
         let parent =
-            |path: &str, kids: &[SubtreeKey]| cache.node_key(&planned(path), None, kids, &[]);
+            |path: &str, kids: &[TileKeys]| cache.node_keys(&planned(path), None, kids, &[]);
         let a = parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]);
         assert_eq!(a, parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]));
         // One child's content moved by one float step: another key.
         let moved = parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0 + f32::EPSILON)]);
-        assert_ne!(a, moved);
+        assert_ne!(a.geometry, moved.geometry);
+        assert_ne!(a.whole, moved.whole);
+        // One child's file changed, not its content (its elements' metadata): the same geometry.
+        let mut other_file = TileRecord::default();
+        other_file.content.metadata_bytes = 1;
+        let renamed = parent(
+            "r0",
+            &[leaf("r00", 1.0), leaf_with("r01", 1.0, &other_file)],
+        );
+        assert_eq!(a.geometry, renamed.geometry);
+        assert_ne!(a.whole, renamed.whole);
         // The same subtree elsewhere in the tree: another key (its path).
         assert_ne!(a, parent("r1", &[leaf("r10", 1.0), leaf("r11", 1.0)]));
         assert_ne!(a, parent("r1", &[leaf("r00", 1.0), leaf("r01", 1.0)]));
         // Children order, allowed error and locked components count.
         assert_ne!(a, parent("r0", &[leaf("r01", 1.0), leaf("r00", 1.0)]));
         let kids = [leaf("r00", 1.0), leaf("r01", 1.0)];
-        assert_ne!(a, cache.node_key(&planned("r0"), Some(0.5), &kids, &[]));
+        assert_ne!(a, cache.node_keys(&planned("r0"), Some(0.5), &kids, &[]));
         assert_ne!(
             a,
-            cache.node_key(&planned("r0"), None, &kids, &[ComponentId(0)])
+            cache.node_keys(&planned("r0"), None, &kids, &[ComponentId(0)])
         );
         // Other options, tool or schema: another key.
         let other = SubtreeCache::empty(global_digest(&[b"other options"]));
         let other_leaf = |path: &str| {
             other
-                .leaf_key(
+                .leaf_keys(
                     &scene,
                     &planned(path),
                     &subtree(1.0),
@@ -618,13 +716,13 @@ mod tests {
                 )
                 .unwrap()
         };
-        let b = other.node_key(
+        let b = other.node_keys(
             &planned("r0"),
             None,
             &[other_leaf("r00"), other_leaf("r01")],
             &[],
         );
-        assert_ne!(a, b);
+        assert_ne!(a.geometry, b.geometry);
     }
 
     #[test]
@@ -671,37 +769,79 @@ mod tests {
             geometric_error_m: 1.0 / 3.0,
             ..Default::default()
         };
+        let keys = |g: u8, w: u8| TileKeys {
+            geometry: [g; 32],
+            whole: [w; 32],
+        };
         cache
-            .store(2, &planned("r0"), [7; 32], (&record, &built, &recipe))
+            .store(
+                2,
+                &planned("r0"),
+                &keys(6, 7),
+                (&record, &built, &recipe),
+                false,
+            )
             .unwrap();
         cache.write_into(&dir).unwrap();
         std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
         let again = SubtreeCache::open(&dir, &dir, global, &Default::default());
         assert_eq!(again.note, None);
-        assert_eq!(again.reuse(2, &planned("r1"), &[7; 32], true), None, "path");
-        assert_eq!(again.reuse(2, &planned("r0"), &[8; 32], true), None, "key");
+        let found = |file_taken, handover| Found {
+            record: record.clone(),
+            recipe: recipe.clone(),
+            file_taken,
+            handover,
+        };
+        let kept = || Some(HandOver::Kept(built.clone()));
         assert_eq!(
-            again.reuse(2, &planned("r0"), &[7; 32], true),
-            Some((record.clone(), Some(HandOver::Kept(built.clone()))))
+            again.reuse(2, &planned("r1"), &keys(6, 7), true),
+            None,
+            "path"
         );
         assert_eq!(
-            again.reuse(2, &planned("r0"), &[7; 32], false),
-            Some((record, None))
+            again.reuse(2, &planned("r0"), &keys(5, 8), true),
+            None,
+            "keys"
+        );
+        assert_eq!(
+            again.reuse(2, &planned("r0"), &keys(6, 7), true),
+            Some(found(true, kept()))
+        );
+        assert_eq!(
+            again.reuse(2, &planned("r0"), &keys(6, 7), false),
+            Some(found(true, None))
+        );
+        // The same geometry in another file: its hand-over, to write the file again.
+        assert_eq!(
+            again.reuse(2, &planned("r0"), &keys(6, 8), false),
+            Some(found(false, kept()))
         );
         // A hand-over over the budget (a tileset of no bytes) is not kept.
         let small = TileRecord::default();
         let lean = SubtreeCache::open(&dir, &dir, global, &Default::default());
-        lean.store(2, &planned("r0"), [7; 32], (&small, &built, &recipe))
-            .unwrap();
+        lean.store(
+            2,
+            &planned("r0"),
+            &keys(6, 7),
+            (&small, &built, &recipe),
+            false,
+        )
+        .unwrap();
         lean.write_into(&dir).unwrap();
         let lean = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        let found = |handover| Found {
+            record: small.clone(),
+            recipe: recipe.clone(),
+            file_taken: true,
+            handover,
+        };
         assert_eq!(
-            lean.reuse(2, &planned("r0"), &[7; 32], true),
-            Some((small.clone(), Some(HandOver::Remade(recipe))))
+            lean.reuse(2, &planned("r0"), &keys(6, 7), true),
+            Some(found(Some(HandOver::Remade)))
         );
         assert_eq!(
-            lean.reuse(2, &planned("r0"), &[7; 32], false),
-            Some((small, None))
+            lean.reuse(2, &planned("r0"), &keys(6, 7), false),
+            Some(found(None))
         );
         let other = SubtreeCache::open(&dir, &dir, global_digest(&[b"y"]), &Default::default());
         assert!(other.note.unwrap().contains("another tool version"));

@@ -122,8 +122,11 @@ pub struct UpdateReport {
     /// files' bytes.
     pub tiles_reused: usize,
     pub tile_bytes_reused: u64,
-    /// Of the tiles reused, those whose hand-over (the geometry a parent built again simplifies)
-    /// was made again from its recipe: simplified, not measured or encoded.
+    /// Internal tiles whose file was written again from the geometry in the tile cache (only
+    /// their elements' metadata changed): not simplified or measured.
+    pub tiles_rewritten: usize,
+    /// Internal tiles found in the tile cache whose hand-over (the geometry a parent built again
+    /// simplifies) was made again from its recipe: simplified, not measured.
     pub tiles_remade: usize,
     /// Size of the tile cache file written.
     pub tile_cache_bytes: u64,
@@ -151,11 +154,12 @@ impl UpdateReport {
         }
         if self.mode == "rebuilt" {
             s += &format!(
-                "\nupdate: {} tiles built ({} bytes), of them {} of {} HLOD tiles; {} HLOD tiles reused from the tile cache ({} bytes, {} simplified again for their parents); tile cache {} bytes",
+                "\nupdate: {} tiles written ({} bytes), of them {} of {} HLOD tiles built and {} written again from the tile cache; {} HLOD tiles reused from the tile cache ({} bytes); {} simplified again for their parents; tile cache {} bytes",
                 self.tiles_built,
                 self.tile_bytes_built,
                 self.internal_tiles_built,
                 self.internal_tiles,
+                self.tiles_rewritten,
                 self.tiles_reused,
                 self.tile_bytes_reused,
                 self.tiles_remade,
@@ -172,12 +176,13 @@ impl UpdateReport {
     /// the tile cache, and why); one line.
     pub fn build_note(&self) -> Option<String> {
         let reason = self.full_build_reason.as_ref()?;
-        Some(match (self.tiles_reused, &self.tile_cache_note) {
+        let from_cache = self.tiles_reused + self.tiles_rewritten;
+        Some(match (from_cache, &self.tile_cache_note) {
             (0, Some(note)) => format!("full build: {reason}; {note}"),
             (0, None) => format!("full build: {reason}"),
-            (n, _) => format!(
-                "{reason}; {n} of {} HLOD tiles reused from the tile cache",
-                self.internal_tiles
+            (_, _) => format!(
+                "{reason}; {} of {} HLOD tiles reused from the tile cache, {} written again from it",
+                self.tiles_reused, self.internal_tiles, self.tiles_rewritten
             ),
         })
     }
