@@ -206,12 +206,10 @@ impl Cull {
         let pc = p - self.centre;
         // The distance to the plane less its error (`|p - a| <= |pc| + r`, `|pc| <= |pc|_1`).
         let l1 = pc.x.abs() + pc.y.abs() + pc.z.abs();
-        let h = self.n.dot(pc).abs() - self.eta as f64 * l1 - self.off_m as f64;
-        if h > 0.0 && h * h * (1.0 - 1e-12) > best2 {
-            return true;
-        }
+        let h = (self.n.dot(pc).abs() - self.eta as f64 * l1 - self.off_m as f64).max(0.0);
         let reach = self.radius_m + best_m * (1.0 + 1e-12);
-        pc.length_squared() * (1.0 - 2e-12) > reach * reach
+        // Both tests, without a branch between them (which goes either way).
+        (h * h * (1.0 - 1e-12) > best2) | (pc.length_squared() * (1.0 - 2e-12) > reach * reach)
     }
 }
 
@@ -321,6 +319,8 @@ pub struct MeshBvh {
     index: Vec<u32>,
     /// Per index among the valid triangles: its place in leaf order.
     slot: Vec<u32>,
+    /// Per place in leaf order: the leaf (first place, count) holding it.
+    leaf_of: Vec<(u32, u32)>,
     pairs: Vec<Pair>,
     /// The root: its box, and what it is (as a child of a [`Pair`]).
     root_box: Aabb,
@@ -337,6 +337,7 @@ impl MeshBvh {
             culls: Vec::new(),
             index: Vec::new(),
             slot: Vec::new(),
+            leaf_of: Vec::new(),
             pairs: Vec::new(),
             root_box: Aabb::INVALID,
             root: (0, 0),
@@ -376,6 +377,15 @@ impl MeshBvh {
         out.culls = out.corners.iter().map(Cull::new).collect();
         out.root_box = bvh.nodes[0].aabb;
         (out.pairs, out.root) = pairs_of(&bvh);
+        out.leaf_of = vec![(0, 0); tris.len()];
+        let leaves = out.pairs.iter().flat_map(|q| {
+            (0..2)
+                .filter(|&k| q.count[k] > 0)
+                .map(|k| (q.first[k], q.count[k]))
+        });
+        for (first, count) in leaves.chain((out.root.1 > 0).then_some(out.root)) {
+            out.leaf_of[first as usize..(first + count) as usize].fill((first, count));
+        }
         out
     }
 
@@ -418,13 +428,16 @@ impl MeshBvh {
         if self.corners.is_empty() {
             return None;
         }
-        // (squared distance, triangle index, point)
+        // (squared distance, triangle index, point), the smallest pair wherever the search goes.
         let mut best = (f64::INFINITY, u32::MAX, p);
+        let mut best_m = f64::INFINITY;
+        // The hint's whole leaf first (its neighbours, often nearer still).
+        let mut searched = u32::MAX;
         if let Some(&s) = self.slot.get(*hint as usize) {
-            let q = closest_point_on(p, &self.corners[s as usize]);
-            best = ((q - p).length_squared(), *hint, q);
+            let (first, count) = self.leaf_of[s as usize];
+            self.nearest_in_leaf(p, first, count, &mut best, &mut best_m);
+            searched = first;
         }
-        let mut best_m = best.0.sqrt();
         let mut stack = Stack::new(self.root_visit(p));
         while let Some((first, count, d2)) = stack.pop() {
             if d2 > best.0 {
@@ -432,23 +445,36 @@ impl MeshBvh {
             }
             if count == 0 {
                 stack.push_children(&self.pairs[first as usize], p, best.0);
-                continue;
-            }
-            for s in first as usize..(first + count) as usize {
-                if self.culls[s].beyond(p, best.0, best_m) {
-                    continue;
-                }
-                let q = closest_point_on(p, &self.corners[s]);
-                let dd = (q - p).length_squared();
-                let i = self.index[s];
-                if dd < best.0 || (dd == best.0 && i < best.1) {
-                    best = (dd, i, q);
-                    best_m = dd.sqrt();
-                }
+            } else if first != searched {
+                self.nearest_in_leaf(p, first, count, &mut best, &mut best_m);
             }
         }
         *hint = best.1;
         (best.1 != u32::MAX).then(|| (best.0.sqrt(), best.1, best.2))
+    }
+
+    /// Updates `best` (and `best_m`, its square root) with the triangles of a leaf.
+    #[inline(always)]
+    fn nearest_in_leaf(
+        &self,
+        p: DVec3,
+        first: u32,
+        count: u32,
+        best: &mut (f64, u32, DVec3),
+        best_m: &mut f64,
+    ) {
+        for s in first as usize..(first + count) as usize {
+            if self.culls[s].beyond(p, best.0, *best_m) {
+                continue;
+            }
+            let q = closest_point_on(p, &self.corners[s]);
+            let dd = (q - p).length_squared();
+            let i = self.index[s];
+            if dd < best.0 || (dd == best.0 && i < best.1) {
+                *best = (dd, i, q);
+                *best_m = dd.sqrt();
+            }
+        }
     }
 
     /// Distance from `p` to the mesh, or, as soon as some triangle closer
@@ -471,44 +497,72 @@ impl MeshBvh {
         }
         let thr2 = if thr > 0.0 { thr * thr } else { 0.0 };
         // Nothing at or beyond the cap is looked at: boxes that far are pruned from the start.
-        let mut best = cap * cap;
-        let mut best_i = *hint;
+        let mut best = Below {
+            d2: cap * cap,
+            m: cap,
+            i: *hint,
+            thr2,
+        };
+        // The hint, then its whole leaf (its neighbours, often nearer still).
+        let mut searched = u32::MAX;
         if let Some(&s) = self.slot.get(*hint as usize) {
             let h = (closest_point_on(p, &self.corners[s as usize]) - p).length_squared();
             if h < thr2 || h == 0.0 {
                 return h.sqrt();
             }
-            best = best.min(h);
+            if h < best.d2 {
+                (best.d2, best.m) = (h, h.sqrt());
+            }
+            let (first, count) = self.leaf_of[s as usize];
+            if self.below_in_leaf(p, first, count, s as usize, &mut best) {
+                *hint = best.i;
+                return best.d2.sqrt();
+            }
+            searched = first;
         }
-        let mut best_m = best.sqrt();
         let mut stack = Stack::new(self.root_visit(p));
         while let Some((first, count, d2)) = stack.pop() {
-            if d2 >= best {
+            if d2 >= best.d2 {
                 continue;
             }
             if count == 0 {
-                stack.push_children(&self.pairs[first as usize], p, best);
-                continue;
-            }
-            for s in first as usize..(first + count) as usize {
-                if self.culls[s].beyond(p, best, best_m) {
-                    continue;
-                }
-                let dd = (closest_point_on(p, &self.corners[s]) - p).length_squared();
-                if dd < best {
-                    best = dd;
-                    best_m = dd.sqrt();
-                    best_i = self.index[s];
-                }
-            }
-            if best < thr2 || best == 0.0 {
-                *hint = best_i;
-                return best.sqrt();
+                stack.push_children(&self.pairs[first as usize], p, best.d2);
+            } else if first != searched && self.below_in_leaf(p, first, count, usize::MAX, &mut best)
+            {
+                break;
             }
         }
-        *hint = best_i;
-        best.sqrt()
+        *hint = best.i;
+        best.d2.sqrt()
     }
+
+    /// Updates `best` with the triangles of a leaf but `skip`; whether one is closer than the
+    /// threshold (or touches `p`), which settles the query.
+    #[inline(always)]
+    fn below_in_leaf(&self, p: DVec3, first: u32, count: u32, skip: usize, best: &mut Below) -> bool {
+        for s in first as usize..(first + count) as usize {
+            if s == skip || self.culls[s].beyond(p, best.d2, best.m) {
+                continue;
+            }
+            let dd = (closest_point_on(p, &self.corners[s]) - p).length_squared();
+            if dd < best.d2 {
+                (best.d2, best.m, best.i) = (dd, dd.sqrt(), self.index[s]);
+                if dd < best.thr2 || dd == 0.0 {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+}
+
+/// The best of a [`MeshBvh::distance_between`] query so far: squared distance, distance, triangle
+/// index, and the squared threshold below which any triangle settles it.
+struct Below {
+    d2: f64,
+    m: f64,
+    i: u32,
+    thr2: f64,
 }
 
 /// The [`Pair`]s of `bvh` in depth-first order, and its root as a child of a pair.
