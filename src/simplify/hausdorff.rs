@@ -177,8 +177,8 @@ impl Cull {
         let x = t.ab.cross(t.ac);
         // The computed normal is off by a few rounding units of |ab| |ac| / |ab x ac| (plus the
         // dot product's own), with a wide margin.
-        let eta = 64.0 * f64::EPSILON * t.ab.length() * t.ac.length() / x.length()
-            + 8.0 * f64::EPSILON;
+        let eta =
+            64.0 * f64::EPSILON * t.ab.length() * t.ac.length() / x.length() + 8.0 * f64::EPSILON;
         let centre = (t.a + t.b + t.c) / 3.0;
         let r = [t.a, t.b, t.c]
             .iter()
@@ -527,7 +527,8 @@ impl MeshBvh {
             }
             if count == 0 {
                 stack.push_children(&self.pairs[first as usize], p, best.d2);
-            } else if first != searched && self.below_in_leaf(p, first, count, usize::MAX, &mut best)
+            } else if first != searched
+                && self.below_in_leaf(p, first, count, usize::MAX, &mut best)
             {
                 break;
             }
@@ -539,7 +540,14 @@ impl MeshBvh {
     /// Updates `best` with the triangles of a leaf but `skip`; whether one is closer than the
     /// threshold (or touches `p`), which settles the query.
     #[inline(always)]
-    fn below_in_leaf(&self, p: DVec3, first: u32, count: u32, skip: usize, best: &mut Below) -> bool {
+    fn below_in_leaf(
+        &self,
+        p: DVec3,
+        first: u32,
+        count: u32,
+        skip: usize,
+        best: &mut Below,
+    ) -> bool {
         for s in first as usize..(first + count) as usize {
             if s == skip || self.culls[s].beyond(p, best.d2, best.m) {
                 continue;
