@@ -233,10 +233,8 @@ impl Pair {
         let mut d2 = [0.0f64; 2];
         for (k, d2) in d2.iter_mut().enumerate() {
             let mut s = 0.0;
-            for ax in 0..3 {
-                let lo = self.lo[ax][k] as f64;
-                let hi = self.hi[ax][k] as f64;
-                let v = (lo - p[ax]).max(p[ax] - hi).max(0.0);
+            for ((lo, hi), &x) in self.lo.iter().zip(&self.hi).zip(&p) {
+                let v = (lo[k] as f64 - x).max(x - hi[k] as f64).max(0.0);
                 s += v * v;
             }
             *d2 = s * (1.0 - 1e-12);
