@@ -59,8 +59,37 @@ impl<'a> TriMesh<'a> {
 /// Closest point on triangle `(a, b, c)` to `p` (Ericson, Real-Time Collision
 /// Detection 5.1.5), in `f64`.
 pub fn closest_point_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
-    let ab = b - a;
-    let ac = c - a;
+    closest_point_on(p, &Corners::new(a, b, c))
+}
+
+/// A triangle's corners and its two edges from `a`, as [`closest_point_on_triangle`] computes
+/// them: a [`MeshBvh`] keeps them so that its queries skip the subtractions and give the very
+/// same results.
+#[derive(Clone, Copy, Debug)]
+struct Corners {
+    a: DVec3,
+    b: DVec3,
+    c: DVec3,
+    ab: DVec3,
+    ac: DVec3,
+}
+
+impl Corners {
+    fn new(a: DVec3, b: DVec3, c: DVec3) -> Self {
+        Corners {
+            a,
+            b,
+            c,
+            ab: b - a,
+            ac: c - a,
+        }
+    }
+}
+
+/// [`closest_point_on_triangle`] with the edges from `a` given.
+#[inline(always)]
+fn closest_point_on(p: DVec3, t: &Corners) -> DVec3 {
+    let Corners { a, b, c, ab, ac } = *t;
     let ap = p - a;
     let d1 = ab.dot(ap);
     let d2 = ac.dot(ap);
@@ -124,14 +153,176 @@ fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
     a + d * ((p - a).dot(d) / l).clamp(0.0, 1.0)
 }
 
+/// What can rule a triangle out of a query before its closest point is computed: its plane and a
+/// ball holding it, in one cache line. Both give lower bounds of the distance; the plane's misses
+/// neighbours in the same plane (a tessellated floor or wall), the ball's catches them.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Cull {
+    /// Unit normal (zero for a triangle without a reliable one).
+    n: DVec3,
+    /// The corners' mean, on the plane up to rounding.
+    centre: DVec3,
+    /// Radius of the ball around `centre` holding the triangle, widened for the rounding of the
+    /// closest-point computation (which grows with the coordinates, not the distance).
+    radius_m: f64,
+    /// The plane distance's error: `eta` per metre from `centre` (the normal's own error, large
+    /// for a needle, whose cross product is mostly rounding) plus `off_m`; rounded up to `f32`.
+    eta: f32,
+    off_m: f32,
+}
+
+impl Cull {
+    fn new(t: &Corners) -> Self {
+        let x = t.ab.cross(t.ac);
+        // The computed normal is off by a few rounding units of |ab| |ac| / |ab x ac| (plus the
+        // dot product's own), with a wide margin.
+        let eta =
+            64.0 * f64::EPSILON * t.ab.length() * t.ac.length() / x.length() + 8.0 * f64::EPSILON;
+        let centre = (t.a + t.b + t.c) / 3.0;
+        let r = [t.a, t.b, t.c]
+            .iter()
+            .map(|&v| (v - centre).length())
+            .fold(0.0, f64::max);
+        let slack_m = 1e-12 * (centre.abs().max_element() + r);
+        let (n, eta, off_m) = if eta.is_finite() && eta < 1e-3 {
+            (x.normalize(), eta, 2.0 * eta * r + slack_m)
+        } else {
+            (DVec3::ZERO, 0.0, 0.0)
+        };
+        Cull {
+            n,
+            centre,
+            radius_m: r * (1.0 + 1e-12) + slack_m,
+            eta: f32_up(eta),
+            off_m: f32_up(off_m),
+        }
+    }
+
+    /// Whether the triangle is surely farther from `p` than `best_m` (`best2` its square): then it
+    /// can neither beat nor tie the best.
+    #[inline(always)]
+    fn beyond(&self, p: DVec3, best2: f64, best_m: f64) -> bool {
+        let pc = p - self.centre;
+        // The distance to the plane less its error (`|p - a| <= |pc| + r`, `|pc| <= |pc|_1`).
+        let l1 = pc.x.abs() + pc.y.abs() + pc.z.abs();
+        let h = (self.n.dot(pc).abs() - self.eta as f64 * l1 - self.off_m as f64).max(0.0);
+        let reach = self.radius_m + best_m * (1.0 + 1e-12);
+        // Both tests, without a branch between them (which goes either way).
+        (h * h * (1.0 - 1e-12) > best2) | (pc.length_squared() * (1.0 - 2e-12) > reach * reach)
+    }
+}
+
+/// Two sibling boxes of the BVH side by side, axis by axis (`f32`, rounded outwards), and what
+/// each child is: `count` triangles from `first` (a leaf) or, with `count` 0, the pair of its own
+/// children at `first`. One cache line per step down the tree.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+struct Pair {
+    lo: [[f32; 2]; 3],
+    hi: [[f32; 2]; 3],
+    first: [u32; 2],
+    count: [u32; 2],
+}
+
+impl Pair {
+    /// Squared distances from `p` to both boxes, shrunk by a relative 1e-12 against rounding.
+    #[inline(always)]
+    fn dist2(&self, p: DVec3) -> [f64; 2] {
+        let p = p.to_array();
+        let mut d2 = [0.0f64; 2];
+        for (k, d2) in d2.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for ((lo, hi), &x) in self.lo.iter().zip(&self.hi).zip(&p) {
+                let v = (lo[k] as f64 - x).max(x - hi[k] as f64).max(0.0);
+                s += v * v;
+            }
+            *d2 = s * (1.0 - 1e-12);
+        }
+        d2
+    }
+}
+
+/// A node to visit: `(first, count, squared box distance)`, as a child of a [`Pair`].
+type Visit = (u32, u32, f64);
+
+/// A traversal stack without an allocation per query: a fixed array, spilling to the heap only
+/// for a pathologically deep tree.
+struct Stack {
+    fixed: [Visit; 64],
+    len: usize,
+    spill: Vec<Visit>,
+}
+
+impl Stack {
+    fn new(v: Visit) -> Self {
+        let mut fixed = [(0, 0, 0.0); 64];
+        fixed[0] = v;
+        Stack {
+            fixed,
+            len: 1,
+            spill: Vec::new(),
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: Visit) {
+        if self.len < self.fixed.len() {
+            self.fixed[self.len] = v;
+            self.len += 1;
+        } else {
+            self.spill.push(v);
+        }
+    }
+
+    /// Last in, first out: the spill only grows while the array is full, so it is newer.
+    #[inline(always)]
+    fn pop(&mut self) -> Option<Visit> {
+        if let Some(v) = self.spill.pop() {
+            return Some(v);
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        Some(self.fixed[self.len])
+    }
+
+    /// Pushes the children of `pair` nearer than `best2`, the farther first so that the nearer is
+    /// visited first.
+    #[inline(always)]
+    fn push_children(&mut self, pair: &Pair, p: DVec3, best2: f64) {
+        let [d0, d1] = pair.dist2(p);
+        let c0 = (pair.first[0], pair.count[0], d0);
+        let c1 = (pair.first[1], pair.count[1], d1);
+        let (near, far) = if d0 <= d1 { (c0, c1) } else { (c1, c0) };
+        if far.2 <= best2 {
+            self.push(far);
+        }
+        if near.2 <= best2 {
+            self.push(near);
+        }
+    }
+}
+
 /// A BVH over the triangles of a mesh answering closest-point queries.
+///
+/// Built with `obvhs` (a BVH2 over the triangle boxes), then laid out for the queries: sibling
+/// boxes side by side in depth-first order, and the triangles of each leaf stored contiguously
+/// (in the BVH's order, with their index in the mesh) with their [`Cull`] data.
 pub struct MeshBvh {
-    tris: Vec<[DVec3; 3]>,
-    /// Unit normal and plane offset of each triangle (`n . x = d`): the
-    /// plane distance is a cheap lower bound that skips most exact
-    /// closest-point computations in [`MeshBvh::distance_or_below`].
-    planes: Vec<(DVec3, f64)>,
-    bvh: Option<Bvh2>,
+    /// Per triangle in leaf order: corners and edges, cull data, index among the valid triangles.
+    corners: Vec<Corners>,
+    culls: Vec<Cull>,
+    index: Vec<u32>,
+    /// Per index among the valid triangles: its place in leaf order.
+    slot: Vec<u32>,
+    /// Per place in leaf order: the leaf (first place, count) holding it.
+    leaf_of: Vec<(u32, u32)>,
+    pairs: Vec<Pair>,
+    /// The root: its box, and what it is (as a child of a [`Pair`]).
+    root_box: Aabb,
+    root: (u32, u32),
 }
 
 impl MeshBvh {
@@ -139,12 +330,18 @@ impl MeshBvh {
     /// to `f32` so the boxes always contain the `f64` triangles).
     pub fn new(mesh: TriMesh<'_>) -> Self {
         let tris = mesh.triangles();
+        let mut out = MeshBvh {
+            corners: Vec::new(),
+            culls: Vec::new(),
+            index: Vec::new(),
+            slot: Vec::new(),
+            leaf_of: Vec::new(),
+            pairs: Vec::new(),
+            root_box: Aabb::INVALID,
+            root: (0, 0),
+        };
         if tris.is_empty() {
-            return MeshBvh {
-                tris,
-                planes: Vec::new(),
-                bvh: None,
-            };
+            return out;
         }
         let aabbs: Vec<Aabb> = tris
             .iter()
@@ -162,37 +359,52 @@ impl MeshBvh {
             BvhBuildParams::fast_build(),
             &mut Duration::default(),
         );
-        let planes = tris
+        out.index = bvh.primitive_indices.clone();
+        out.slot = vec![u32::MAX; tris.len()];
+        for (s, &i) in out.index.iter().enumerate() {
+            out.slot[i as usize] = s as u32;
+        }
+        out.corners = out
+            .index
             .iter()
-            .map(|t| {
-                let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
-                (n, n.dot(t[0]))
+            .map(|&i| {
+                let t = &tris[i as usize];
+                Corners::new(t[0], t[1], t[2])
             })
             .collect();
-        MeshBvh {
-            tris,
-            planes,
-            bvh: Some(bvh),
+        out.culls = out.corners.iter().map(Cull::new).collect();
+        out.root_box = bvh.nodes[0].aabb;
+        (out.pairs, out.root) = pairs_of(&bvh);
+        out.leaf_of = vec![(0, 0); tris.len()];
+        let leaves = out.pairs.iter().flat_map(|q| {
+            (0..2)
+                .filter(|&k| q.count[k] > 0)
+                .map(|k| (q.first[k], q.count[k]))
+        });
+        for (first, count) in leaves.chain((out.root.1 > 0).then_some(out.root)) {
+            out.leaf_of[first as usize..(first + count) as usize].fill((first, count));
         }
+        out
     }
 
     /// A lower bound of the distance from `p` to the mesh (its bounding box); `INFINITY` for an
     /// empty mesh.
     pub fn distance_lower_bound(&self, p: DVec3) -> f64 {
-        self.bvh
-            .as_ref()
-            .map_or(f64::INFINITY, |b| box_dist2(&b.nodes[0].aabb, p).sqrt())
+        if self.corners.is_empty() {
+            return f64::INFINITY;
+        }
+        box_dist2(&self.root_box, p).sqrt()
     }
 
     /// Number of (valid) triangles.
     pub fn triangle_count(&self) -> usize {
-        self.tris.len()
+        self.corners.len()
     }
 
     /// Distance from `p` to triangle `i` of this mesh.
     pub fn distance_to_triangle(&self, p: DVec3, i: u32) -> f64 {
-        let t = &self.tris[i as usize];
-        (closest_point_on_triangle(p, t[0], t[1], t[2]) - p).length()
+        let t = &self.corners[self.slot[i as usize] as usize];
+        (closest_point_on(p, t) - p).length()
     }
 
     /// Closest point: `(distance, triangle index, point)`; `None` for an empty
@@ -202,60 +414,65 @@ impl MeshBvh {
         self.closest_near(p, &mut from_root)
     }
 
+    /// The search's start: the root as a node to visit.
+    fn root_visit(&self, p: DVec3) -> Visit {
+        (self.root.0, self.root.1, box_dist2(&self.root_box, p))
+    }
+
     /// [`closest`](Self::closest), the same answer, starting from triangle `hint` (the last
     /// answer for a nearby point), which is updated: its distance prunes the search from the
     /// start, where a search from the root visits every box nearer than the first leaves it meets.
     pub fn closest_near(&self, p: DVec3, hint: &mut u32) -> Option<(f64, u32, DVec3)> {
-        let bvh = self.bvh.as_ref()?;
-        let box_d2 = |a: &Aabb| box_dist2(a, p);
-        let mut best = (f64::INFINITY, u32::MAX, p);
-        if let Some(t) = self.tris.get(*hint as usize) {
-            let q = closest_point_on_triangle(p, t[0], t[1], t[2]);
-            best = ((q - p).length_squared(), *hint, q);
+        if self.corners.is_empty() {
+            return None;
         }
-        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
-        stack.push((0, box_d2(&bvh.nodes[0].aabb)));
-        while let Some((ni, d2)) = stack.pop() {
+        // (squared distance, triangle index, point), the smallest pair wherever the search goes.
+        let mut best = (f64::INFINITY, u32::MAX, p);
+        let mut best_m = f64::INFINITY;
+        // The hint's whole leaf first (its neighbours, often nearer still).
+        let mut searched = u32::MAX;
+        if let Some(&s) = self.slot.get(*hint as usize) {
+            let (first, count) = self.leaf_of[s as usize];
+            self.nearest_in_leaf(p, first, count, &mut best, &mut best_m);
+            searched = first;
+        }
+        let mut stack = Stack::new(self.root_visit(p));
+        while let Some((first, count, d2)) = stack.pop() {
             if d2 > best.0 {
                 continue;
             }
-            let node = &bvh.nodes[ni as usize];
-            if node.prim_count > 0 {
-                let s = node.first_index as usize;
-                for &prim in &bvh.primitive_indices[s..s + node.prim_count as usize] {
-                    // The plane distance, less a slack far above its rounding (which grows with
-                    // the coordinates, not the distance), is a lower bound: a triangle strictly
-                    // beyond the best can neither beat nor tie it.
-                    let (n, d) = self.planes[prim as usize];
-                    let np = n.dot(p);
-                    let h = ((np - d).abs() - 1e-12 * (np.abs() + d.abs())).max(0.0);
-                    if h * h > best.0 {
-                        continue;
-                    }
-                    let t = &self.tris[prim as usize];
-                    let q = closest_point_on_triangle(p, t[0], t[1], t[2]);
-                    let dd = (q - p).length_squared();
-                    if dd < best.0 || (dd == best.0 && prim < best.1) {
-                        best = (dd, prim, q);
-                    }
-                }
-            } else {
-                let c0 = node.first_index;
-                let c1 = c0 + 1;
-                let d0 = box_d2(&bvh.nodes[c0 as usize].aabb);
-                let d1 = box_d2(&bvh.nodes[c1 as usize].aabb);
-                // Push the farther first so the nearer is visited first.
-                if d0 <= d1 {
-                    stack.push((c1, d1));
-                    stack.push((c0, d0));
-                } else {
-                    stack.push((c0, d0));
-                    stack.push((c1, d1));
-                }
+            if count == 0 {
+                stack.push_children(&self.pairs[first as usize], p, best.0);
+            } else if first != searched {
+                self.nearest_in_leaf(p, first, count, &mut best, &mut best_m);
             }
         }
         *hint = best.1;
         (best.1 != u32::MAX).then(|| (best.0.sqrt(), best.1, best.2))
+    }
+
+    /// Updates `best` (and `best_m`, its square root) with the triangles of a leaf.
+    #[inline(always)]
+    fn nearest_in_leaf(
+        &self,
+        p: DVec3,
+        first: u32,
+        count: u32,
+        best: &mut (f64, u32, DVec3),
+        best_m: &mut f64,
+    ) {
+        for s in first as usize..(first + count) as usize {
+            if self.culls[s].beyond(p, best.0, *best_m) {
+                continue;
+            }
+            let q = closest_point_on(p, &self.corners[s]);
+            let dd = (q - p).length_squared();
+            let i = self.index[s];
+            if dd < best.0 || (dd == best.0 && i < best.1) {
+                *best = (dd, i, q);
+                *best_m = dd.sqrt();
+            }
+        }
     }
 
     /// Distance from `p` to the mesh, or, as soon as some triangle closer
@@ -273,78 +490,119 @@ impl MeshBvh {
     /// itself (the distance is at least `cap`). For minima over several meshes, where a mesh
     /// farther than the best so far needs no exact answer.
     pub fn distance_between(&self, p: DVec3, thr: f64, cap: f64, hint: &mut u32) -> f64 {
-        let Some(bvh) = self.bvh.as_ref() else {
+        if self.corners.is_empty() {
             return f64::INFINITY;
-        };
+        }
         let thr2 = if thr > 0.0 { thr * thr } else { 0.0 };
         // Nothing at or beyond the cap is looked at: boxes that far are pruned from the start.
-        let mut best = cap * cap;
-        let mut best_i = *hint;
-        if let Some(t) = self.tris.get(*hint as usize) {
-            let h = (closest_point_on_triangle(p, t[0], t[1], t[2]) - p).length_squared();
+        let mut best = Below {
+            d2: cap * cap,
+            m: cap,
+            i: *hint,
+            thr2,
+        };
+        // The hint, then its whole leaf (its neighbours, often nearer still).
+        let mut searched = u32::MAX;
+        if let Some(&s) = self.slot.get(*hint as usize) {
+            let h = (closest_point_on(p, &self.corners[s as usize]) - p).length_squared();
             if h < thr2 || h == 0.0 {
                 return h.sqrt();
             }
-            best = best.min(h);
+            if h < best.d2 {
+                (best.d2, best.m) = (h, h.sqrt());
+            }
+            let (first, count) = self.leaf_of[s as usize];
+            if self.below_in_leaf(p, first, count, s as usize, &mut best) {
+                *hint = best.i;
+                return best.d2.sqrt();
+            }
+            searched = first;
         }
-        let box_d2 = |a: &Aabb| box_dist2(a, p);
-        const CAP: usize = 128;
-        let mut stack = [(0u32, 0.0f64); CAP];
-        let mut sp = 1;
-        stack[0] = (0, box_d2(&bvh.nodes[0].aabb));
-        while sp > 0 {
-            sp -= 1;
-            let (ni, d2) = stack[sp];
-            if d2 >= best {
+        let mut stack = Stack::new(self.root_visit(p));
+        while let Some((first, count, d2)) = stack.pop() {
+            if d2 >= best.d2 {
                 continue;
             }
-            let node = &bvh.nodes[ni as usize];
-            if node.prim_count > 0 {
-                let s = node.first_index as usize;
-                for &prim in &bvh.primitive_indices[s..s + node.prim_count as usize] {
-                    // Plane distance first (shrunk by a relative 1e-9 for
-                    // rounding): not closer than `best`, so no update.
-                    let (n, d) = self.planes[prim as usize];
-                    let h = (n.dot(p) - d).abs() * (1.0 - 1e-9);
-                    if h * h >= best {
-                        continue;
-                    }
-                    let t = &self.tris[prim as usize];
-                    let dd = (closest_point_on_triangle(p, t[0], t[1], t[2]) - p).length_squared();
-                    if dd < best {
-                        best = dd;
-                        best_i = prim;
-                    }
-                }
-                if best < thr2 || best == 0.0 {
-                    *hint = best_i;
-                    return best.sqrt();
-                }
-            } else {
-                if sp + 2 > CAP {
-                    // Pathologically deep tree: the unbounded query.
-                    return self.closest(p).map_or(f64::INFINITY, |c| {
-                        *hint = c.1;
-                        c.0
-                    });
-                }
-                let c0 = node.first_index;
-                let c1 = c0 + 1;
-                let d0 = box_d2(&bvh.nodes[c0 as usize].aabb);
-                let d1 = box_d2(&bvh.nodes[c1 as usize].aabb);
-                if d0 <= d1 {
-                    stack[sp] = (c1, d1);
-                    stack[sp + 1] = (c0, d0);
-                } else {
-                    stack[sp] = (c0, d0);
-                    stack[sp + 1] = (c1, d1);
-                }
-                sp += 2;
+            if count == 0 {
+                stack.push_children(&self.pairs[first as usize], p, best.d2);
+            } else if first != searched
+                && self.below_in_leaf(p, first, count, usize::MAX, &mut best)
+            {
+                break;
             }
         }
-        *hint = best_i;
-        best.sqrt()
+        *hint = best.i;
+        best.d2.sqrt()
     }
+
+    /// Updates `best` with the triangles of a leaf but `skip`; whether one is closer than the
+    /// threshold (or touches `p`), which settles the query.
+    #[inline(always)]
+    fn below_in_leaf(
+        &self,
+        p: DVec3,
+        first: u32,
+        count: u32,
+        skip: usize,
+        best: &mut Below,
+    ) -> bool {
+        for s in first as usize..(first + count) as usize {
+            if s == skip || self.culls[s].beyond(p, best.d2, best.m) {
+                continue;
+            }
+            let dd = (closest_point_on(p, &self.corners[s]) - p).length_squared();
+            if dd < best.d2 {
+                (best.d2, best.m, best.i) = (dd, dd.sqrt(), self.index[s]);
+                if dd < best.thr2 || dd == 0.0 {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+}
+
+/// The best of a [`MeshBvh::distance_between`] query so far: squared distance, distance, triangle
+/// index, and the squared threshold below which any triangle settles it.
+struct Below {
+    d2: f64,
+    m: f64,
+    i: u32,
+    thr2: f64,
+}
+
+/// The [`Pair`]s of `bvh` in depth-first order, and its root as a child of a pair.
+fn pairs_of(bvh: &Bvh2) -> (Vec<Pair>, (u32, u32)) {
+    let nodes = &bvh.nodes;
+    if nodes[0].prim_count > 0 {
+        return (Vec::new(), (nodes[0].first_index, nodes[0].prim_count));
+    }
+    let mut pairs: Vec<Pair> = Vec::with_capacity(nodes.len() / 2);
+    // (inner node, where its pair's place is written: parent pair and side)
+    let mut todo: Vec<(usize, Option<(usize, usize)>)> = vec![(0, None)];
+    while let Some((ni, parent)) = todo.pop() {
+        let at = pairs.len();
+        if let Some((q, k)) = parent {
+            pairs[q].first[k] = at as u32;
+        }
+        let c0 = nodes[ni].first_index as usize;
+        let mut pair = Pair::default();
+        for k in 0..2 {
+            let c = &nodes[c0 + k];
+            for ax in 0..3 {
+                pair.lo[ax][k] = c.aabb.min[ax];
+                pair.hi[ax][k] = c.aabb.max[ax];
+            }
+            (pair.first[k], pair.count[k]) = (c.first_index, c.prim_count);
+        }
+        pairs.push(pair);
+        for k in (0..2).rev() {
+            if nodes[c0 + k].prim_count == 0 {
+                todo.push((c0 + k, Some((at, k))));
+            }
+        }
+    }
+    (pairs, (0, 0))
 }
 
 /// `x` rounded to the nearest `f32` not above it.
@@ -975,5 +1233,228 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The closest-point computation as it was before the edges were kept with the triangles.
+    fn reference_closest(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
+        let ab = b - a;
+        let ac = c - a;
+        let ap = p - a;
+        let d1 = ab.dot(ap);
+        let d2 = ac.dot(ap);
+        if d1 <= 0.0 && d2 <= 0.0 {
+            return a;
+        }
+        let bp = p - b;
+        let d3 = ab.dot(bp);
+        let d4 = ac.dot(bp);
+        if d3 >= 0.0 && d4 <= d3 {
+            return b;
+        }
+        let vc = d1 * d4 - d3 * d2;
+        if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+            return a + ab * (d1 / (d1 - d3));
+        }
+        let cp = p - c;
+        let d5 = ab.dot(cp);
+        let d6 = ac.dot(cp);
+        if d6 >= 0.0 && d5 <= d6 {
+            return c;
+        }
+        let vb = d5 * d2 - d1 * d6;
+        if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+            return a + ac * (d2 / (d2 - d6));
+        }
+        let va = d3 * d6 - d5 * d4;
+        if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+            return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        }
+        let denom = va + vb + vc;
+        if denom.is_nan() || denom == 0.0 {
+            let e = [
+                closest_on_segment(p, a, b),
+                closest_on_segment(p, b, c),
+                closest_on_segment(p, c, a),
+            ];
+            return e
+                .into_iter()
+                .min_by(|x, y| {
+                    (*x - p)
+                        .length_squared()
+                        .total_cmp(&(*y - p).length_squared())
+                })
+                .unwrap_or(a);
+        }
+        let denom = 1.0 / denom;
+        a + ab * (vb * denom) + ac * (vc * denom)
+    }
+
+    /// A small deterministic generator (xorshift) of values in `[-1, 1)`.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+        fn vec(&mut self, scale: f64) -> DVec3 {
+            DVec3::new(self.next(), self.next(), self.next()) * scale
+        }
+    }
+
+    /// Triangles of every kind the kernels must handle: general, needles, zero-area (collinear,
+    /// repeated corners), far from the origin, and points on their corners, edges and planes.
+    fn kernel_cases() -> Vec<(DVec3, [DVec3; 3])> {
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let mut out = Vec::new();
+        for k in 0..4000 {
+            let offset = if k % 4 == 0 {
+                DVec3::new(512_345.25, 5_412_345.5, 37.0)
+            } else {
+                DVec3::ZERO
+            };
+            let a = offset + rng.vec(10.0);
+            let (b, c) = match k % 5 {
+                0 => (a + rng.vec(10.0), a + rng.vec(10.0)),
+                // A needle: the third corner a hair off the first edge.
+                1 => {
+                    let b = a + rng.vec(10.0);
+                    (b, a + (b - a) * 0.37 + rng.vec(1e-9))
+                }
+                // Collinear corners (zero area).
+                2 => {
+                    let b = a + rng.vec(10.0);
+                    (b, a + (b - a) * 2.5)
+                }
+                // A repeated corner.
+                3 => (a, a + rng.vec(10.0)),
+                _ => (a + DVec3::X * 3.0, a + DVec3::Y * 2.0),
+            };
+            let t = [a, b, c];
+            let u = rng.next().abs();
+            let v = rng.next().abs() * (1.0 - u);
+            let on_plane = a + (b - a) * u + (c - a) * v;
+            let points = [
+                offset + rng.vec(20.0),
+                a,
+                b,
+                c,
+                (a + b) * 0.5,
+                b + (c - b) * u,
+                on_plane,
+                on_plane + (b - a).cross(c - a).normalize_or_zero() * rng.next(),
+            ];
+            out.extend(points.into_iter().map(|p| (p, t)));
+        }
+        out
+    }
+
+    #[test]
+    fn kept_edges_give_the_reference_closest_point() {
+        for (p, [a, b, c]) in kernel_cases() {
+            let want = reference_closest(p, a, b, c);
+            let got = closest_point_on(p, &Corners::new(a, b, c));
+            assert_eq!(
+                want.to_array().map(f64::to_bits),
+                got.to_array().map(f64::to_bits),
+                "{p} {a} {b} {c}"
+            );
+        }
+    }
+
+    #[test]
+    fn cull_rules_out_no_triangle_as_near_as_the_best() {
+        let mut rng = Rng(7);
+        let mut ruled_out = 0;
+        for (p, [a, b, c]) in kernel_cases() {
+            let t = Corners::new(a, b, c);
+            if t.ab.cross(t.ac) == DVec3::ZERO {
+                // Not kept by a `MeshBvh` (zero area).
+                continue;
+            }
+            let cull = Cull::new(&t);
+            let dd = (reference_closest(p, a, b, c) - p).length_squared();
+            // A best exactly this triangle's distance (a tie), and bests around it.
+            for f in [1.0, 1.0 + 1e-15, 1.0 - 1e-15, 0.5, 0.999, 0.0, 2.0] {
+                let best2 = dd * f;
+                if cull.beyond(p, best2, best2.sqrt()) {
+                    assert!(dd > best2, "{p} {a} {b} {c}: {dd} ruled out at {best2}");
+                    ruled_out += 1;
+                }
+            }
+            let best2 = (rng.next().abs() * 30.0).powi(2);
+            if cull.beyond(p, best2, best2.sqrt()) {
+                assert!(dd > best2, "{p} {a} {b} {c}: {dd} ruled out at {best2}");
+            }
+        }
+        // The test means something: most bests well below the distance are ruled out.
+        assert!(ruled_out > 10_000, "{ruled_out}");
+    }
+
+    #[test]
+    fn queries_match_brute_force_on_a_soup() {
+        // Random, coplanar, duplicated (ties) and degenerate triangles, in leaves of several.
+        let mut rng = Rng(42);
+        let mut pos: Vec<[f32; 3]> = Vec::new();
+        let mut idx = Vec::new();
+        for k in 0..600 {
+            let a = rng.vec(5.0);
+            let (b, c) = if k % 3 == 0 {
+                (a + DVec3::X * 0.3, a + DVec3::Y * 0.2)
+            } else {
+                (a + rng.vec(0.5), a + rng.vec(0.5))
+            };
+            let base = pos.len() as u32;
+            for v in [a, b, c] {
+                pos.push([v.x as f32, v.y as f32, v.z as f32]);
+            }
+            idx.extend([base, base + 1, base + 2]);
+            if k % 7 == 0 {
+                idx.extend([base, base + 1, base + 2]);
+            }
+            if k % 11 == 0 {
+                idx.extend([base, base, base + 1]);
+            }
+        }
+        let m = MeshBvh::new(TriMesh::new(&pos, &idx));
+        let valid = m.triangle_count() as u32;
+        for _ in 0..300 {
+            let q = rng.vec(6.0);
+            let (mut brute, mut near) = (f64::INFINITY, u32::MAX);
+            for t in 0..valid {
+                let d = m.distance_to_triangle(q, t);
+                if d < brute {
+                    (brute, near) = (d, t);
+                }
+            }
+            let (d, t, _) = m.closest(q).unwrap();
+            assert_eq!((d.to_bits(), t), (brute.to_bits(), near));
+            for start in [0, near, valid / 2, u32::MAX] {
+                let mut hint = start;
+                assert_eq!(m.closest_near(q, &mut hint), m.closest(q));
+                let mut hint = start;
+                let got = m.distance_between(q, 0.0, f64::INFINITY, &mut hint);
+                assert_eq!(got.to_bits(), brute.to_bits());
+            }
+        }
+    }
+
+    #[test]
+    fn stack_spills_and_keeps_its_order() {
+        let mut s = Stack::new((0, 0, 0.0));
+        for i in 1..200u32 {
+            s.push((i, 0, 0.0));
+        }
+        for i in (0..200u32).rev() {
+            assert_eq!(s.pop().map(|v| v.0), Some(i));
+            if i % 50 == 0 && i > 0 {
+                // Pushes after pops still come back first.
+                s.push((1000, 0, 0.0));
+                assert_eq!(s.pop().map(|v| v.0), Some(1000));
+            }
+        }
+        assert!(s.pop().is_none());
     }
 }
