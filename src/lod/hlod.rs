@@ -120,8 +120,9 @@ impl HlodBuilder<'_> {
         out
     }
 
-    /// A leaf's content at full detail, as it is written, and what it hands its parent.
-    pub(super) fn leaf_content(&self, i: usize) -> (TileContent, BuiltSubtree) {
+    /// A leaf's content at full detail, as it is written, and the triangles of its cut
+    /// components.
+    fn leaf_content(&self, i: usize) -> (TileContent, BTreeMap<ComponentId, usize>) {
         let tile = &self.plan.tiles[i];
         let content = gather(
             self.scene,
@@ -135,24 +136,22 @@ impl HlodBuilder<'_> {
                 *cut_triangles.entry(item.component).or_default() += t.len();
             }
         }
-        let built = BuiltSubtree {
-            // Parents simplify one surface: instances go up as plain geometry.
-            content: content.clone().expand(),
-            geometric_error_m: 0.0,
-            coarse_to_full_m: 0.0,
-            max_folding_edge_m: 0.0,
-            cut_triangles,
-        };
-        (content, built)
+        (content, cut_triangles)
+    }
+
+    /// What leaf `i` hands its parent.
+    pub(super) fn leaf_handover(&self, i: usize) -> BuiltSubtree {
+        let (content, cut_triangles) = self.leaf_content(i);
+        leaf_built(content, cut_triangles)
     }
 
     /// A leaf: its content at full detail, written as it is; what it hands up and the record of
     /// what it wrote.
     pub(super) fn build_leaf(&self, i: usize) -> Result<(BuiltSubtree, TileRecord)> {
-        let (content, built) = self.leaf_content(i);
+        let (content, cut_triangles) = self.leaf_content(i);
         let written = (self.write)(i, &content, TileRecord::default())?;
         *self.slots[i].lock().expect("slot") = Some(written.clone());
-        Ok((built, written))
+        Ok((leaf_built(content, cut_triangles), written))
     }
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
@@ -549,6 +548,18 @@ fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut steps): Tried)
         steps.push((false, next));
     }
     Ok((r, err, steps))
+}
+
+/// What a leaf with `content` hands its parent.
+fn leaf_built(content: TileContent, cut_triangles: BTreeMap<ComponentId, usize>) -> BuiltSubtree {
+    BuiltSubtree {
+        // Parents simplify one surface: instances go up as plain geometry.
+        content: content.expand(),
+        geometric_error_m: 0.0,
+        coarse_to_full_m: 0.0,
+        max_folding_edge_m: 0.0,
+        cut_triangles,
+    }
 }
 
 /// Triangles per cut component of a tile, from its children's.

@@ -77,7 +77,7 @@ impl HlodBuilder<'_> {
         let tile = &self.plan.tiles[i];
         if tile.children.is_empty() {
             // Written with the keys: only its hand-over is made again.
-            return Ok(need.then(|| self.leaf_content(i).1));
+            return Ok(need.then(|| self.leaf_handover(i)));
         }
         let key = keys[i].expect("every tile of the subtree is keyed");
         let handed = |need: bool| -> Result<Vec<Option<BuiltSubtree>>> {
