@@ -240,21 +240,36 @@ impl ErrorReference<'_> {
                 .par_iter()
                 .with_min_len(1024)
                 .for_each_init(|| u32::MAX, |hint, &x| sample(hint, x));
-            (0..samples.triangles.len())
+            let triangles = &samples.triangles;
+            runs_of(triangles.len())
                 .into_par_iter()
-                .with_min_len(256)
+                .with_min_len(256 / COVER_RUN)
                 .for_each_init(
                     || u32::MAX,
-                    |hint, i| {
-                        // Every sample on a triangle whose corners lie nearer than the maximum
-                        // to one triangle of the content is nearer too (convexity).
+                    |hint, run_of| {
+                        // A run of triangles within a ball nearer than the maximum to one
+                        // triangle of the content is nearer too, all of it (1-Lipschitz).
                         let thr = f64::from_bits(run.load(Relaxed));
-                        let covered = *hint != u32::MAX
-                            && samples.triangles[i]
-                                .iter()
-                                .all(|&v| surely_below(p_bvh.distance_to_triangle(v, *hint), thr));
-                        if !covered {
-                            samples.for_each_on_triangle(i, |x| sample(hint, x));
+                        let ball = Ball::around(triangles[run_of.clone()].iter().flatten());
+                        if *hint != u32::MAX
+                            && surely_below(
+                                ball.reach(p_bvh.distance_to_triangle(ball.center, *hint)),
+                                thr,
+                            )
+                        {
+                            return;
+                        }
+                        for i in run_of {
+                            // Every sample on a triangle whose corners lie nearer than the
+                            // maximum to one triangle of the content is nearer too (convexity).
+                            let thr = f64::from_bits(run.load(Relaxed));
+                            let covered = *hint != u32::MAX
+                                && triangles[i].iter().all(|&v| {
+                                    surely_below(p_bvh.distance_to_triangle(v, *hint), thr)
+                                });
+                            if !covered {
+                                samples.for_each_on_triangle(i, |x| sample(hint, x));
+                            }
                         }
                     },
                 );
@@ -276,6 +291,14 @@ impl ErrorReference<'_> {
             let thr = f64::from_bits(run.load(Relaxed));
             if thr > c2f_limit {
                 return;
+            }
+            // Most samples lie near the triangle of the child that settled the last one: that
+            // settles them too, without ordering the children.
+            if let Some((b, e)) = self.kids.get(*last) {
+                let t = hints[*last];
+                if t != u32::MAX && b.distance_to_triangle(x, t) + e < thr {
+                    return;
+                }
             }
             order.clear();
             order.extend(
@@ -311,24 +334,37 @@ impl ErrorReference<'_> {
                 || (vec![u32::MAX; self.kids.len()], Vec::new(), usize::MAX),
                 |scratch, &x| sample(scratch, x),
             );
-        (0..samples.triangles.len())
+        let triangles = &samples.triangles;
+        runs_of(triangles.len())
             .into_par_iter()
-            .with_min_len(256)
+            .with_min_len(256 / COVER_RUN)
             .for_each_init(
                 || (vec![u32::MAX; self.kids.len()], Vec::new(), usize::MAX),
-                |scratch, i| {
-                    // As above: corners nearer than the maximum (less the child's bound) to one
-                    // triangle of a child settle every sample on the triangle.
-                    let thr = f64::from_bits(run.load(Relaxed));
-                    let covered = self.kids.get(scratch.2).is_some_and(|(b, e)| {
+                |scratch, run_of| {
+                    // As above: a run, then each triangle, nearer than the maximum (less the
+                    // child's bound) to one triangle of a child settles every sample on it.
+                    let last = |scratch: &Scratch| {
+                        let (b, e) = self.kids.get(scratch.2)?;
                         let t = scratch.0[scratch.2];
-                        t != u32::MAX
-                            && samples.triangles[i]
+                        (t != u32::MAX).then_some((b, *e, t))
+                    };
+                    let thr = f64::from_bits(run.load(Relaxed));
+                    let ball = Ball::around(triangles[run_of.clone()].iter().flatten());
+                    if last(scratch).is_some_and(|(b, e, t)| {
+                        surely_below(ball.reach(b.distance_to_triangle(ball.center, t)) + e, thr)
+                    }) {
+                        return;
+                    }
+                    for i in run_of {
+                        let thr = f64::from_bits(run.load(Relaxed));
+                        let covered = last(scratch).is_some_and(|(b, e, t)| {
+                            triangles[i]
                                 .iter()
                                 .all(|&v| surely_below(b.distance_to_triangle(v, t) + e, thr))
-                    });
-                    if !covered {
-                        samples.for_each_on_triangle(i, |x| sample(scratch, x));
+                        });
+                        if !covered {
+                            samples.for_each_on_triangle(i, |x| sample(scratch, x));
+                        }
                     }
                 },
             );
@@ -392,6 +428,29 @@ impl ErrorReference<'_> {
         };
         // Triangles this small are within the bound whatever their corners (<= sampled).
         let small_m = (certified_m - sampled_m) * 3f64.sqrt();
+        let certify = |stack: &mut Vec<([Corner; 3], u32)>, hint: &mut u32, p: [DVec3; 3]| {
+            let large = (0..3).any(|k| (p[k] - p[(k + 1) % 3]).length() > small_m);
+            if !large || within_of(&p, *hint) {
+                return;
+            }
+            // The corners' own nearest triangles are tried by `bound` (convexity).
+            stack.push((p.map(|v| exact(v, hint)), 0));
+            while let Some((c, splits)) = stack.pop() {
+                if splits >= FACE_SPLITS || bound(&c) <= certified_m {
+                    continue;
+                }
+                let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5, hint));
+                for k in &m {
+                    if k.1.is_finite() && k.1 > certified_m {
+                        run.fetch_max(k.1.to_bits(), Relaxed);
+                    }
+                }
+                stack.push(([c[0], m[0], m[2]], splits + 1));
+                stack.push(([m[0], c[1], m[1]], splits + 1));
+                stack.push(([m[2], m[1], c[2]], splits + 1));
+                stack.push((m, splits + 1));
+            }
+        };
         for items in self.leaves.iter() {
             let leaf = TileContent::gather(self.scene, items, self.center);
             let (lp, li) = soup(&leaf);
@@ -399,35 +458,68 @@ impl ErrorReference<'_> {
                 let v = lp[i as usize];
                 DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
             };
-            li.par_chunks_exact(3).with_min_len(64).for_each_init(
-                || (Vec::new(), u32::MAX),
-                |(stack, hint), t| {
-                    let p = [point(t[0]), point(t[1]), point(t[2])];
-                    let large = (0..3).any(|k| (p[k] - p[(k + 1) % 3]).length() > small_m);
-                    if !large || within_of(&p, *hint) {
-                        return;
-                    }
-                    // The corners' own nearest triangles are tried by `bound` (convexity).
-                    stack.push((p.map(|v| exact(v, hint)), 0));
-                    while let Some((c, splits)) = stack.pop() {
-                        if splits >= FACE_SPLITS || bound(&c) <= certified_m {
-                            continue;
+            li.par_chunks(3 * COVER_RUN)
+                .with_min_len(64 / COVER_RUN)
+                .for_each_init(
+                    || (Vec::new(), u32::MAX),
+                    |(stack, hint), run_of| {
+                        // A run within a ball inside the certified distance of one coarse triangle
+                        // is certified whole (1-Lipschitz), as its triangles would be one by one.
+                        let ball = Ball::around(run_of.iter().map(|&i| point(i)));
+                        if *hint != u32::MAX
+                            && surely_below(
+                                ball.reach(coarse.distance_to_triangle(ball.center, *hint)),
+                                certified_m,
+                            )
+                        {
+                            return;
                         }
-                        let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5, hint));
-                        for k in &m {
-                            if k.1.is_finite() && k.1 > certified_m {
-                                run.fetch_max(k.1.to_bits(), Relaxed);
-                            }
+                        for t in run_of.chunks_exact(3) {
+                            certify(stack, hint, [point(t[0]), point(t[1]), point(t[2])]);
                         }
-                        stack.push(([c[0], m[0], m[2]], splits + 1));
-                        stack.push(([m[0], c[1], m[1]], splits + 1));
-                        stack.push(([m[2], m[1], c[2]], splits + 1));
-                        stack.push((m, splits + 1));
-                    }
-                },
-            );
+                    },
+                );
         }
         f64::from_bits(run.load(Relaxed))
+    }
+}
+
+/// Triangles a run of which is first tried as one ball ([`Ball`]) by the measurements: a tile
+/// far coarser than full detail covers whole runs of small triangles at once.
+const COVER_RUN: usize = 32;
+
+/// `0..n` in runs of [`COVER_RUN`].
+fn runs_of(n: usize) -> Vec<std::ops::Range<usize>> {
+    (0..n.div_ceil(COVER_RUN))
+        .map(|r| r * COVER_RUN..((r + 1) * COVER_RUN).min(n))
+        .collect()
+}
+
+/// A ball holding a run of triangles (their corners, so every point on them: a ball is convex).
+/// A distance is 1-Lipschitz, so no point in it lies farther from a triangle than its center's
+/// distance plus its radius.
+struct Ball {
+    center: DVec3,
+    radius_m: f64,
+}
+
+impl Ball {
+    fn around(points: impl Iterator<Item = impl std::borrow::Borrow<DVec3>> + Clone) -> Ball {
+        let (lo, hi) = points.clone().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p.borrow()), hi.max(*p.borrow())),
+        );
+        let center = (lo + hi) * 0.5;
+        let radius2 = points.fold(0.0, |r, p| center.distance_squared(*p.borrow()).max(r));
+        Ball {
+            center,
+            radius_m: radius2.sqrt(),
+        }
+    }
+
+    /// The farthest any point of the ball can be from a triangle `center_m` from its center.
+    fn reach(&self, center_m: f64) -> f64 {
+        center_m + self.radius_m
     }
 }
 
@@ -683,6 +775,60 @@ fn lock_continuing_borders(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_point_of_a_run_lies_beyond_its_balls_reach_from_a_triangle() {
+        // A run of triangles scattered over a few metres, and triangles near and far.
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 4.0 - 2.0
+        };
+        for _ in 0..50 {
+            let run: Vec<[DVec3; 3]> = (0..COVER_RUN)
+                .map(|_| [0; 3].map(|_| DVec3::new(next(), next(), next() * 0.1)))
+                .collect();
+            let ball = Ball::around(run.iter().flatten());
+            let offset = DVec3::new(next(), next(), next()) * 3.0;
+            let (pos, idx) = (
+                [[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 1.0, 0.2]]
+                    .map(|v: [f32; 3]| [v[0] + offset.x as f32, v[1] + offset.y as f32, v[2]]),
+                [0u32, 1, 2],
+            );
+            let tri = MeshBvh::new(TriMesh::new(&pos, &idx));
+            let reach = ball.reach(tri.distance_to_triangle(ball.center, 0));
+            for t in &run {
+                // Corners, and points inside the triangles.
+                for (a, b, c) in [
+                    (1.0, 0.0, 0.0),
+                    (0.0, 1.0, 0.0),
+                    (0.0, 0.0, 1.0),
+                    (0.2, 0.3, 0.5),
+                ] {
+                    let x = t[0] * a + t[1] * b + t[2] * c;
+                    assert!(ball.center.distance(x) <= ball.radius_m * (1.0 + 1e-12));
+                    assert!(tri.distance_to_triangle(x, 0) <= reach * (1.0 + 1e-12) + 1e-12);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn runs_cover_every_index_once() {
+        for n in [
+            0,
+            1,
+            COVER_RUN - 1,
+            COVER_RUN,
+            COVER_RUN + 1,
+            5 * COVER_RUN + 3,
+        ] {
+            let all: Vec<usize> = runs_of(n).into_iter().flatten().collect();
+            assert_eq!(all, (0..n).collect::<Vec<_>>());
+        }
+    }
 
     /// An n x n grid of quads on z = 0 spanning [x0, x0 + size] x [0, size], one feature.
     fn grid(n: usize, x0: f32, size: f32, feature: u32) -> TileContent {
