@@ -742,7 +742,10 @@ fn run_plan(a: PlanArgs) -> Result<()> {
                 note.unwrap_or_default()
             );
         } else {
-            eprintln!("note: update: {reason}; {run} of {} jobs to run", p.jobs.len());
+            eprintln!(
+                "note: update: {reason}; {run} of {} jobs to run",
+                p.jobs.len()
+            );
         }
     }
     if !a.convert.quiet && !p.update.as_ref().is_some_and(|u| u.up_to_date) {

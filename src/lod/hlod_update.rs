@@ -39,7 +39,11 @@ impl HlodBuilder<'_> {
 
     /// Builds the leaves of the subtree of tile `i` and keys all its tiles (by plan index; `None`
     /// outside the subtree).
-    pub(crate) fn tile_keys(&self, cache: &SubtreeCache, i: usize) -> Result<Vec<Option<TileKeys>>> {
+    pub(crate) fn tile_keys(
+        &self,
+        cache: &SubtreeCache,
+        i: usize,
+    ) -> Result<Vec<Option<TileKeys>>> {
         let keys: Vec<Mutex<Option<TileKeys>>> =
             self.plan.tiles.iter().map(|_| Mutex::default()).collect();
         self.key_subtree(cache, i, &keys)?;

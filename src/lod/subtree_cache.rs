@@ -850,6 +850,63 @@ mod tests {
         assert_ne!(a.geometry, b.geometry);
     }
 
+    /// What a sharded job adds to the cache reaches the merging process whole: its entries (read
+    /// back as the same tiles), its roots' keys and its tally; and the plan's check sees which
+    /// tiles would be taken.
+    #[test]
+    fn a_jobs_part_of_the_cache_is_absorbed_whole() {
+        let dir = std::env::temp_dir().join(format!("bimtiles-cache-part-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("tiles")).unwrap();
+        let global = global_digest(&[b"x"]);
+        let keys = |g: u8, w: u8| TileKeys {
+            geometry: [g; 32],
+            whole: [w; 32],
+        };
+        let record = TileRecord {
+            uri: Some("tiles/r0.glb".into()),
+            ..Default::default()
+        };
+        std::fs::write(dir.join("tiles/r0.glb"), b"tile").unwrap();
+        let recipe = Recipe::default();
+        let job = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        job.store(
+            2,
+            &planned("r0"),
+            &keys(1, 2),
+            (&record, &subtree(0.5), &recipe),
+            false,
+        )
+        .unwrap();
+        job.set_subtree_key(2, keys(1, 2));
+        let part = job.export();
+        let merging = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        merging.absorb(&part).unwrap();
+        assert_eq!(merging.subtree_key(2), Some(keys(1, 2)));
+        assert_eq!(merging.tally(), job.tally());
+        assert!(merging.absorb(&part[..part.len() - 1]).is_err());
+        merging.write_into(&dir).unwrap();
+        std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
+        let next = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert!(next.would_take(&planned("r0"), &keys(1, 2)));
+        assert!(
+            !next.would_take(&planned("r1"), &keys(1, 2)),
+            "another path"
+        );
+        assert!(!next.would_take(&planned("r0"), &keys(1, 3)), "another key");
+        assert_eq!(
+            next.tally(),
+            CacheTally::default(),
+            "asking changes nothing"
+        );
+        std::fs::write(dir.join("tiles/r0.glb"), b"edited").unwrap();
+        assert!(
+            !next.would_take(&planned("r0"), &keys(1, 2)),
+            "the live file changed"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn hand_overs_are_kept_from_the_root_down_within_the_budget() {
         let tiles = [

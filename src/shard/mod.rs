@@ -43,12 +43,12 @@ use crate::ingest::InputSet;
 use crate::lod::subtree_cache::SubtreeCache;
 use crate::options::{ConvertOptions, LodMode, Settings};
 use crate::output_dir::{check_replaceable, write_renamed, StagingDir};
-use crate::update::{UpdateReport, Verdict};
 use crate::partition::TilePlan;
 use crate::prepare::{prepare, read_scene, Prepared};
 use crate::report::{make_report, peak_memory_bytes, MemoryReport, Timings};
 use crate::scene::Scene;
 use crate::tiling::{JobOutput, TileWriter};
+use crate::update::{UpdateReport, Verdict};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -396,11 +396,14 @@ fn plan_changed_jobs(
             job.changed = roots.into_iter().any(|&r| {
                 subtree(plan, r).into_iter().any(|t| {
                     let tile = &plan.tiles[t];
-                    !tile.children.is_empty()
-                        && !keys[t].is_some_and(|k| c.would_take(tile, &k))
+                    !tile.children.is_empty() && !keys[t].is_some_and(|k| c.would_take(tile, &k))
                 })
             });
         }
+    }
+    for job in &mut file.jobs {
+        // A job without subtrees has nothing to do.
+        job.changed &= !job.roots.is_empty();
     }
     file.update = Some(PlanUpdate {
         tile_cache_note: note,
@@ -556,7 +559,10 @@ pub fn build_job(
     let count = roots.iter().map(|&r| subtree_tiles(plan, r)).sum();
     let writer = TileWriter::new(&l.scene, &l.prep, opts, &tiles_dir, &textures, count)?;
     // An update takes the tiles of its subtrees that did not change from the live tile cache.
-    let cache = match (&l.file.update, writer.cache_digest(&l.prep.origin, l.prep.anchor)) {
+    let cache = match (
+        &l.file.update,
+        writer.cache_digest(&l.prep.origin, l.prep.anchor),
+    ) {
         (Some(_), Some(g)) => Some(SubtreeCache::open(dir, &tiles_dir, g, writer.appearance())),
         _ => None,
     };
@@ -714,7 +720,10 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Upd
         crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(&tiles);
     let t = Instant::now();
     let writer = TileWriter::new(&l.scene, &l.prep, opts, &tiles, &textures, l.file.top.len())?;
-    let cache = match (&l.file.update, writer.cache_digest(&l.prep.origin, l.prep.anchor)) {
+    let cache = match (
+        &l.file.update,
+        writer.cache_digest(&l.prep.origin, l.prep.anchor),
+    ) {
         (Some(_), Some(g)) => Some(SubtreeCache::open(dir, &tiles, g, writer.appearance())),
         _ => None,
     };
