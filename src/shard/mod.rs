@@ -625,14 +625,18 @@ fn leftover_temp_files(dir: &Path, tiles: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// The results of the jobs that ran, checked against the plan and the tiles they wrote: their
-/// outputs, their tile caches' parts (update), and their seconds.
-fn job_results(
-    dir: &Path,
-    l: &Loaded,
-    tiles: &Path,
-) -> Result<(Vec<JobOutput>, Vec<(PathBuf, Vec<u8>)>, f64)> {
-    let (mut outputs, mut caches, mut job_seconds) = (Vec::new(), Vec::new(), 0.0);
+/// The results of the jobs that ran.
+#[derive(Default)]
+struct JobResults {
+    outputs: Vec<JobOutput>,
+    /// An update's jobs' parts of the tile cache, with their result files.
+    caches: Vec<(PathBuf, Vec<u8>)>,
+    seconds: f64,
+}
+
+/// The results of the jobs that ran, checked against the plan and the tiles they wrote.
+fn job_results(dir: &Path, l: &Loaded, tiles: &Path) -> Result<JobResults> {
+    let mut results = JobResults::default();
     for k in l.file.jobs.iter().filter(|j| j.changed).map(|j| j.job) {
         let path = job_path(dir, k);
         let bytes = std::fs::read(&path).map_err(|e| Error::input(&path, e.to_string()))?;
@@ -657,11 +661,11 @@ fn job_results(
                 }
             }
         }
-        job_seconds += f.seconds;
-        outputs.push(f.output);
-        caches.extend(f.cache.map(|c| (path, c)));
+        results.seconds += f.seconds;
+        results.outputs.push(f.output);
+        results.caches.extend(f.cache.map(|c| (path, c)));
     }
-    Ok((outputs, caches, job_seconds))
+    Ok(results)
 }
 
 /// `bimtiles merge`: checks every job's result, builds the top levels and writes schema.json,
@@ -702,7 +706,11 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Upd
     }
     let l = load(dir, inputs, opts)?;
     let tiles = tiles_dir(dir, &l.file);
-    let (outputs, caches, job_seconds) = job_results(dir, &l, &tiles)?;
+    let JobResults {
+        outputs,
+        caches,
+        seconds: job_seconds,
+    } = job_results(dir, &l, &tiles)?;
     for leftover in leftover_temp_files(dir, &tiles) {
         std::fs::remove_file(&leftover).map_err(|e| Error::output(&leftover, e))?;
     }
