@@ -799,8 +799,11 @@ fn a_sharded_update_runs_only_changed_jobs_and_equals_a_full_build() {
         "the tile cache of convert --update"
     );
 
-    // Nothing changed: no job runs, no file is touched.
+    // Nothing changed: no job runs, no file is touched; a killed plan's folder is removed.
+    let killed_plan = out.join(".bimtiles/shard.tmp-99999999");
+    std::fs::create_dir_all(killed_plan.join("jobs")).unwrap();
     let (plan, _) = sharded_update(&campus, &out, 4);
+    assert!(!killed_plan.exists());
     assert_eq!(jobs_changed(&plan), (0, 4), "{plan}");
     assert_eq!(identities(&out), ids);
     assert_eq!(report(&out)["update"]["mode"], "unchanged");

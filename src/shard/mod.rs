@@ -298,8 +298,15 @@ fn plan_update(
         },
     };
     let build = out.join(UPDATE_DIR);
+    // Build folders of plans killed before theirs was put in place (the output's lock is ours).
+    if let Ok(entries) = std::fs::read_dir(out.join(crate::update::STATE_DIR)) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with("shard.tmp-") {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
     let tmp = out.join(format!("{UPDATE_DIR}.tmp-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
     let tiles = tmp.join(UPDATE_TILESET);
     std::fs::create_dir_all(tmp.join(JOBS_DIR))
         .map_err(|e| Error::output_from(&tmp, "cannot create the folder", e))?;
