@@ -55,7 +55,7 @@ pub enum Updated {
 }
 
 /// The inputs as given, as the update state records them.
-fn given_paths(inputs: &InputSet) -> Vec<PathBuf> {
+pub(crate) fn given_paths(inputs: &InputSet) -> Vec<PathBuf> {
     match inputs {
         InputSet::Sample => Vec::new(),
         InputSet::Files(f) => f.clone(),
@@ -126,7 +126,7 @@ pub fn update_input_set(inputs: &InputSet, opts: &ConvertOptions) -> Result<Upda
 }
 
 /// An update with nothing to build: report.json (the last build's) gets the update's figures.
-fn up_to_date(
+pub(crate) fn up_to_date(
     staging: StagingDir,
     opts: &Settings,
     state: &UpdateState,
@@ -164,7 +164,7 @@ fn up_to_date(
 }
 
 /// What an update's build records for the next one.
-struct Tracked {
+pub(crate) struct Tracked {
     given: Vec<PathBuf>,
     /// The models read.
     sources: Vec<PathBuf>,
@@ -175,6 +175,57 @@ struct Tracked {
 }
 
 impl Tracked {
+    /// What an update that hashed `hashed` (none: all are hashed at the end) and reports
+    /// `update` records, for the inputs `given` whose models are `sources`.
+    pub(crate) fn new(
+        given: Vec<PathBuf>,
+        sources: Vec<PathBuf>,
+        hashed: Vec<InputHash>,
+        update: UpdateReport,
+    ) -> Tracked {
+        Tracked {
+            given,
+            sources,
+            hashed,
+            update,
+        }
+    }
+
+    /// Completes an update's build in the build folder `dir`: writes the tile cache (if any) and
+    /// the update state, links the unchanged files in (see [`Tracked::record`]); returns the
+    /// update's report.
+    pub(crate) fn finish(
+        mut self,
+        dir: &Path,
+        opts: &Settings,
+        cache: Option<&SubtreeCache>,
+        t0: Instant,
+    ) -> Result<UpdateReport> {
+        let (cache_bytes, tally, note) = match cache {
+            Some(c) => (c.write_into(dir)?, c.tally(), c.note.clone()),
+            None => (0, CacheTally::default(), None),
+        };
+        self.update = UpdateReport {
+            tiles_built: tally.tiles_built,
+            tile_bytes_built: tally.tile_bytes_built,
+            internal_tiles: tally.internal_tiles,
+            internal_tiles_built: tally.internal_tiles_built,
+            tiles_reused: tally.tiles_reused,
+            tile_bytes_reused: tally.tile_bytes_reused,
+            tiles_rewritten: tally.tiles_rewritten,
+            tiles_remade: tally.tiles_remade,
+            tile_cache_bytes: cache_bytes,
+            tile_cache_note: match cache {
+                Some(_) => note,
+                // Said only when there was a tileset to take tiles from.
+                None => opts.out_dir.join("tileset.json").is_file().then(|| {
+                    "no tile is taken from the tile cache: the tiles use textures or no HLOD".into()
+                }),
+            },
+            ..self.update
+        };
+        self.record(dir, opts, t0)
+    }
     /// Writes the update state into the build folder `dir` and prepares the folder to replace the
     /// live tileset (its unchanged files linked in); returns the update's report.
     fn record(mut self, dir: &Path, opts: &Settings, t0: Instant) -> Result<UpdateReport> {
@@ -285,34 +336,8 @@ fn build_into(
     report.hlod_timings_s = (opts.lod == crate::options::LodMode::Hlod).then_some(hlod_timings);
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = MemoryReport::of(scene);
-    if let Some(mut t) = tracked {
-        let written = match &cache {
-            Some(c) => c
-                .write_into(&tmp)
-                .map(|bytes| (bytes, c.tally(), c.note.clone())),
-            None => Ok((0, CacheTally::default(), None)),
-        };
-        let (cache_bytes, tally, note) = written.map_err(|e| e.relocated(&tmp, &opts.out_dir))?;
-        t.update = UpdateReport {
-            tiles_built: tally.tiles_built,
-            tile_bytes_built: tally.tile_bytes_built,
-            internal_tiles: tally.internal_tiles,
-            internal_tiles_built: tally.internal_tiles_built,
-            tiles_reused: tally.tiles_reused,
-            tile_bytes_reused: tally.tile_bytes_reused,
-            tiles_rewritten: tally.tiles_rewritten,
-            tiles_remade: tally.tiles_remade,
-            tile_cache_bytes: cache_bytes,
-            tile_cache_note: match cache {
-                Some(_) => note,
-                // Said only when there was a tileset to take tiles from.
-                None => opts.out_dir.join("tileset.json").is_file().then(|| {
-                    "no tile is taken from the tile cache: the tiles use textures or no HLOD".into()
-                }),
-            },
-            ..t.update
-        };
-        let update = t.record(&tmp, opts, t0);
+    if let Some(t) = tracked {
+        let update = t.finish(&tmp, opts, cache.as_ref(), t0);
         report.update = Some(update.map_err(|e| e.relocated(&tmp, &opts.out_dir))?);
     }
     let report_json = serde_json::to_vec_pretty(&report)

@@ -20,8 +20,9 @@ mod clients;
 mod fuzz_corpus;
 /// The user's folders are never lost or clobbered: locks, `--force`, killed runs.
 mod output_safety;
-/// `convert --update`: every update equals a full build; killed updates leave the old or the new
-/// tileset; a missing or corrupt cache is a full build with one line saying why.
+/// `convert --update` and sharded updates: every update equals a full build; a sharded update
+/// runs only the jobs whose subtrees changed; killed updates leave the old or the new tileset; a
+/// missing or corrupt cache is a full build with one line saying why.
 mod update;
 /// Every shared model converts to a tileset that gltf-validator and the 3D Tiles schemas accept.
 mod valid_tilesets;

@@ -2,6 +2,8 @@
 //! build of the new manifest, file for file and byte for byte; the files whose bytes did not
 //! change stay the same files; an unchanged manifest reads no model; a missing or corrupt cache is
 //! a full build with one line saying why; a killed update leaves the old tileset or the new one.
+//! A sharded update (`plan`/`build-job`/`merge` with `--update`) runs only the jobs whose
+//! subtrees changed and gives the same tileset and tile cache.
 
 use crate::common::*;
 use serde_json::{json, Value};
@@ -662,4 +664,181 @@ fn a_removal_rewrites_only_the_tiles_it_touches() {
             after.len()
         );
     }
+}
+
+/// The stderr lines of `o` that are update notes.
+fn update_notes(o: &std::process::Output) -> Vec<String> {
+    String::from_utf8_lossy(&o.stderr)
+        .lines()
+        .filter(|l| l.starts_with("note: update:"))
+        .map(String::from)
+        .collect()
+}
+
+/// A sharded update of `out` to the campus as it is now (`plan --update` with `jobs` jobs, every
+/// job's `build-job`, then `merge`): the plan (plan.json) and the update notes of plan and merge.
+/// A job the plan marks unchanged succeeds and leaves no result file.
+fn sharded_update(campus: &Campus, out: &Path, jobs: usize) -> (Value, Vec<String>) {
+    let n = jobs.to_string();
+    let mut args = campus.args(out, &["--update", "--jobs", &n]);
+    args[0] = "plan".into();
+    let ok = |o: std::process::Output, what: &str| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{what}: {err}");
+        o
+    };
+    let planned = ok(
+        run(&args.iter().map(String::as_str).collect::<Vec<_>>()),
+        "plan",
+    );
+    let build = out.join(bimtiles::shard::UPDATE_DIR);
+    let plan: Value =
+        serde_json::from_slice(&std::fs::read(build.join("plan.json")).unwrap()).unwrap();
+    let d = out.to_str().unwrap();
+    for job in plan["jobs"].as_array().unwrap() {
+        let k = job["job"].to_string();
+        ok(run(&["build-job", d, "--job", &k, "--quiet"]), "build-job");
+        let result = build.join(format!("jobs/job-{k}.bin"));
+        assert_eq!(result.is_file(), job["changed"] == true, "job {k}: {job}");
+    }
+    let merged = ok(run(&["merge", d]), "merge");
+    assert!(
+        !build.exists(),
+        "the build folder goes with the old tileset"
+    );
+    let mut notes = update_notes(&planned);
+    notes.extend(update_notes(&merged));
+    (plan, notes)
+}
+
+/// How many of the plan's jobs are marked changed, and how many not.
+fn jobs_changed(plan: &Value) -> (usize, usize) {
+    let jobs = plan["jobs"].as_array().unwrap();
+    let changed = jobs.iter().filter(|j| j["changed"] == true).count();
+    (changed, jobs.len() - changed)
+}
+
+/// A sharded update (`plan`/`build-job`/`merge` with `--update`) runs only the jobs whose
+/// subtrees changed and gives what `convert` and `convert --update` give: every tileset file,
+/// byte for byte, and the same tile cache; an unchanged campus runs no job and touches no file;
+/// `convert --update` carries on from it.
+#[test]
+fn a_sharded_update_runs_only_changed_jobs_and_equals_a_full_build() {
+    let (Some(fzk), Some(duplex), Some(house)) = (
+        shared_file("AC20-FZK-Haus.glb"),
+        shared_file("duplex.glb"),
+        shared_file("IfcOpenHouse_IFC4.glb"),
+    ) else {
+        return;
+    };
+    let mut campus = Campus::new("update-sharded");
+    campus.add("a", &duplex, "a.glb", 0.0, 0.0);
+    campus.add("b", &fzk, "b.glb", 120.0, 0.0);
+    campus.add("c", &house, "c.glb", 0.0, 120.0);
+    campus.add("d", &duplex, "a.glb", 120.0, 120.0);
+    campus.add("e", &house, "c.glb", 240.0, 0.0);
+    campus.add("f", &duplex, "a.glb", 240.0, 120.0);
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    // The first build: every job runs.
+    let (plan, notes) = sharded_update(&campus, &out, 4);
+    assert_eq!(jobs_changed(&plan), (4, 0), "{plan}");
+    assert!(
+        notes[0].ends_with("full build: no tileset at the output yet"),
+        "{notes:?}"
+    );
+    campus.convert(&full, &["--update", "--quiet"]);
+    assert_eq!(tileset_files(&out), tileset_files(&full));
+
+    // One building's model replaced.
+    let single = campus.dir.join("single");
+    let copied = Command::new("cp").arg("-a").arg(&out).arg(&single).status();
+    assert!(copied.unwrap().success());
+    let before = identities(&out);
+    std::fs::copy(&house, campus.dir.join("b.glb")).unwrap();
+    let (plan, notes) = sharded_update(&campus, &out, 4);
+    let (changed, unchanged) = jobs_changed(&plan);
+    assert!(changed > 0 && unchanged > 0, "{plan}");
+    assert_eq!(
+        notes.len(),
+        2,
+        "one note from plan, one from merge: {notes:?}"
+    );
+    assert!(
+        notes[0].contains(&format!("{changed} of 4 jobs to run")),
+        "{notes:?}"
+    );
+    let _ = std::fs::remove_dir_all(&full);
+    campus.convert(&full, &["--update", "--quiet"]);
+    let (after, expected) = (tileset_files(&out), tileset_files(&full));
+    assert_eq!(
+        after.keys().collect::<Vec<_>>(),
+        expected.keys().collect::<Vec<_>>()
+    );
+    for (name, bytes) in &expected {
+        assert!(
+            after[name] == *bytes,
+            "{name} differs from the full build's"
+        );
+    }
+    let u = report(&out)["update"].clone();
+    assert_some_tiles_reused(&u);
+    assert_tile_counts(&out, &u);
+    let ids = identities(&out);
+    let kept = ids
+        .iter()
+        .filter(|(f, id)| before.get(*f) == Some(id))
+        .count();
+    assert_eq!(u["files_reused"], kept, "{u}");
+    // `convert --update` of the same change: the same tileset and the same tile cache.
+    campus.convert(&single, &["--update", "--quiet"]);
+    assert_eq!(tileset_files(&single), after);
+    let cache = |dir: &Path| std::fs::read(dir.join(TILE_CACHE)).unwrap();
+    assert!(
+        cache(&single) == cache(&out),
+        "the tile cache of convert --update"
+    );
+
+    // Nothing changed: no job runs, no file is touched; a killed plan's folder is removed.
+    let killed_plan = out.join(".bimtiles/shard.tmp-99999999");
+    std::fs::create_dir_all(killed_plan.join("jobs")).unwrap();
+    let (plan, _) = sharded_update(&campus, &out, 4);
+    assert!(!killed_plan.exists());
+    assert_eq!(jobs_changed(&plan), (0, 4), "{plan}");
+    assert_eq!(identities(&out), ids);
+    assert_eq!(report(&out)["update"]["mode"], "unchanged");
+    // The state the sharded update left is the one `convert --update` reads.
+    let o = campus.convert(&out, &["--update"]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("up to date, nothing built"), "{said}");
+}
+
+/// A sharded update over a spoiled tile cache: every job runs, one line from plan and one from
+/// merge say why, and the result is the full build's.
+#[test]
+fn a_sharded_update_with_a_corrupt_cache_is_a_full_build_with_one_line_note() {
+    let Some(duplex) = shared_file("duplex.glb") else {
+        return;
+    };
+    let mut campus = Campus::new("update-sharded-spoiled");
+    campus.add("a", &duplex, "a.glb", 0.0, 0.0);
+    campus.add("b", &duplex, "a.glb", 120.0, 0.0);
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    campus.convert(&out, &["--update", "--quiet"]);
+    campus.models[1]["east_m"] = json!(130.0);
+    std::fs::write(out.join(TILE_CACHE), b"BIMTCAC2 cut").unwrap();
+    let (plan, notes) = sharded_update(&campus, &out, 3);
+    for job in plan["jobs"].as_array().unwrap() {
+        let empty = job["roots"].as_array().unwrap().is_empty();
+        assert_eq!(job["changed"], !empty, "every job with work runs: {plan}");
+    }
+    assert_eq!(notes.len(), 2, "{notes:?}");
+    for note in &notes {
+        assert!(note.contains("full build: 1 input file changed"), "{note}");
+        assert!(note.contains("the tile cache is corrupt"), "{note}");
+    }
+    assert_eq!(report(&out)["update"]["tiles_reused"], 0);
+    campus.convert(&full, &["--update", "--quiet"]);
+    assert_eq!(tileset_files(&out), tileset_files(&full));
 }

@@ -43,13 +43,17 @@ enum Command {
   bimtiles convert site.city.json --crs EPSG:7415 --out tiles/site --quiet")]
     Convert(ConvertArgs),
     /// Sharded build, step 1: plan the octree and split it into N subtree jobs (DIR/plan.json).
-    /// Takes the options of `convert`; `--out` is the build folder DIR.
+    /// Takes the options of `convert`; `--out` is the build folder DIR. With --update, DIR is a
+    /// tileset to bring up to date: the build goes to DIR/.bimtiles/shard/, plan.json marks the
+    /// jobs whose subtrees did not change ("changed": false; they need no run), and merge
+    /// publishes the result over the live tileset as `convert --update` does.
     #[command(after_help = "Examples:
   bimtiles plan --manifest campus.json --out build --jobs 8
-  bimtiles plan a.ifc b.glb --out build --jobs 2 --max-tile-triangles 20000")]
+  bimtiles plan a.ifc b.glb --out build --jobs 2 --max-tile-triangles 20000
+  bimtiles plan --manifest campus.json --out site/tiles --jobs 8 --update")]
     Plan(PlanArgs),
     /// Sharded build, step 2: build one job's subtrees into DIR (any order, any machine that sees
-    /// DIR and the inputs).
+    /// DIR and the inputs). A job an update's plan marks unchanged does nothing.
     #[command(after_help = "Examples:
   bimtiles build-job build --job 0
   for j in 0 1 2; do bimtiles build-job build --job $j --quiet; done")]
@@ -67,7 +71,10 @@ enum Command {
         quiet: bool,
     },
     /// Sharded build, step 3: check every job's result, build the top levels and write
-    /// tileset.json, schema.json and report.json (byte-identical to `convert`'s tileset).
+    /// tileset.json, schema.json and report.json (byte-identical to `convert`'s tileset). An
+    /// update also takes the unchanged jobs' tiles from the tile cache and puts the new tileset in
+    /// place of the live one (switched last, atomically; stale files removed unless
+    /// --keep-stale).
     #[command(after_help = "Examples:
   bimtiles merge build
   bimtiles merge build --threads 4 --quiet")]
@@ -510,8 +517,23 @@ pub fn main() -> Result<()> {
         } => {
             set_threads(threads)?;
             let (inputs, opts) = planned(&dir, quiet)?;
-            let r = bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)?;
+            let r = match bimtiles::shard::merge(&opts.out_dir, &inputs, &opts)? {
+                Updated::Built(r) => r,
+                Updated::UpToDate(u) => {
+                    if !quiet {
+                        emit(&format!(
+                            "{}: up to date, nothing built\n{}\n",
+                            dir.display(),
+                            u.summary()
+                        ))?;
+                    }
+                    return Ok(());
+                }
+            };
             if !quiet {
+                if let Some(note) = r.update.as_ref().and_then(|u| u.build_note()) {
+                    eprintln!("note: update: {note}");
+                }
                 print_warnings(&r);
                 emit(&format!(
                     "merged {}: {} tiles, {} triangles, {}\n",
@@ -520,6 +542,9 @@ pub fn main() -> Result<()> {
                     r.output.triangles,
                     human_bytes(r.output.bytes)
                 ))?;
+                if let Some(u) = &r.update {
+                    emit(&format!("{}\n", u.summary()))?;
+                }
             }
             Ok(())
         }
@@ -690,9 +715,6 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
 /// `bimtiles plan`: the arguments after `plan` are kept in plan.json (with the working folder), so
 /// that build-job and merge re-create the same inputs and options.
 fn run_plan(a: PlanArgs) -> Result<()> {
-    if a.convert.update {
-        anyhow::bail!("--update is not supported by sharded builds yet: use convert --update");
-    }
     set_threads(a.convert.threads)?;
     set_budget(&a.convert, &a.convert.out)?;
     let opts = convert_options(&a.convert)?;
@@ -705,7 +727,28 @@ fn run_plan(a: PlanArgs) -> Result<()> {
     });
     let inputs = InputSet::new(&a.convert.inputs, a.convert.manifest.as_deref());
     let p = bimtiles::shard::plan(&inputs, &opts, a.jobs as usize, command)?;
-    if !a.convert.quiet {
+    if let (Some(u), false) = (&p.update, a.convert.quiet) {
+        let run = p.jobs.iter().filter(|j| j.changed).count();
+        let reason = u.full_build_reason.as_deref().unwrap_or_default();
+        let note = u.tile_cache_note.as_ref().map(|n| format!("; {n}"));
+        if u.up_to_date {
+            emit(&format!(
+                "{}: up to date, no job to run (merge rewrites report.json)\n",
+                a.convert.out.display()
+            ))?;
+        } else if run == p.jobs.len() {
+            eprintln!(
+                "note: update: full build: {reason}{}",
+                note.unwrap_or_default()
+            );
+        } else {
+            eprintln!(
+                "note: update: {reason}; {run} of {} jobs to run",
+                p.jobs.len()
+            );
+        }
+    }
+    if !a.convert.quiet && !p.update.as_ref().is_some_and(|u| u.up_to_date) {
         emit(&format!(
             "{}: {} tiles, {} built by merge, {} jobs (triangles per job: {})\n",
             a.convert.out.display(),

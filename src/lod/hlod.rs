@@ -264,7 +264,7 @@ impl HlodBuilder<'_> {
             return Ok(self.provided.lock().expect("provided").remove(&i));
         }
         match self.cache {
-            Some(cache) if self.stop.is_empty() => self.build_updated(cache, i),
+            Some(cache) => self.build_updated(cache, i),
             _ => self.build_all(i).map(Some),
         }
     }

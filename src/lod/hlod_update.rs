@@ -9,10 +9,14 @@
 //! (upper levels), or made again from its recipe, from its own children's hand-overs, down to
 //! tiles whose hand-over is kept, or leaves. A tile whose geometry key alone is in the cache (an
 //! element's metadata changed below it) gets its content the same way and is only written again.
+//!
+//! A sharded update (`crate::shard`) runs the same passes in pieces: a job brings its subtrees
+//! up to date and hands up each root's content and keys; `merge` keys and takes or builds the
+//! rest of the tree, with the jobs' subtree roots as given (the builder's `stop` tiles).
 
 use super::hlod::{continuing, cut_triangles, BuiltSubtree, HlodBuilder};
 use super::subtree_cache::{Found, HandOver, SubtreeCache, TileKeys};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::scene::ComponentId;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -20,21 +24,33 @@ use std::sync::Mutex;
 
 impl HlodBuilder<'_> {
     /// Brings the subtree of tile `i` up to date with `cache`; what it hands up when its parent
-    /// needs it (a single-leaf plan's root: the coarse root simplifies it).
+    /// needs it: a single-leaf plan's root (the coarse root simplifies it), and the root of a
+    /// sharded job's subtree (its parent is built by `merge`, whose cache gets the root's keys).
     pub(super) fn build_updated(
         &self,
         cache: &SubtreeCache,
         i: usize,
     ) -> Result<Option<BuiltSubtree>> {
+        let keys = self.tile_keys(cache, i)?;
+        cache.set_subtree_key(i, keys[i].expect("the subtree's root is keyed"));
+        let need = i != 0 || self.plan.tiles[i].children.is_empty();
+        self.build_changed(cache, &keys, i, need)
+    }
+
+    /// Builds the leaves of the subtree of tile `i` and keys all its tiles (by plan index; `None`
+    /// outside the subtree).
+    pub(crate) fn tile_keys(
+        &self,
+        cache: &SubtreeCache,
+        i: usize,
+    ) -> Result<Vec<Option<TileKeys>>> {
         let keys: Vec<Mutex<Option<TileKeys>>> =
             self.plan.tiles.iter().map(|_| Mutex::default()).collect();
         self.key_subtree(cache, i, &keys)?;
-        let keys: Vec<Option<TileKeys>> = keys
+        Ok(keys
             .into_iter()
             .map(|k| k.into_inner().expect("no poisoned key"))
-            .collect();
-        let need = self.plan.tiles[i].children.is_empty();
-        self.build_changed(cache, &keys, i, need)
+            .collect())
     }
 
     /// Builds the leaves of the subtree of tile `i` and keys all its tiles into `keys`; returns
@@ -46,7 +62,18 @@ impl HlodBuilder<'_> {
         keys: &[Mutex<Option<TileKeys>>],
     ) -> Result<(TileKeys, BTreeMap<ComponentId, usize>)> {
         let tile = &self.plan.tiles[i];
-        let (key, cut) = if tile.children.is_empty() {
+        let (key, cut) = if self.stop.contains(&i) {
+            // A sharded job's subtree: its keys and what it hands up come from the job.
+            let given = self.provided.lock().expect("provided");
+            let cut = given.get(&i).map(|b| b.cut_triangles.clone());
+            match (cache.subtree_key(i), cut) {
+                (Some(key), Some(cut)) => (key, cut),
+                _ => {
+                    let uri = format!("tiles/{}.glb", tile.path);
+                    return Err(Error::output(uri, "no job built this subtree"));
+                }
+            }
+        } else if tile.children.is_empty() {
             let (built, record) = self.build_leaf(i)?;
             let key = cache.leaf_keys(self.scene, tile, &built, &record)?;
             (key, built.cut_triangles)
@@ -75,6 +102,11 @@ impl HlodBuilder<'_> {
         need: bool,
     ) -> Result<Option<BuiltSubtree>> {
         let tile = &self.plan.tiles[i];
+        if self.stop.contains(&i) {
+            // Built by a sharded job, which handed its content up.
+            let given = self.provided.lock().expect("provided").remove(&i);
+            return Ok(given.filter(|_| need));
+        }
         if tile.children.is_empty() {
             // Written with the keys: only its hand-over is made again.
             return Ok(need.then(|| self.leaf_handover(i)));

@@ -127,6 +127,9 @@ pub(crate) struct SubtreeCache {
     /// Entries of this build, by plan index, with their keys and tile paths.
     fresh: Mutex<BTreeMap<usize, (SubtreeKey, String, Entry)>>,
     tally: Mutex<CacheTally>,
+    /// Keys of subtree roots built in another process (a sharded update): set by a job for each
+    /// root it built, and in `merge` from the jobs' results.
+    subtree_keys: Mutex<BTreeMap<usize, TileKeys>>,
     /// Why the previous cache could not be used (`None`: it was, or there was no tileset).
     pub(crate) note: Option<String>,
 }
@@ -233,8 +236,130 @@ impl SubtreeCache {
             staging: staging.to_path_buf(),
             fresh: Mutex::default(),
             tally: Mutex::default(),
+            subtree_keys: Mutex::default(),
             note,
         }
+    }
+
+    /// Records the keys of subtree root `i` (built here for a parent built elsewhere, or built
+    /// elsewhere for a parent built here).
+    pub(crate) fn set_subtree_key(&self, i: usize, keys: TileKeys) {
+        self.subtree_keys.lock().expect("keys").insert(i, keys);
+    }
+
+    /// The keys of subtree root `i`, if recorded.
+    pub(crate) fn subtree_key(&self, i: usize) -> Option<TileKeys> {
+        self.subtree_keys.lock().expect("keys").get(&i).copied()
+    }
+
+    /// Whether internal tile `tile` with `keys` would be taken from the cache as it is: its whole
+    /// key is there, for its path, and the live tileset still holds its file as written. Changes
+    /// nothing (a sharded update's plan asks it to find the jobs with work).
+    pub(crate) fn would_take(&self, tile: &PlannedTile, keys: &TileKeys) -> bool {
+        let Some(entry) = self.previous.get(&keys.whole) else {
+            return false;
+        };
+        let Ok((path, file, record, _)) = decode_head(&entry.head) else {
+            return false;
+        };
+        path == tile.path
+            && match (file, &record.uri) {
+                (Some(sha), Some(uri)) => sha256_file(&self.live.join(uri)).ok() == Some(sha),
+                (None, None) => true,
+                _ => false,
+            }
+    }
+
+    /// What this process added to the cache (its entries, the subtree roots' keys it recorded,
+    /// its tally), to be [`Self::absorb`]ed by the process that writes the cache.
+    pub(crate) fn export(&self) -> Vec<u8> {
+        let mut w = W::default();
+        let fresh = self.fresh.lock().expect("fresh");
+        w.n(fresh.len());
+        for (&i, (key, path, entry)) in fresh.iter() {
+            w.n(i);
+            w.0.extend_from_slice(key);
+            w.str(path);
+            w.0.extend_from_slice(&entry.geometry);
+            w.n(entry.head.len());
+            w.0.extend_from_slice(&entry.head);
+            w.opt(&entry.handover, |w, h| {
+                w.n(h.len());
+                w.0.extend_from_slice(h);
+            });
+        }
+        let keys = self.subtree_keys.lock().expect("keys");
+        w.n(keys.len());
+        for (&i, k) in keys.iter() {
+            w.n(i);
+            w.0.extend_from_slice(&k.geometry);
+            w.0.extend_from_slice(&k.whole);
+        }
+        let t = self.tally();
+        for n in [
+            t.tiles_built,
+            t.tile_bytes_built as usize,
+            t.internal_tiles_built,
+            t.internal_tiles,
+            t.tiles_reused,
+            t.tile_bytes_reused as usize,
+            t.tiles_rewritten,
+            t.tiles_remade,
+        ] {
+            w.n(n);
+        }
+        w.0
+    }
+
+    /// Adds what another process [`Self::export`]ed.
+    pub(crate) fn absorb(&self, bytes: &[u8]) -> std::result::Result<(), WireError> {
+        let mut r = R(bytes);
+        let entries = r.vec(81, |r| {
+            let i = r.u64()? as usize;
+            let key = key_from(r)?;
+            let path = r.str()?;
+            let geometry = key_from(r)?;
+            let n = r.n(1)?;
+            let head = r.take(n)?.to_vec();
+            let handover = match r.flag()? {
+                true => {
+                    let n = r.n(1)?;
+                    Some(r.take(n)?.to_vec())
+                }
+                false => None,
+            };
+            let entry = Entry {
+                geometry,
+                head,
+                handover,
+            };
+            Ok((i, (key, path, entry)))
+        })?;
+        let keys = r.vec(72, |r| {
+            let i = r.u64()? as usize;
+            let geometry = key_from(r)?;
+            let whole = key_from(r)?;
+            Ok((i, TileKeys { geometry, whole }))
+        })?;
+        let mut n = [0usize; 8];
+        for x in &mut n {
+            *x = r.u64()? as usize;
+        }
+        if !r.0.is_empty() {
+            return Err(WireError::NoEndMark);
+        }
+        self.fresh.lock().expect("fresh").extend(entries);
+        self.subtree_keys.lock().expect("keys").extend(keys);
+        let mut t = self.tally.lock().expect("tally");
+        t.tiles_built += n[0];
+        t.tile_bytes_built += n[1] as u64;
+        t.internal_tiles_built += n[2];
+        t.internal_tiles += n[3];
+        t.tiles_reused += n[4];
+        t.tile_bytes_reused += n[5] as u64;
+        t.tiles_rewritten += n[6];
+        t.tiles_remade += n[7];
+        Ok(())
     }
 
     /// A cache that reuses nothing and stores what it is given (unit tests).
@@ -723,6 +848,63 @@ mod tests {
             &[],
         );
         assert_ne!(a.geometry, b.geometry);
+    }
+
+    /// What a sharded job adds to the cache reaches the merging process whole: its entries (read
+    /// back as the same tiles), its roots' keys and its tally; and the plan's check sees which
+    /// tiles would be taken.
+    #[test]
+    fn a_jobs_part_of_the_cache_is_absorbed_whole() {
+        let dir = std::env::temp_dir().join(format!("bimtiles-cache-part-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("tiles")).unwrap();
+        let global = global_digest(&[b"x"]);
+        let keys = |g: u8, w: u8| TileKeys {
+            geometry: [g; 32],
+            whole: [w; 32],
+        };
+        let record = TileRecord {
+            uri: Some("tiles/r0.glb".into()),
+            ..Default::default()
+        };
+        std::fs::write(dir.join("tiles/r0.glb"), b"tile").unwrap();
+        let recipe = Recipe::default();
+        let job = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        job.store(
+            2,
+            &planned("r0"),
+            &keys(1, 2),
+            (&record, &subtree(0.5), &recipe),
+            false,
+        )
+        .unwrap();
+        job.set_subtree_key(2, keys(1, 2));
+        let part = job.export();
+        let merging = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        merging.absorb(&part).unwrap();
+        assert_eq!(merging.subtree_key(2), Some(keys(1, 2)));
+        assert_eq!(merging.tally(), job.tally());
+        assert!(merging.absorb(&part[..part.len() - 1]).is_err());
+        merging.write_into(&dir).unwrap();
+        std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
+        let next = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        assert!(next.would_take(&planned("r0"), &keys(1, 2)));
+        assert!(
+            !next.would_take(&planned("r1"), &keys(1, 2)),
+            "another path"
+        );
+        assert!(!next.would_take(&planned("r0"), &keys(1, 3)), "another key");
+        assert_eq!(
+            next.tally(),
+            CacheTally::default(),
+            "asking changes nothing"
+        );
+        std::fs::write(dir.join("tiles/r0.glb"), b"edited").unwrap();
+        assert!(
+            !next.would_take(&planned("r0"), &keys(1, 2)),
+            "the live file changed"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

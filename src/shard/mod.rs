@@ -19,21 +19,36 @@
 //! tree, merged in memory), moves the texture files of one tile into it, and writes schema.json
 //! (when the tiles share it), tileset.json and report.json.
 //!
+//! With `--update` (book: guide/updating.md) the build goes beside the live tileset, in
+//! `DIR/.bimtiles/shard/` (never served): `plan.json`, `jobs/` and the new tileset in `tileset/`.
+//! `plan` checks the update as `convert --update` does; when something changed it builds every
+//! leaf, keys every tile in the tile cache ([`crate::lod::subtree_cache`]) and marks a job
+//! `"changed": false` when every HLOD tile of its subtrees would be taken from the cache. Such a
+//! job has nothing to do and no result file; `merge` keys and takes its subtrees (building their
+//! leaves, which are cheap, and remaking a root's hand-over from its recipe if its parent is
+//! built), builds the top levels, writes the tile cache and the update state, and puts the new
+//! tileset in place of the live one by one atomic exchange, its unchanged files kept
+//! ([`crate::update::reuse_unchanged_files`]). The result is `convert --update`'s, byte for
+//! byte; the jobs marked changed are the only ones that simplify anything.
+//!
 //! Identical to `convert`: every tile, texture file, tileset.json and schema.json. report.json differs in its
 //! timings, peak memory, dedup seconds, and the texture tallies (`textures.written_*`,
 //! pyramid levels), which count what the merging process itself wrote.
 
 pub(crate) mod wire;
 
+use crate::convert::{given_paths, up_to_date, Tracked, Updated};
 use crate::error::{Error, Result};
 use crate::ingest::InputSet;
+use crate::lod::subtree_cache::SubtreeCache;
 use crate::options::{ConvertOptions, LodMode, Settings};
 use crate::output_dir::{check_replaceable, write_renamed, StagingDir};
 use crate::partition::TilePlan;
 use crate::prepare::{prepare, read_scene, Prepared};
-use crate::report::{make_report, peak_memory_bytes, MemoryReport, Report, Timings};
+use crate::report::{make_report, peak_memory_bytes, MemoryReport, Timings};
 use crate::scene::Scene;
-use crate::tiling::TileWriter;
+use crate::tiling::{JobOutput, TileWriter};
+use crate::update::{UpdateReport, Verdict};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -41,7 +56,14 @@ use std::time::Instant;
 
 pub const PLAN_FILE: &str = "plan.json";
 pub const JOBS_DIR: &str = "jobs";
+/// An update's build folder, in the live tileset's folder (a dot-folder: never served).
+pub const UPDATE_DIR: &str = ".bimtiles/shard";
+/// The new tileset's folder in an update's build folder.
+const UPDATE_TILESET: &str = "tileset";
 const PLAN_FORMAT: &str = "bimtiles-plan/1";
+/// What an update may replace: a tileset, or a folder holding only an update's build.
+const TILESET_OR_UPDATE: &[&str] = &["tileset.json", ".bimtiles/shard/plan.json"];
+const TILESET_OR_UPDATE_WHAT: &str = "a tileset";
 
 /// `DIR/plan.json`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -55,6 +77,29 @@ pub struct PlanFile {
     /// Tiles built by `merge`, by path.
     pub top: Vec<String>,
     pub jobs: Vec<PlanJob>,
+    /// With `--update`: what the update found (absent for a plain build).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub update: Option<PlanUpdate>,
+}
+
+/// What a sharded update's `plan` found.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct PlanUpdate {
+    /// The inputs, options and tool are those of the tileset: no job runs, `merge` only
+    /// rewrites report.json.
+    pub up_to_date: bool,
+    /// Why the tileset is built again (one line).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_build_reason: Option<String>,
+    #[serde(default)]
+    pub changed_inputs: Vec<String>,
+    /// Why no tile can be taken from the tile cache (then every job runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tile_cache_note: Option<String>,
+}
+
+fn yes() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -64,6 +109,11 @@ pub struct PlanJob {
     pub roots: Vec<String>,
     pub tiles: usize,
     pub triangles: usize,
+    /// Whether the job has work: always for a plain build; in an update, only when some HLOD
+    /// tile of its subtrees is not in the tile cache (an unchanged job needs no run and no
+    /// result file: `merge` takes its tiles).
+    #[serde(default = "yes")]
+    pub changed: bool,
 }
 
 /// What a job did.
@@ -153,8 +203,42 @@ fn subtree_tiles(plan: &TilePlan, root: usize) -> usize {
     n
 }
 
+/// The plan file of `plan` split for `jobs` jobs (every job changed).
+fn plan_file(p: &TilePlan, opts: &Settings, jobs: usize, command: serde_json::Value) -> PlanFile {
+    let (top, groups) = split(p, jobs);
+    let tri = |r: &usize| {
+        let mut n = 0;
+        let mut stack = vec![*r];
+        while let Some(j) = stack.pop() {
+            n += p.tiles[j].content_triangles;
+            stack.extend(&p.tiles[j].children);
+        }
+        n
+    };
+    PlanFile {
+        format: PLAN_FORMAT.into(),
+        command,
+        plan_digest: digest(p, opts),
+        tiles: p.tiles.len(),
+        top: top.iter().map(|&t| p.tiles[t].path.clone()).collect(),
+        jobs: groups
+            .iter()
+            .enumerate()
+            .map(|(k, g)| PlanJob {
+                job: k,
+                roots: g.iter().map(|&t| p.tiles[t].path.clone()).collect(),
+                tiles: g.iter().map(|&t| subtree_tiles(p, t)).sum(),
+                triangles: g.iter().map(tri).sum(),
+                changed: true,
+            })
+            .collect(),
+        update: None,
+    }
+}
+
 /// `bimtiles plan`: writes `opts.out_dir/plan.json` for `jobs` jobs. The folder must not exist,
-/// unless `opts.force` (then it must hold a plan or a tileset, and is emptied).
+/// unless `opts.force` (then it must hold a plan or a tileset, and is emptied). With
+/// `opts.update`, plans an update of the tileset there instead ([`plan_update`]).
 pub fn plan(
     inputs: &InputSet,
     opts: &ConvertOptions,
@@ -170,6 +254,9 @@ pub fn plan(
             "--lod-ratios is supported by convert only, not by sharded builds",
         ));
     }
+    if opts.update {
+        return plan_update(inputs, opts, jobs, command);
+    }
     // Inputs and options are checked before anything is replaced: the old folder goes only
     // when the new plan is complete (`StagingDir::commit`).
     const PLAN_OR_TILESET: &[&str] = &[PLAN_FILE, "tileset.json"];
@@ -177,34 +264,7 @@ pub fn plan(
     check_replaceable(dir, opts.force, PLAN_OR_TILESET, WHAT)?;
     let mut scene = read_scene(inputs, opts)?;
     let prep = prepare(&mut scene, opts)?;
-    let p = &prep.plan;
-    let (top, groups) = split(p, jobs);
-    let tri = |r: &usize| {
-        let mut n = 0;
-        let mut stack = vec![*r];
-        while let Some(j) = stack.pop() {
-            n += p.tiles[j].content_triangles;
-            stack.extend(&p.tiles[j].children);
-        }
-        n
-    };
-    let file = PlanFile {
-        format: PLAN_FORMAT.into(),
-        command,
-        plan_digest: digest(p, opts),
-        tiles: p.tiles.len(),
-        top: top.iter().map(|&t| p.tiles[t].path.clone()).collect(),
-        jobs: groups
-            .iter()
-            .enumerate()
-            .map(|(k, g)| PlanJob {
-                job: k,
-                roots: g.iter().map(|&t| p.tiles[t].path.clone()).collect(),
-                tiles: g.iter().map(|&t| subtree_tiles(p, t)).sum(),
-                triangles: g.iter().map(tri).sum(),
-            })
-            .collect(),
-    };
+    let file = plan_file(&prep.plan, opts, jobs, command);
     let staging = StagingDir::beside_for(dir, opts.force, PLAN_OR_TILESET, WHAT)?;
     let jobs_dir = staging.path().join(JOBS_DIR);
     std::fs::create_dir_all(&jobs_dir)
@@ -215,9 +275,182 @@ pub fn plan(
     Ok(file)
 }
 
+/// A sharded update's plan (see the module doc): checks the tileset in `opts.out_dir` as
+/// `convert --update` does and writes the build folder `DIR/.bimtiles/shard/`, replacing an
+/// earlier one; the live tileset is not touched.
+fn plan_update(
+    inputs: &InputSet,
+    opts: &Settings,
+    jobs: usize,
+    command: serde_json::Value,
+) -> Result<PlanFile> {
+    let out = &opts.out_dir;
+    // Held to the end: one run per output at a time; only a tileset (or an update's build) is
+    // updated.
+    let _lock = StagingDir::beside_for(out, true, TILESET_OR_UPDATE, TILESET_OR_UPDATE_WHAT)?;
+    let live = out.join("tileset.json").is_file();
+    let verdict = match live {
+        true => crate::update::check(out, &given_paths(inputs), opts),
+        false => Verdict::Rebuild {
+            reason: "no tileset at the output yet".into(),
+            changed: Vec::new(),
+            hashed: Vec::new(),
+        },
+    };
+    let build = out.join(UPDATE_DIR);
+    // Build folders of plans killed before theirs was put in place (the output's lock is ours).
+    if let Ok(entries) = std::fs::read_dir(out.join(crate::update::STATE_DIR)) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with("shard.tmp-") {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+    let tmp = out.join(format!("{UPDATE_DIR}.tmp-{}", std::process::id()));
+    let tiles = tmp.join(UPDATE_TILESET);
+    std::fs::create_dir_all(tmp.join(JOBS_DIR))
+        .map_err(|e| Error::output_from(&tmp, "cannot create the folder", e))?;
+    let made = (|| {
+        let file = match verdict {
+            Verdict::Unchanged { .. } => PlanFile {
+                format: PLAN_FORMAT.into(),
+                command,
+                plan_digest: String::new(),
+                tiles: 0,
+                top: Vec::new(),
+                jobs: (0..jobs.max(1))
+                    .map(|job| PlanJob {
+                        job,
+                        roots: Vec::new(),
+                        tiles: 0,
+                        triangles: 0,
+                        changed: false,
+                    })
+                    .collect(),
+                update: Some(PlanUpdate {
+                    up_to_date: true,
+                    ..PlanUpdate::default()
+                }),
+            },
+            Verdict::Rebuild {
+                reason, changed, ..
+            } => {
+                let mut file = plan_changed_jobs(inputs, opts, jobs, command, &tiles)?;
+                if let Some(u) = &mut file.update {
+                    u.full_build_reason = Some(reason);
+                    u.changed_inputs = changed;
+                }
+                file
+            }
+        };
+        let json = serde_json::to_vec_pretty(&file)
+            .map_err(|e| Error::output_from(&build, "cannot serialize plan.json", e))?;
+        write_renamed(&tmp.join(PLAN_FILE), &json)?;
+        Ok(file)
+    })();
+    let placed = made.and_then(|file| {
+        if build.exists() {
+            std::fs::remove_dir_all(&build)
+                .map_err(|e| Error::output_from(&build, "cannot remove the earlier build", e))?;
+        }
+        std::fs::rename(&tmp, &build)
+            .map_err(|e| Error::output_from(&build, "cannot put the build folder in place", e))?;
+        Ok(file)
+    });
+    if placed.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    placed
+}
+
+/// The plan of an update that builds: the inputs read and planned, every leaf built into
+/// `tiles` and every tile keyed in the live tileset's tile cache; a job is changed unless every
+/// HLOD tile of its subtrees would be taken from the cache.
+fn plan_changed_jobs(
+    inputs: &InputSet,
+    opts: &Settings,
+    jobs: usize,
+    command: serde_json::Value,
+    tiles: &Path,
+) -> Result<PlanFile> {
+    let mut scene = read_scene(inputs, opts)?;
+    let prep = prepare(&mut scene, opts)?;
+    let plan = &prep.plan;
+    let mut file = plan_file(plan, opts, jobs, command);
+    let uses = &prep.textures_prepared.uses;
+    let textures = crate::texture::TextureLevels::new(&scene, &opts.texture, uses).shared_in(tiles);
+    let writer = TileWriter::new(&scene, &prep, opts, tiles, &textures, 0)?;
+    let cache = writer
+        .cache_digest(&prep.origin, prep.anchor)
+        .map(|g| SubtreeCache::open(&opts.out_dir, tiles, g, writer.appearance()));
+    let live = opts.out_dir.join("tileset.json").is_file();
+    let note = match &cache {
+        Some(c) => c.note.clone(),
+        None => live.then(|| {
+            "no tile is taken from the tile cache: the tiles use textures or no HLOD".to_string()
+        }),
+    };
+    if let (Some(c), true) = (&cache, live) {
+        let keys = writer.with_cache(c).tile_keys()?;
+        let index: BTreeMap<&str, usize> = plan
+            .tiles
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (t.path.as_str(), i))
+            .collect();
+        for job in &mut file.jobs {
+            let roots = job.roots.iter().filter_map(|r| index.get(r.as_str()));
+            job.changed = roots.into_iter().any(|&r| {
+                subtree(plan, r).into_iter().any(|t| {
+                    let tile = &plan.tiles[t];
+                    !tile.children.is_empty() && !keys[t].is_some_and(|k| c.would_take(tile, &k))
+                })
+            });
+        }
+    }
+    for job in &mut file.jobs {
+        // A job without subtrees has nothing to do.
+        job.changed &= !job.roots.is_empty();
+    }
+    file.update = Some(PlanUpdate {
+        tile_cache_note: note,
+        ..PlanUpdate::default()
+    });
+    Ok(file)
+}
+
+/// The tiles of the subtree of `root`.
+fn subtree(plan: &TilePlan, root: usize) -> Vec<usize> {
+    let mut out = Vec::new();
+    let mut stack = vec![root];
+    while let Some(j) = stack.pop() {
+        out.push(j);
+        stack.extend(&plan.tiles[j].children);
+    }
+    out
+}
+
+/// Where the plan and the jobs' results of the build in `dir` are: `dir`, or an update's build
+/// folder in it.
+fn build_dir(dir: &Path) -> PathBuf {
+    let update = dir.join(UPDATE_DIR);
+    match update.join(PLAN_FILE).is_file() {
+        true => update,
+        false => dir.to_path_buf(),
+    }
+}
+
+/// Where the build in `dir` writes its tiles: `dir`, or an update's new tileset.
+fn tiles_dir(dir: &Path, file: &PlanFile) -> PathBuf {
+    match file.update {
+        Some(_) => dir.join(UPDATE_DIR).join(UPDATE_TILESET),
+        None => dir.to_path_buf(),
+    }
+}
+
 /// Reads `dir/plan.json` (for the CLI, which re-creates the options from its `command`).
 pub fn read_plan(dir: &Path) -> Result<PlanFile> {
-    let path = dir.join(PLAN_FILE);
+    let path = build_dir(dir).join(PLAN_FILE);
     let bytes = std::fs::read(&path).map_err(|e| {
         Error::input(
             &path,
@@ -258,7 +491,7 @@ fn load(dir: &Path, inputs: &InputSet, opts: &Settings) -> Result<Loaded> {
     let prep = prepare(&mut scene, opts)?;
     if digest(&prep.plan, opts) != file.plan_digest {
         return Err(Error::input(
-            dir.join(PLAN_FILE),
+            build_dir(dir).join(PLAN_FILE),
             "the inputs or options no longer give the planned octree (run `bimtiles plan` again)",
         ));
     }
@@ -293,10 +526,11 @@ fn load(dir: &Path, inputs: &InputSet, opts: &Settings) -> Result<Loaded> {
 }
 
 fn job_path(dir: &Path, job: usize) -> PathBuf {
-    dir.join(JOBS_DIR).join(format!("job-{job}.bin"))
+    build_dir(dir).join(JOBS_DIR).join(format!("job-{job}.bin"))
 }
 
 /// `bimtiles build-job`: builds job `job`'s subtrees into `dir` and writes its result file last.
+/// A job an update's plan marks unchanged has nothing to do (`merge` takes its tiles).
 pub fn build_job(
     dir: &Path,
     job: usize,
@@ -305,6 +539,13 @@ pub fn build_job(
 ) -> Result<JobSummary> {
     let t0 = Instant::now();
     let opts = &opts.resolve();
+    if read_plan(dir)?.jobs.get(job).is_some_and(|j| !j.changed) {
+        return Ok(JobSummary {
+            job,
+            tiles: 0,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+    }
     let l = load(dir, inputs, opts)?;
     let Some(roots) = l.roots.get(job) else {
         return Err(Error::Options(format!(
@@ -318,10 +559,24 @@ pub fn build_job(
         std::fs::remove_file(&result).map_err(|e| Error::output(&result, e))?;
     }
     let plan = &l.prep.plan;
+    let tiles_dir = tiles_dir(dir, &l.file);
     let uses = &l.prep.textures_prepared.uses;
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
+    let textures =
+        crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(&tiles_dir);
     let count = roots.iter().map(|&r| subtree_tiles(plan, r)).sum();
-    let writer = TileWriter::new(&l.scene, &l.prep, opts, dir, &textures, count)?;
+    let writer = TileWriter::new(&l.scene, &l.prep, opts, &tiles_dir, &textures, count)?;
+    // An update takes the tiles of its subtrees that did not change from the live tile cache.
+    let cache = match (
+        &l.file.update,
+        writer.cache_digest(&l.prep.origin, l.prep.anchor),
+    ) {
+        (Some(_), Some(g)) => Some(SubtreeCache::open(dir, &tiles_dir, g, writer.appearance())),
+        _ => None,
+    };
+    let writer = match &cache {
+        Some(c) => writer.with_cache(c),
+        None => writer,
+    };
     let output = writer.build_subtrees(roots, &Default::default(), Default::default())?;
     writer.finish_progress();
     let tiles = output.tiles.len();
@@ -331,8 +586,10 @@ pub fn build_job(
         job,
         seconds,
         output,
+        cache: cache.map(|c| c.export()),
     });
-    std::fs::create_dir_all(dir.join(JOBS_DIR)).map_err(|e| Error::output(dir, e))?;
+    let jobs_dir = build_dir(dir).join(JOBS_DIR);
+    std::fs::create_dir_all(&jobs_dir).map_err(|e| Error::output(&jobs_dir, e))?;
     write_renamed(&result, &bytes)?;
     Ok(JobSummary {
         job,
@@ -341,19 +598,28 @@ pub fn build_job(
     })
 }
 
-/// Jobs of the plan in `dir` without a result file yet (what to run again).
+/// Jobs of the plan in `dir` that have work and no result file yet (what to run again).
 pub fn missing_jobs(dir: &Path) -> Result<Vec<usize>> {
     let file = read_plan(dir)?;
-    Ok((0..file.jobs.len())
-        .filter(|&k| !job_path(dir, k).is_file())
+    Ok(file
+        .jobs
+        .iter()
+        .filter(|j| j.changed && !job_path(dir, j.job).is_file())
+        .map(|j| j.job)
         .collect())
 }
 
-/// Leftover temporary files of killed processes (`.NAME.tmp-PID`) under `dir`'s tiles and jobs.
-fn leftover_temp_files(dir: &Path) -> Vec<PathBuf> {
+/// Leftover temporary files of killed processes (`.NAME.tmp-PID`) under the tiles and jobs of the
+/// build in `dir`.
+fn leftover_temp_files(dir: &Path, tiles: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
-    for sub in ["tiles", crate::texture::external::TEXTURE_DIR, JOBS_DIR] {
-        if let Ok(rd) = std::fs::read_dir(dir.join(sub)) {
+    let folders = [
+        tiles.join("tiles"),
+        tiles.join(crate::texture::external::TEXTURE_DIR),
+        build_dir(dir).join(JOBS_DIR),
+    ];
+    for folder in folders {
+        if let Ok(rd) = std::fs::read_dir(folder) {
             for e in rd.flatten() {
                 let name = e.file_name().to_string_lossy().to_string();
                 if name.starts_with('.') && name.contains(".tmp-") {
@@ -366,29 +632,19 @@ fn leftover_temp_files(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// `bimtiles merge`: checks every job's result, builds the top levels and writes schema.json,
-/// tileset.json and report.json into `dir`.
-pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Report> {
-    let t0 = Instant::now();
-    let opts = &opts.resolve();
-    let missing = missing_jobs(dir)?;
-    if !missing.is_empty() {
-        let list: Vec<String> = missing.iter().map(|k| k.to_string()).collect();
-        return Err(Error::input(
-            dir,
-            format!(
-                "{} of {} jobs have no result yet (jobs {}): run `bimtiles build-job {} --job K` for them",
-                missing.len(),
-                read_plan(dir)?.jobs.len(),
-                list.join(", "),
-                dir.display()
-            ),
-        ));
-    }
-    let l = load(dir, inputs, opts)?;
-    let mut outputs = Vec::new();
-    let mut job_seconds = 0.0;
-    for k in 0..l.roots.len() {
+/// The results of the jobs that ran.
+#[derive(Default)]
+struct JobResults {
+    outputs: Vec<JobOutput>,
+    /// An update's jobs' parts of the tile cache, with their result files.
+    caches: Vec<(PathBuf, Vec<u8>)>,
+    seconds: f64,
+}
+
+/// The results of the jobs that ran, checked against the plan and the tiles they wrote.
+fn job_results(dir: &Path, l: &Loaded, tiles: &Path) -> Result<JobResults> {
+    let mut results = JobResults::default();
+    for k in l.file.jobs.iter().filter(|j| j.changed).map(|j| j.job) {
         let path = job_path(dir, k);
         let bytes = std::fs::read(&path).map_err(|e| Error::input(&path, e.to_string()))?;
         let f = wire::decode(&bytes)
@@ -401,7 +657,7 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         }
         for (_, record) in &f.output.tiles {
             if let Some(uri) = &record.uri {
-                let tile = dir.join(uri);
+                let tile = tiles.join(uri);
                 if std::fs::metadata(&tile).map(|m| m.len()).ok() != Some(record.content.bytes) {
                     return Err(Error::input(
                         &tile,
@@ -412,18 +668,92 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
                 }
             }
         }
-        job_seconds += f.seconds;
-        outputs.push(f.output);
+        results.seconds += f.seconds;
+        results.outputs.push(f.output);
+        results.caches.extend(f.cache.map(|c| (path, c)));
     }
-    for leftover in leftover_temp_files(dir) {
+    Ok(results)
+}
+
+/// `bimtiles merge`: checks every job's result, builds the top levels and writes schema.json,
+/// tileset.json and report.json into `dir`. An update (see the module doc) also takes the
+/// unchanged jobs' tiles, and puts the new tileset in place of the live one; or, when `plan`
+/// found nothing to build and that still holds, only rewrites report.json.
+pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Updated> {
+    let t0 = Instant::now();
+    let opts = &opts.resolve();
+    let file = read_plan(dir)?;
+    // An update holds the output's lock to the end (one run per output at a time).
+    let staging = match &file.update {
+        Some(_) => Some(StagingDir::beside_for(
+            dir,
+            true,
+            TILESET_OR_UPDATE,
+            TILESET_OR_UPDATE_WHAT,
+        )?),
+        None => None,
+    };
+    if file.update.as_ref().is_some_and(|u| u.up_to_date) {
+        let staging = staging.expect("an update holds the output's lock");
+        return merge_up_to_date(dir, inputs, opts, staging, t0);
+    }
+    let missing = missing_jobs(dir)?;
+    if !missing.is_empty() {
+        let list: Vec<String> = missing.iter().map(|k| k.to_string()).collect();
+        return Err(Error::input(
+            dir,
+            format!(
+                "{} of {} jobs have no result yet (jobs {}): run `bimtiles build-job {} --job K` for them",
+                missing.len(),
+                file.jobs.iter().filter(|j| j.changed).count(),
+                list.join(", "),
+                dir.display()
+            ),
+        ));
+    }
+    let l = load(dir, inputs, opts)?;
+    let tiles = tiles_dir(dir, &l.file);
+    let JobResults {
+        outputs,
+        caches,
+        seconds: job_seconds,
+    } = job_results(dir, &l, &tiles)?;
+    for leftover in leftover_temp_files(dir, &tiles) {
         std::fs::remove_file(&leftover).map_err(|e| Error::output(&leftover, e))?;
     }
-    let all_roots: Vec<usize> = l.roots.iter().flatten().copied().collect();
+    // The jobs' subtrees; an update's unchanged jobs' subtrees are merge's.
+    let built_roots: Vec<usize> = l
+        .file
+        .jobs
+        .iter()
+        .zip(&l.roots)
+        .filter(|(j, _)| j.changed)
+        .flat_map(|(_, r)| r.iter().copied())
+        .collect();
     let uses = &l.prep.textures_prepared.uses;
-    let textures = crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(dir);
+    let textures =
+        crate::texture::TextureLevels::new(&l.scene, &opts.texture, uses).shared_in(&tiles);
     let t = Instant::now();
-    let writer = TileWriter::new(&l.scene, &l.prep, opts, dir, &textures, l.file.top.len())?;
-    let records = writer.merge(outputs, &all_roots, l.prep.origin, l.prep.anchor)?;
+    let writer = TileWriter::new(&l.scene, &l.prep, opts, &tiles, &textures, l.file.top.len())?;
+    let cache = match (
+        &l.file.update,
+        writer.cache_digest(&l.prep.origin, l.prep.anchor),
+    ) {
+        (Some(_), Some(g)) => Some(SubtreeCache::open(dir, &tiles, g, writer.appearance())),
+        _ => None,
+    };
+    if let Some(c) = &cache {
+        for (path, bytes) in &caches {
+            c.absorb(bytes).map_err(|e| {
+                Error::input(path, format!("{e} (run build-job for this job again)"))
+            })?;
+        }
+    }
+    let writer = match &cache {
+        Some(c) => writer.with_cache(c),
+        None => writer,
+    };
+    let records = writer.merge(outputs, &built_roots, l.prep.origin, l.prep.anchor)?;
     writer.finish_progress();
     let timings = Timings {
         ingest: l.t_ingest,
@@ -434,15 +764,72 @@ pub fn merge(dir: &Path, inputs: &InputSet, opts: &ConvertOptions) -> Result<Rep
         total: 0.0,
     };
     let memory = MemoryReport::of(&l.scene);
-    let first_view_edges = crate::inspect::first_view::edge_gzip_bytes(&records, dir);
-    let mut report = make_report(l.prep, records, opts, dir, timings, textures);
+    let first_view_edges = crate::inspect::first_view::edge_gzip_bytes(&records, &tiles);
+    let sources = l.scene.sources.iter().map(|s| s.path.clone()).collect();
+    let mut report = make_report(l.prep, records, opts, &tiles, timings, textures);
     report.output.first_view_edge_gzip_bytes = first_view_edges;
-    report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     report.peak_memory_bytes = peak_memory_bytes();
     report.memory = memory;
+    if let Some(u) = &l.file.update {
+        let tracked = Tracked::new(
+            given_paths(inputs),
+            match inputs {
+                InputSet::Sample => Vec::new(),
+                _ => sources,
+            },
+            Vec::new(),
+            UpdateReport {
+                mode: "rebuilt",
+                full_build_reason: u.full_build_reason.clone(),
+                changed_inputs: u.changed_inputs.clone(),
+                ..UpdateReport::default()
+            },
+        );
+        report.update = Some(tracked.finish(&tiles, opts, cache.as_ref(), t0)?);
+    }
+    report.timings_s.total = t0.elapsed().as_secs_f64() + job_seconds;
     let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::output(dir, e))?;
-    write_renamed(&dir.join("report.json"), &json)?;
-    Ok(report)
+    match staging {
+        Some(staging) => publish(staging, &tiles, &json)?,
+        None => write_renamed(&dir.join("report.json"), &json)?,
+    }
+    Ok(Updated::Built(Box::new(report)))
+}
+
+/// Puts an update's new tileset `tiles` (complete but report.json) in place of the live one:
+/// moved into the staging folder beside the output, then exchanged with the output in one step.
+/// The old tileset, with the update's build folder in it, is then removed.
+fn publish(staging: StagingDir, tiles: &Path, report_json: &[u8]) -> Result<()> {
+    let at = staging.path().to_path_buf();
+    std::fs::remove_dir(&at)
+        .and_then(|()| std::fs::rename(tiles, &at))
+        .map_err(|e| Error::output_from(staging.target(), "cannot move the new tileset", e))?;
+    staging.commit(&[("report.json", report_json)])
+}
+
+/// An update's merge when `plan` found nothing to build: checked again (the inputs may have
+/// changed since), report.json rewritten, the build folder removed.
+fn merge_up_to_date(
+    dir: &Path,
+    inputs: &InputSet,
+    opts: &Settings,
+    staging: StagingDir,
+    t0: Instant,
+) -> Result<Updated> {
+    let (state, hashed) = match crate::update::check(dir, &given_paths(inputs), opts) {
+        Verdict::Unchanged { state, hashed } => (state, hashed),
+        Verdict::Rebuild { reason, .. } => {
+            return Err(Error::input(
+                build_dir(dir).join(PLAN_FILE),
+                format!("{reason} since the plan (run `bimtiles plan --update` again)"),
+            ))
+        }
+    };
+    let u = up_to_date(staging, opts, &state, &hashed, t0)?;
+    let build = dir.join(UPDATE_DIR);
+    std::fs::remove_dir_all(&build)
+        .map_err(|e| Error::output_from(&build, "cannot remove the build folder", e))?;
+    Ok(Updated::UpToDate(Box::new(u)))
 }
 
 #[cfg(test)]

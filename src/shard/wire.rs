@@ -3,12 +3,13 @@
 //! triangle counts), in the encoding of `crate::lod::wire`. Floats are stored as their bits, so `merge` gets exactly what the job had and
 //! the merged tileset is byte-identical to `convert`'s. Little-endian; a magic at the start and an
 //! end mark, so a truncated file is refused. A tile's plan path, depth and LOD level are not
-//! stored: `merge` sets them from the plan.
+//! stored: `merge` sets them from the plan. An update's job adds its part of the tile cache
+//! (`crate::lod::subtree_cache::SubtreeCache::export`).
 
 use crate::lod::wire::{Res, WireError, R, W};
 use crate::tiling::JobOutput;
 
-const MAGIC: &[u8; 8] = b"BIMTJOB3";
+const MAGIC: &[u8; 8] = b"BIMTJOB4";
 const END: &[u8; 4] = b"END.";
 
 /// A job's result as stored.
@@ -18,6 +19,8 @@ pub(crate) struct JobFile {
     pub job: usize,
     pub seconds: f64,
     pub output: JobOutput,
+    /// An update's job: its part of the tile cache.
+    pub cache: Option<Vec<u8>>,
 }
 
 /// Serializes a job's result.
@@ -37,6 +40,10 @@ pub(crate) fn encode(f: &JobFile) -> Vec<u8> {
         w.n(*i);
         w.subtree(r);
     }
+    w.opt(&f.cache, |w, c| {
+        w.n(c.len());
+        w.0.extend_from_slice(c);
+    });
     w.0.extend_from_slice(END);
     w.0
 }
@@ -52,6 +59,13 @@ pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
     let seconds = r.f64()?;
     let tiles = r.vec(57, |r| Ok((r.u64()? as usize, r.record()?)))?;
     let roots = r.vec(8, |r| Ok((r.u64()? as usize, r.subtree()?)))?;
+    let cache = match r.flag()? {
+        true => {
+            let n = r.n(1)?;
+            Some(r.take(n)?.to_vec())
+        }
+        false => None,
+    };
     if r.0 != END {
         return Err(WireError::NoEndMark);
     }
@@ -60,6 +74,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Res<JobFile> {
         job,
         seconds,
         output: JobOutput { tiles, roots },
+        cache,
     })
 }
 
@@ -135,13 +150,14 @@ mod tests {
                     },
                 )],
             },
+            cache: Some(vec![1, 2, 3]),
         };
         let bytes = encode(&f);
         assert_eq!(decode(&bytes).unwrap(), f);
         for cut in [1, 9, bytes.len() / 2, bytes.len() - 1] {
             assert!(decode(&bytes[..cut]).is_err(), "cut at {cut}");
         }
-        assert_eq!(decode(b"BIMTJOB2"), Err(WireError::NotAJobResult));
+        assert_eq!(decode(b"BIMTJOB3"), Err(WireError::NotAJobResult));
         let mut trailing = bytes.clone();
         trailing.push(0);
         assert_eq!(decode(&trailing), Err(WireError::NoEndMark));

@@ -13,7 +13,7 @@ use crate::lod::chains::build_chains;
 use crate::lod::coarse_root::{coarse_root, RootInputs};
 use crate::lod::gather;
 use crate::lod::hlod::{self, BuiltSubtree, HlodBuilder};
-use crate::lod::subtree_cache::{global_digest, SubtreeCache, SubtreeKey};
+use crate::lod::subtree_cache::{global_digest, SubtreeCache, SubtreeKey, TileKeys};
 use crate::options::{CoarseTileProperties, LodMode, Settings};
 use crate::output_dir::write_renamed;
 use crate::partition::content::{AppearanceClasses, TileContent};
@@ -80,7 +80,7 @@ pub(crate) struct TileWriter<'a> {
     schema_placement: SchemaPlacement,
     encoding: TileEncoding,
     pb: indicatif::ProgressBar,
-    /// The update's tile cache (HLOD only; `None` for a plain build and for sharded jobs).
+    /// The update's tile cache (HLOD only; `None` for a plain build).
     cache: Option<&'a SubtreeCache>,
 }
 
@@ -247,6 +247,33 @@ impl<'a> TileWriter<'a> {
         record.uri = Some(uri);
         record.content = enc.figures;
         Ok(record)
+    }
+
+    /// Every tile's keys in the update's tile cache, its leaves built and written (a sharded
+    /// update's plan finds with them the jobs that have work). HLOD through a cache only.
+    pub(crate) fn tile_keys(&self) -> Result<Vec<Option<TileKeys>>> {
+        let (Some(cache), LodMode::Hlod) = (self.cache, &self.opts.lod) else {
+            return Ok(vec![None; self.plan.tiles.len()]);
+        };
+        let write =
+            |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
+        let slots: Vec<std::sync::Mutex<Option<TileRecord>>> =
+            self.plan.tiles.iter().map(|_| Default::default()).collect();
+        let hlod = HlodBuilder {
+            scene: self.scene,
+            plan: self.plan,
+            opts: self.opts,
+            write: &write,
+            slots: &slots,
+            stop: &Default::default(),
+            provided: Default::default(),
+            allowed_m: hlod::allowed_errors_m(self.plan, self.opts),
+            cache: Some(cache),
+        };
+        match self.plan.tiles.is_empty() {
+            true => Ok(Vec::new()),
+            false => hlod.tile_keys(cache, 0),
+        }
     }
 
     /// Builds and writes the subtrees under `roots`, not descending into tiles of `stop`, whose
