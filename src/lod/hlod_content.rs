@@ -250,12 +250,9 @@ impl ErrorReference<'_> {
                         // A run of triangles within a ball nearer than the maximum to one
                         // triangle of the content is nearer too, all of it (1-Lipschitz).
                         let thr = f64::from_bits(run.load(Relaxed));
-                        let ball = Ball::around(triangles[run_of.clone()].iter().flatten());
+                        let corners = triangles[run_of.clone()].iter().flatten();
                         if *hint != u32::MAX
-                            && surely_below(
-                                ball.reach(p_bvh.distance_to_triangle(ball.center, *hint)),
-                                thr,
-                            )
+                            && run_within(corners, thr, |c| p_bvh.distance_to_triangle(c, *hint))
                         {
                             return;
                         }
@@ -349,9 +346,9 @@ impl ErrorReference<'_> {
                         (t != u32::MAX).then_some((b, *e, t))
                     };
                     let thr = f64::from_bits(run.load(Relaxed));
-                    let ball = Ball::around(triangles[run_of.clone()].iter().flatten());
+                    let corners = triangles[run_of.clone()].iter().flatten();
                     if last(scratch).is_some_and(|(b, e, t)| {
-                        surely_below(ball.reach(b.distance_to_triangle(ball.center, t)) + e, thr)
+                        run_within(corners, thr, |c| b.distance_to_triangle(c, t) + e)
                     }) {
                         return;
                     }
@@ -465,12 +462,11 @@ impl ErrorReference<'_> {
                     |(stack, hint), run_of| {
                         // A run within a ball inside the certified distance of one coarse triangle
                         // is certified whole (1-Lipschitz), as its triangles would be one by one.
-                        let ball = Ball::around(run_of.iter().map(|&i| point(i)));
+                        let corners = run_of.iter().map(|&i| point(i));
                         if *hint != u32::MAX
-                            && surely_below(
-                                ball.reach(coarse.distance_to_triangle(ball.center, *hint)),
-                                certified_m,
-                            )
+                            && run_within(corners, certified_m, |c| {
+                                coarse.distance_to_triangle(c, *hint)
+                            })
                         {
                             return;
                         }
@@ -501,6 +497,18 @@ fn runs_of(n: usize) -> Vec<std::ops::Range<usize>> {
 struct Ball {
     center: DVec3,
     radius_m: f64,
+}
+
+/// Whether every point on a run of triangles (given by its corners) is surely nearer than `thr`
+/// to a triangle whose distance from a point is `distance`: tried on the run's ball, built only
+/// when there is a triangle to try.
+fn run_within<P: std::borrow::Borrow<DVec3>>(
+    corners: impl Iterator<Item = P> + Clone,
+    thr: f64,
+    distance: impl Fn(DVec3) -> f64,
+) -> bool {
+    let ball = Ball::around(corners);
+    surely_below(ball.reach(distance(ball.center)), thr)
 }
 
 impl Ball {

@@ -318,22 +318,7 @@ impl SubtreeCache {
             let i = r.u64()? as usize;
             let key = key_from(r)?;
             let path = r.str()?;
-            let geometry = key_from(r)?;
-            let n = r.n(1)?;
-            let head = r.take(n)?.to_vec();
-            let handover = match r.flag()? {
-                true => {
-                    let n = r.n(1)?;
-                    Some(r.take(n)?.to_vec())
-                }
-                false => None,
-            };
-            let entry = Entry {
-                geometry,
-                head,
-                handover,
-            };
-            Ok((i, (key, path, entry)))
+            Ok((i, (key, path, entry_from(r)?)))
         })?;
         let keys = r.vec(72, |r| {
             let i = r.u64()? as usize;
@@ -670,6 +655,26 @@ fn key_from(r: &mut R) -> std::result::Result<SubtreeKey, WireError> {
     Ok(r.take(32)?.try_into().expect("32 bytes"))
 }
 
+/// An entry as a cache file and a job's part of the cache both write it after its key: its
+/// geometry key, head and hand-over.
+fn entry_from(r: &mut R) -> std::result::Result<Entry, WireError> {
+    let geometry = key_from(r)?;
+    let n = r.n(1)?;
+    let head = r.take(n)?.to_vec();
+    let handover = match r.flag()? {
+        true => {
+            let n = r.n(1)?;
+            Some(r.take(n)?.to_vec())
+        }
+        false => None,
+    };
+    Ok(Entry {
+        geometry,
+        head,
+        handover,
+    })
+}
+
 /// The global digest and the entries of a cache file.
 #[allow(clippy::type_complexity)]
 fn decode_file(
@@ -682,24 +687,7 @@ fn decode_file(
     let global = key_from(&mut r)?;
     let entries = r.vec(73, |r| {
         let key = key_from(r)?;
-        let geometry = key_from(r)?;
-        let n = r.n(1)?;
-        let head = r.take(n)?.to_vec();
-        let handover = match r.flag()? {
-            true => {
-                let n = r.n(1)?;
-                Some(r.take(n)?.to_vec())
-            }
-            false => None,
-        };
-        Ok((
-            key,
-            Entry {
-                geometry,
-                head,
-                handover,
-            },
-        ))
+        Ok((key, entry_from(r)?))
     })?;
     if r.0 != END {
         return Err(WireError::NoEndMark);
