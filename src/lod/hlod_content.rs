@@ -430,8 +430,15 @@ impl ErrorReference<'_> {
             if !large || within_of(&p, *hint) {
                 return;
             }
+            // The first corner's nearest triangle often holds the whole triangle within the
+            // certified distance (then `bound` would certify it by convexity): the other two
+            // corners need no search.
+            let first = exact(p[0], hint);
+            if within_of(&p, first.2) {
+                return;
+            }
             // The corners' own nearest triangles are tried by `bound` (convexity).
-            stack.push((p.map(|v| exact(v, hint)), 0));
+            stack.push(([first, exact(p[1], hint), exact(p[2], hint)], 0));
             while let Some((c, splits)) = stack.pop() {
                 if splits >= FACE_SPLITS || bound(&c) <= certified_m {
                     continue;
