@@ -430,15 +430,18 @@ impl ErrorReference<'_> {
             if !large || within_of(&p, *hint) {
                 return;
             }
-            // The first corner's nearest triangle often holds the whole triangle within the
-            // certified distance (then `bound` would certify it by convexity): the other two
-            // corners need no search.
-            let first = exact(p[0], hint);
-            if within_of(&p, first.2) {
-                return;
+            // A corner's nearest triangle often holds the whole triangle within the certified
+            // distance (`bound` would then certify it by convexity): the corners after it need
+            // no search.
+            let mut corners = [(DVec3::ZERO, f64::INFINITY, u32::MAX); 3];
+            for (corner, &v) in corners.iter_mut().zip(&p) {
+                *corner = exact(v, hint);
+                if within_of(&p, corner.2) {
+                    return;
+                }
             }
             // The corners' own nearest triangles are tried by `bound` (convexity).
-            stack.push(([first, exact(p[1], hint), exact(p[2], hint)], 0));
+            stack.push((corners, 0));
             while let Some((c, splits)) = stack.pop() {
                 if splits >= FACE_SPLITS || bound(&c) <= certified_m {
                     continue;
