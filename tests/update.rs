@@ -784,6 +784,13 @@ fn a_sharded_update_runs_only_changed_jobs_and_equals_a_full_build() {
     let u = report(&out)["update"].clone();
     assert_some_tiles_reused(&u);
     assert_tile_counts(&out, &u);
+    // Every input the state records was hashed, and is counted.
+    let state: Value = serde_json::from_slice(&std::fs::read(out.join(STATE)).unwrap()).unwrap();
+    let inputs = state["inputs"].as_array().unwrap();
+    let bytes: u64 = inputs.iter().map(|i| i["bytes"].as_u64().unwrap()).sum();
+    assert!(!inputs.is_empty() && bytes > 0, "{state}");
+    assert_eq!(u["inputs_hashed"], inputs.len(), "{u}");
+    assert_eq!(u["input_bytes_hashed"], bytes, "{u}");
     let ids = identities(&out);
     let kept = ids
         .iter()
