@@ -239,6 +239,9 @@ impl Tracked {
                     .cloned()
                     .collect();
                 let mut all = update::hash_inputs(&unknown)?;
+                // Counted with those the check hashed: a sharded update's merge hashes them all.
+                self.update.inputs_hashed += all.len();
+                self.update.input_bytes_hashed += all.iter().map(|h| h.bytes).sum::<u64>();
                 all.extend(
                     files
                         .iter()

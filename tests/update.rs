@@ -422,10 +422,10 @@ fn a_spoiled_tile_cache_is_a_full_build_with_one_line_note() {
     // A spoiled tile cache, with an input changed: every tile built, one line saying why, and
     // the full build's result.
     for (spoil, reason) in [
-        (b"BIMTCAC2 cut".as_slice(), "the tile cache is corrupt"),
+        (b"BIMTCAC3 cut".as_slice(), "the tile cache is corrupt"),
         (b"not a cache".as_slice(), "the tile cache is corrupt"),
         (
-            b"BIMTCAC1 old".as_slice(),
+            b"BIMTCAC2 old".as_slice(),
             "the tile cache is of another format",
         ),
     ] {
@@ -594,31 +594,33 @@ fn tiles_meeting(tileset: &[u8], boxes: &[[f64; 6]]) -> std::collections::BTreeS
 /// schema and the element index.
 const TILESET_WIDE_FILES: [&str; 3] = ["tileset.json", "schema.json", "element-index.json"];
 
+/// A campus of buildings `b0`..`b8` on a 3 × 3 grid 60 m apart, building `bK` drawing the
+/// `K % 3`-th of three shared models, in the order of `cells` (the Ks); `None` without the shared
+/// data. Untextured models: a texture shared by several tiles is written once, as its own file,
+/// so a building's textures would reach every tile that shares them.
+fn grid_campus(name: &str, cells: &[usize]) -> Option<Campus> {
+    let models = [
+        ("AC20-FZK-Haus.glb", "fzk.glb"),
+        ("duplex.glb", "duplex.glb"),
+        ("IfcOpenHouse_IFC4.glb", "house.glb"),
+    ];
+    let mut campus = Campus::new(name);
+    for &b in cells {
+        let (shared, file) = models[b % 3];
+        let (east, north) = ((b % 3) as f64 * 60.0, (b / 3) as f64 * 60.0);
+        campus.add(&format!("b{b}"), &shared_file(shared)?, file, east, north);
+    }
+    Some(campus)
+}
+
 /// A building removed at the campus's edge (which moves the campus's bounds): the files the update writes
 /// with new bytes are the tiles whose boxes meet the building's old or new box and their
 /// ancestors (and the tileset-wide files), all but a few; and the update equals a full build.
 #[test]
 fn a_removal_rewrites_only_the_tiles_it_touches() {
-    let (Some(fzk), Some(duplex), Some(house)) = (
-        shared_file("AC20-FZK-Haus.glb"),
-        shared_file("duplex.glb"),
-        shared_file("IfcOpenHouse_IFC4.glb"),
-    ) else {
+    let Some(mut campus) = grid_campus("update-local", &[0, 1, 2, 3, 4, 5, 6, 7, 8]) else {
         return;
     };
-    let mut campus = Campus::new("update-local");
-    // Untextured models: a texture shared by several tiles is written once, as its own file, so
-    // a building's textures reach every tile that shares them.
-    let models = [
-        (&fzk, "fzk.glb"),
-        (&duplex, "duplex.glb"),
-        (&house, "house.glb"),
-    ];
-    for b in 0..9 {
-        let (model, file) = models[b % 3];
-        let (east, north) = ((b % 3) as f64 * 60.0, (b / 3) as f64 * 60.0);
-        campus.add(&format!("b{b}"), model, file, east, north);
-    }
     let out = campus.dir.join("out");
     let full = campus.dir.join("full");
     campus.convert(&out, &["--update", "--quiet"]);
@@ -664,6 +666,45 @@ fn a_removal_rewrites_only_the_tiles_it_touches() {
             after.len()
         );
     }
+}
+
+/// The share of the HLOD tiles an update took from the tile cache.
+fn share_reused(u: &Value) -> f64 {
+    let n = |k: &str| u[k].as_u64().unwrap() as f64;
+    n("tiles_reused") / n("internal_tiles")
+}
+
+/// The first entry of a manifest replaced or removed renumbers every element, mesh and material
+/// after it, and leaves their tiles as they were: most HLOD tiles are taken from the tile cache,
+/// and the update equals a full build. Entries swapped (their ids in another order) equal a full
+/// build too.
+#[test]
+fn a_changed_first_entry_keeps_the_tiles_of_the_others() {
+    // The first entry stands in the middle of the campus, so that changing it leaves the
+    // campus's bounds (and so the octree's cells) as they are.
+    let Some(mut campus) = grid_campus("update-first-entry", &[4, 0, 1, 2, 3, 5, 6, 7, 8]) else {
+        return;
+    };
+    let out = campus.dir.join("out");
+    let full = campus.dir.join("full");
+    campus.convert(&out, &["--update", "--quiet"]);
+
+    // The first entry's model replaced by another (with another number of elements): its cells
+    // change, and their ancestors, a good share of this small campus's tiles.
+    campus.models[0]["path"] = json!("house.glb");
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(share_reused(&u) > 0.3, "the other tiles reused: {u}");
+
+    // The first entry removed.
+    campus.models.remove(0);
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(share_reused(&u) > 0.65, "most HLOD tiles reused: {u}");
+
+    // The first two entries swapped: their ids change order, and only the tiles that merge both
+    // are built again.
+    campus.models.swap(0, 1);
+    let u = update_and_compare(&campus, &out, &full, &[]);
+    assert!(share_reused(&u) > 0.65, "most HLOD tiles reused: {u}");
 }
 
 /// The stderr lines of `o` that are update notes.
@@ -784,6 +825,13 @@ fn a_sharded_update_runs_only_changed_jobs_and_equals_a_full_build() {
     let u = report(&out)["update"].clone();
     assert_some_tiles_reused(&u);
     assert_tile_counts(&out, &u);
+    // Every input the state records was hashed, and is counted.
+    let state: Value = serde_json::from_slice(&std::fs::read(out.join(STATE)).unwrap()).unwrap();
+    let inputs = state["inputs"].as_array().unwrap();
+    let bytes: u64 = inputs.iter().map(|i| i["bytes"].as_u64().unwrap()).sum();
+    assert!(!inputs.is_empty() && bytes > 0, "{state}");
+    assert_eq!(u["inputs_hashed"], inputs.len(), "{u}");
+    assert_eq!(u["input_bytes_hashed"], bytes, "{u}");
     let ids = identities(&out);
     let kept = ids
         .iter()
@@ -827,7 +875,7 @@ fn a_sharded_update_with_a_corrupt_cache_is_a_full_build_with_one_line_note() {
     let full = campus.dir.join("full");
     campus.convert(&out, &["--update", "--quiet"]);
     campus.models[1]["east_m"] = json!(130.0);
-    std::fs::write(out.join(TILE_CACHE), b"BIMTCAC2 cut").unwrap();
+    std::fs::write(out.join(TILE_CACHE), b"BIMTCAC3 cut").unwrap();
     let (plan, notes) = sharded_update(&campus, &out, 3);
     for job in plan["jobs"].as_array().unwrap() {
         let empty = job["roots"].as_array().unwrap().is_empty();

@@ -107,7 +107,7 @@ pub(crate) fn allowed_errors_m(plan: &TilePlan, opts: &Settings) -> Vec<Option<f
 
 impl HlodBuilder<'_> {
     /// The content of every leaf below tile `i` (the full detail it stands for).
-    fn leaves_below(&self, i: usize) -> Vec<&[crate::partition::ContentItem]> {
+    pub(super) fn leaves_below(&self, i: usize) -> Vec<&[crate::partition::ContentItem]> {
         let mut out = Vec::new();
         let mut stack = vec![i];
         while let Some(j) = stack.pop() {
@@ -551,7 +551,10 @@ fn coarsen(build_at: &BuildAt, allowed: f64, (mut r, mut err, mut steps): Tried)
 }
 
 /// What a leaf with `content` hands its parent.
-fn leaf_built(content: TileContent, cut_triangles: BTreeMap<ComponentId, usize>) -> BuiltSubtree {
+pub(super) fn leaf_built(
+    content: TileContent,
+    cut_triangles: BTreeMap<ComponentId, usize>,
+) -> BuiltSubtree {
     BuiltSubtree {
         // Parents simplify one surface: instances go up as plain geometry.
         content: content.expand(),

@@ -15,7 +15,7 @@
 //! rest of the tree, with the jobs' subtree roots as given (the builder's `stop` tiles).
 
 use super::hlod::{continuing, cut_triangles, BuiltSubtree, HlodBuilder};
-use super::subtree_cache::{Found, HandOver, SubtreeCache, TileKeys};
+use super::subtree_cache::{Found, HandOver, Labels, SubtreeCache, TileKeys};
 use crate::error::{Error, Result};
 use crate::scene::ComponentId;
 use rayon::prelude::*;
@@ -31,8 +31,9 @@ impl HlodBuilder<'_> {
         cache: &SubtreeCache,
         i: usize,
     ) -> Result<Option<BuiltSubtree>> {
-        let keys = self.tile_keys(cache, i)?;
-        cache.set_subtree_key(i, keys[i].expect("the subtree's root is keyed"));
+        let keys = self.keyed(cache, i)?;
+        let root = keys[i].as_ref().expect("the subtree's root is keyed");
+        cache.set_subtree_key(i, root.0);
         let need = i != 0 || self.plan.tiles[i].children.is_empty();
         self.build_changed(cache, &keys, i, need)
     }
@@ -44,7 +45,16 @@ impl HlodBuilder<'_> {
         cache: &SubtreeCache,
         i: usize,
     ) -> Result<Vec<Option<TileKeys>>> {
-        let keys: Vec<Mutex<Option<TileKeys>>> =
+        Ok(self
+            .keyed(cache, i)?
+            .into_iter()
+            .map(|k| k.map(|(keys, _)| keys))
+            .collect())
+    }
+
+    /// [`Self::tile_keys`], with each tile's labels.
+    fn keyed(&self, cache: &SubtreeCache, i: usize) -> Result<Vec<Option<(TileKeys, Labels)>>> {
+        let keys: Vec<Mutex<Option<(TileKeys, Labels)>>> =
             self.plan.tiles.iter().map(|_| Mutex::default()).collect();
         self.key_subtree(cache, i, &keys)?;
         Ok(keys
@@ -54,20 +64,24 @@ impl HlodBuilder<'_> {
     }
 
     /// Builds the leaves of the subtree of tile `i` and keys all its tiles into `keys`; returns
-    /// the key of tile `i` and the triangles of the cut components below it.
+    /// the key of tile `i`, the triangles of the cut components below it and its labels.
     fn key_subtree(
         &self,
         cache: &SubtreeCache,
         i: usize,
-        keys: &[Mutex<Option<TileKeys>>],
-    ) -> Result<(TileKeys, BTreeMap<ComponentId, usize>)> {
+        keys: &[Mutex<Option<(TileKeys, Labels)>>],
+    ) -> Result<(TileKeys, BTreeMap<ComponentId, usize>, Labels)> {
         let tile = &self.plan.tiles[i];
-        let (key, cut) = if self.stop.contains(&i) {
+        let (key, cut, labels) = if self.stop.contains(&i) {
             // A sharded job's subtree: its keys and what it hands up come from the job.
             let given = self.provided.lock().expect("provided");
             let cut = given.get(&i).map(|b| b.cut_triangles.clone());
             match (cache.subtree_key(i), cut) {
-                (Some(key), Some(cut)) => (key, cut),
+                (Some(key), Some(cut)) => {
+                    let leaves = self.leaves_below(i);
+                    let labels = Labels::of(self.scene, leaves.iter().flat_map(|l| l.iter()));
+                    (key, cut, labels)
+                }
                 _ => {
                     let uri = format!("tiles/{}.glb", tile.path);
                     return Err(Error::output(uri, "no job built this subtree"));
@@ -75,29 +89,34 @@ impl HlodBuilder<'_> {
             }
         } else if tile.children.is_empty() {
             let (built, record) = self.build_leaf(i)?;
-            let key = cache.leaf_keys(self.scene, tile, &built, &record)?;
-            (key, built.cut_triangles)
+            let labels = Labels::of(self.scene, tile.content.iter());
+            let key = cache.leaf_keys(self.scene, tile, &labels, &built, &record)?;
+            (key, built.cut_triangles, labels)
         } else {
-            let kids: Vec<(TileKeys, BTreeMap<ComponentId, usize>)> = tile
+            type Keyed = (TileKeys, BTreeMap<ComponentId, usize>, Labels);
+            let kids: Vec<Keyed> = tile
                 .children
                 .par_iter()
                 .map(|&c| self.key_subtree(cache, c, keys))
                 .collect::<Result<_>>()?;
-            let cut = cut_triangles(kids.iter().map(|(_, cut)| cut));
-            let child_keys: Vec<TileKeys> = kids.iter().map(|(key, _)| *key).collect();
+            let cut = cut_triangles(kids.iter().map(|(_, cut, _)| cut));
+            let labels = Labels::union(kids.iter().map(|(_, _, l)| l));
+            let child_keys: Vec<(TileKeys, &Labels)> =
+                kids.iter().map(|(key, _, l)| (*key, l)).collect();
             let allowed_m = self.allowed_m.get(i).copied().flatten();
             let locked = continuing(self.scene, &cut);
-            (cache.node_keys(tile, allowed_m, &child_keys, &locked), cut)
+            let key = cache.node_keys(tile, allowed_m, &labels, &child_keys, &locked);
+            (key, cut, labels)
         };
-        *keys[i].lock().expect("key") = Some(key);
-        Ok((key, cut))
+        *keys[i].lock().expect("key") = Some((key, labels.clone()));
+        Ok((key, cut, labels))
     }
 
     /// Takes or builds tile `i` and its subtree; its hand-over when `need` (its parent is built).
     fn build_changed(
         &self,
         cache: &SubtreeCache,
-        keys: &[Option<TileKeys>],
+        keys: &[Option<(TileKeys, Labels)>],
         i: usize,
         need: bool,
     ) -> Result<Option<BuiltSubtree>> {
@@ -111,7 +130,10 @@ impl HlodBuilder<'_> {
             // Written with the keys: only its hand-over is made again.
             return Ok(need.then(|| self.leaf_handover(i)));
         }
-        let key = keys[i].expect("every tile of the subtree is keyed");
+        let (key, labels) = keys[i]
+            .as_ref()
+            .expect("every tile of the subtree is keyed");
+        let key = *key;
         let handed = |need: bool| -> Result<Vec<Option<BuiltSubtree>>> {
             tile.children
                 .par_iter()
@@ -123,7 +145,7 @@ impl HlodBuilder<'_> {
                 .map(|k| k.expect("a hand-over asked for is made"))
                 .collect()
         };
-        if let Some(found) = cache.reuse(i, tile, &key, need) {
+        if let Some(found) = cache.reuse(i, tile, &key, labels, need) {
             let Found {
                 record,
                 recipe,
@@ -144,7 +166,7 @@ impl HlodBuilder<'_> {
                         Some(_) => (self.write)(i, &built.content, record)?,
                         None => record,
                     };
-                    cache.store(i, tile, &key, (&written, built, &recipe), true)?;
+                    cache.store(i, tile, &key, labels, (&written, built, &recipe), true)?;
                     written
                 }
                 _ => record,
@@ -153,7 +175,7 @@ impl HlodBuilder<'_> {
             return Ok(built.filter(|_| need));
         }
         let (built, record, recipe) = self.build_internal(i, all(handed(true)?))?;
-        cache.store(i, tile, &key, (&record, &built, &recipe), false)?;
+        cache.store(i, tile, &key, labels, (&record, &built, &recipe), false)?;
         *self.slots[i].lock().expect("slot") = Some(record);
         Ok(Some(built))
     }

@@ -4,17 +4,27 @@
 //!
 //! Every tile gets a subtree key, a SHA-256 of everything its file and its hand-over depend on.
 //! A leaf's key covers its plan data (path, boxes), the scene data of its content (each
-//! component, the raw geometry of its mesh, the materials it uses and their appearance classes, the
-//! triangles kept), the
-//! bit-exact hand-over and record it made, and the bytes of its written file (which carry its
-//! features' metadata and its materials as written). An internal tile's key covers its plan data,
-//! its allowed error, the components its simplification keeps locked, and its children's keys in
-//! order; so it changes whenever anything below it changes, and two equal subtrees at different
-//! places get different keys (their paths differ). Every key also covers a global digest: the
-//! tool's version, the options that shape the output, the tileset's frame, and the metadata
-//! schema's properties and placement. Global indices (component, mesh and material
-//! ids) are covered as they are: a tile reused from the cache hands up the same ids its children
-//! hand up now.
+//! component's placement, the raw geometry of its mesh, the materials it uses and their appearance
+//! classes, the triangles kept), the bit-exact hand-over and record it made, and the bytes of its
+//! written file (which carry its features' metadata and its materials as written). An internal
+//! tile's key covers its plan data, its allowed error, the components its simplification keeps
+//! locked, its children's keys in order, and where each child's ids stand among its own; so it
+//! changes whenever anything below it changes, and two equal subtrees at different places get
+//! different keys (their paths differ). Every key also covers a global digest: the tool's version,
+//! the options that shape the output, the tileset's frame, and the metadata schema's properties
+//! and placement.
+//!
+//! Global ids (component, mesh and material indices) move whenever an entry before them in the
+//! manifest is replaced or removed, while the tiles' output depends on them only through their
+//! order: merging sorts features and primitives by id, instancing orders shapes by mesh, and
+//! nothing else reads their values (features and groups are local per tile; files carry
+//! materials and metadata by value). So a key names each id by its rank among the tile's
+//! [`Labels`] (the components of the leaves below it and the materials of their meshes; a leaf's
+//! meshes among its own), and an internal tile's key covers how its children's labels interleave
+//! in its own. Equal keys then mean equal output up to an order-keeping renaming of the ids. The
+//! cache keeps hand-overs by ranks too, and a tile taken from it gets today's ids back from its
+//! labels; a hand-over with an id outside them is not kept (it is made again from its recipe),
+//! and a leaf whose hand-over has one is keyed by its global ids.
 //!
 //! Leaves are always built (gathering and encoding them is cheap, and their keys need what they
 //! make). The cache keeps the internal tiles only: its key, then, compressed on their own, its
@@ -35,8 +45,8 @@ use crate::error::{Error, Result};
 use crate::lod::hlod::{BuiltSubtree, Recipe};
 use crate::lod::wire::{WireError, R, W};
 use crate::partition::content::AppearanceClasses;
-use crate::partition::PlannedTile;
-use crate::scene::{ComponentId, Scene};
+use crate::partition::{ContentItem, PlannedTile};
+use crate::scene::{ComponentId, MaterialId, Scene};
 use sha2::{Digest, Sha256};
 use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Write};
@@ -45,7 +55,7 @@ use std::sync::Mutex;
 
 /// The tile cache, relative to the output folder (beside the update state).
 pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
-const MAGIC: &[u8; 8] = b"BIMTCAC2";
+const MAGIC: &[u8; 8] = b"BIMTCAC3";
 /// What every version of the cache file starts with.
 const MAGIC_STEM: &[u8; 7] = b"BIMTCAC";
 /// The hand-overs the cache keeps, at most, as a share of the bytes of the tileset's tiles.
@@ -132,6 +142,118 @@ pub(crate) struct SubtreeCache {
     subtree_keys: Mutex<BTreeMap<usize, TileKeys>>,
     /// Why the previous cache could not be used (`None`: it was, or there was no tileset).
     pub(crate) note: Option<String>,
+}
+
+/// The global ids a tile's subtree uses, sorted: the components of the leaves below it and the
+/// materials of their meshes. Its key and its cached hand-over name an id by its rank here, so
+/// that a renumbering that keeps their order (an entry earlier in the manifest replaced or
+/// removed) changes neither.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct Labels {
+    pub components: Vec<ComponentId>,
+    pub materials: Vec<MaterialId>,
+}
+
+impl Labels {
+    /// The labels of the content `items` (a leaf's, or every leaf's below a tile).
+    pub(crate) fn of<'a>(scene: &Scene, items: impl Iterator<Item = &'a ContentItem>) -> Labels {
+        let mut components: Vec<ComponentId> = items.map(|item| item.component).collect();
+        components.sort_unstable();
+        components.dedup();
+        let mut meshes: Vec<_> = components
+            .iter()
+            .map(|&c| scene.component(c).mesh)
+            .collect();
+        meshes.sort_unstable();
+        meshes.dedup();
+        let mut materials: Vec<MaterialId> = meshes
+            .into_iter()
+            .flat_map(|m| {
+                let mesh = scene.mesh(m);
+                let used: Vec<MaterialId> =
+                    mesh.primitives.iter().filter_map(|p| p.material).collect();
+                used
+            })
+            .collect();
+        materials.sort_unstable();
+        materials.dedup();
+        Labels {
+            components,
+            materials,
+        }
+    }
+
+    /// The labels of a tile over its children's.
+    pub(crate) fn union<'a>(kids: impl Iterator<Item = &'a Labels> + Clone) -> Labels {
+        fn all<'b, T: Ord + Copy + 'b>(lists: impl Iterator<Item = &'b [T]>) -> Vec<T> {
+            let mut v: Vec<T> = lists.flat_map(|l| l.iter().copied()).collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        }
+        Labels {
+            components: all(kids.clone().map(|k| &k.components[..])),
+            materials: all(kids.map(|k| &k.materials[..])),
+        }
+    }
+
+    fn component_rank(&self, c: ComponentId) -> Option<u32> {
+        self.components.binary_search(&c).ok().map(|r| r as u32)
+    }
+
+    fn material_rank(&self, m: MaterialId) -> Option<u32> {
+        self.materials.binary_search(&m).ok().map(|r| r as u32)
+    }
+
+    /// `built` with its ids given as their ranks (`to_ranks`), or its ranks as the ids they
+    /// stand for; `None` when one is not among the labels (instanced shapes, which hand-overs
+    /// never have, are not relabelled either).
+    pub(crate) fn relabel(&self, built: &BuiltSubtree, to_ranks: bool) -> Option<BuiltSubtree> {
+        if !built.content.instanced.is_empty() {
+            return None;
+        }
+        let component = |c: ComponentId| match to_ranks {
+            true => self.component_rank(c).map(ComponentId),
+            false => self.components.get(c.index()).copied(),
+        };
+        let material = |m: MaterialId| match to_ranks {
+            true => self.material_rank(m).map(MaterialId),
+            false => self.materials.get(m.index()).copied(),
+        };
+        let mut out = built.clone();
+        for f in &mut out.content.features {
+            *f = component(*f)?;
+        }
+        for p in &mut out.content.primitives {
+            p.material = match p.material {
+                Some(m) => Some(material(m)?),
+                None => None,
+            };
+        }
+        out.cut_triangles = built
+            .cut_triangles
+            .iter()
+            .map(|(&c, &n)| Some((component(c)?, n)))
+            .collect::<Option<_>>()?;
+        Some(out)
+    }
+}
+
+/// Where each of `sub` (sorted) stands in `sup` (sorted, holding them all); `u32::MAX` for one
+/// it does not hold.
+fn positions<T: Ord>(sub: &[T], sup: &[T]) -> Vec<u32> {
+    let mut at = 0;
+    sub.iter()
+        .map(|x| {
+            while at < sup.len() && sup[at] < *x {
+                at += 1;
+            }
+            match sup.get(at) == Some(x) {
+                true => at as u32,
+                false => u32::MAX,
+            }
+        })
+        .collect()
 }
 
 /// The hasher of keys.
@@ -354,27 +476,41 @@ impl SubtreeCache {
         SubtreeCache::open(none, none, global, &AppearanceClasses::default())
     }
 
-    /// The keys of leaf `tile`, which handed up `built` and wrote `record` (its file in the
-    /// staging folder).
+    /// The keys of leaf `tile`, whose ids are `labels`, which handed up `built` and wrote
+    /// `record` (its file in the staging folder).
     pub(crate) fn leaf_keys(
         &self,
         scene: &Scene,
         tile: &PlannedTile,
+        labels: &Labels,
         built: &BuiltSubtree,
         record: &TileRecord,
     ) -> Result<TileKeys> {
         let mut h = KeyHasher::new("leaf", &self.global);
         h.plan(tile);
-        let mut materials = std::collections::BTreeSet::new();
+        // Ids by their ranks among the leaf's (its meshes' too: the instanced shapes follow
+        // their order), everything else by value.
+        let mut meshes: Vec<_> = tile
+            .content
+            .iter()
+            .map(|item| scene.component(item.component).mesh)
+            .collect();
+        meshes.sort_unstable();
+        meshes.dedup();
         for item in &tile.content {
             let comp = scene.component(item.component);
-            h.debug(comp);
+            h.debug(&(
+                labels.component_rank(comp.id),
+                meshes.binary_search(&comp.mesh).ok(),
+                &comp.world,
+                &comp.world_bounds,
+                comp.alias_of.is_some(),
+            ));
             h.debug(&item.triangles);
             let mesh = scene.mesh(comp.mesh);
             h.0.update((mesh.primitives.len() as u64).to_le_bytes());
             for p in &mesh.primitives {
-                h.debug(&p.material);
-                materials.extend(p.material);
+                h.debug(&p.material.map(|m| labels.material_rank(m)));
                 h.bytes(bytemuck::cast_slice(&p.positions));
                 h.bytes(bytemuck::cast_slice(
                     p.normals.as_deref().unwrap_or_default(),
@@ -389,15 +525,23 @@ impl SubtreeCache {
         }
         // A material by value, and its appearance class by its rank among the classes (the
         // twins' ids all move when a material is added or removed; their order does not).
-        for m in materials {
+        for &m in &labels.materials {
             let class = self.appearance.class_of(m);
             h.debug(&(
                 scene.materials.get(m.index()),
                 class.map(|(rank, twin)| (rank, scene.materials.get(twin.index()))),
             ));
         }
+        // The hand-over by ranks; by global ids (as a tile keyed so is never taken after a
+        // renumbering) if one is not among the labels.
         let mut w = W::default();
-        w.subtree(built);
+        match labels.relabel(built, true) {
+            Some(ranked) => w.subtree(&ranked),
+            None => {
+                w.str("global ids");
+                w.subtree(built)
+            }
+        }
         h.bytes(&w.0);
         let geometry = h.finish();
         let mut h = KeyHasher::new("leaf file", &geometry);
@@ -412,26 +556,37 @@ impl SubtreeCache {
         })
     }
 
-    /// The keys of internal tile `tile` over its children's keys (in plan order): `allowed_m` is
-    /// its allowed error and `continuing` the components its simplification keeps locked.
+    /// The keys of internal tile `tile`, whose ids are `labels`, over its children's keys and
+    /// labels (in plan order): `allowed_m` is its allowed error and `continuing` the components
+    /// its simplification keeps locked. Where each child's ids stand among the tile's is
+    /// covered: merging orders features and primitives by id.
     pub(crate) fn node_keys(
         &self,
         tile: &PlannedTile,
         allowed_m: Option<f64>,
-        children: &[TileKeys],
+        labels: &Labels,
+        children: &[(TileKeys, &Labels)],
         continuing: &[ComponentId],
     ) -> TileKeys {
         let mut h = KeyHasher::new("node", &self.global);
         h.plan(tile);
         h.debug(&allowed_m.map(f64::to_bits));
-        h.debug(&continuing);
+        h.debug(&positions(continuing, &labels.components));
         h.0.update((children.len() as u64).to_le_bytes());
-        for k in children {
+        for (k, kid) in children {
             h.0.update(k.geometry);
+            h.bytes(bytemuck::cast_slice(&positions(
+                &kid.components,
+                &labels.components,
+            )));
+            h.bytes(bytemuck::cast_slice(&positions(
+                &kid.materials,
+                &labels.materials,
+            )));
         }
         let geometry = h.finish();
         let mut h = KeyHasher::new("node file", &geometry);
-        for k in children {
+        for (k, _) in children {
             h.0.update(k.whole);
         }
         TileKeys {
@@ -461,16 +616,18 @@ impl SubtreeCache {
         }
     }
 
-    /// Internal tile `i` (`tile`) as the previous build made it, when its whole key, or only its
-    /// geometry key, is in the cache. With the whole key, and the live tileset still holding its
-    /// file as written, the file is put in the staging folder (a hard link, or a copy) and the
-    /// tile counted as reused; the hand-over comes if `need`. Otherwise the hand-over always
-    /// comes, for the caller to write the file again and [`Self::store`] the tile.
+    /// Internal tile `i` (`tile`, whose ids are `labels`) as the previous build made it, when
+    /// its whole key, or only its geometry key, is in the cache. With the whole key, and the live
+    /// tileset still holding its file as written, the file is put in the staging folder (a hard
+    /// link, or a copy) and the tile counted as reused; the hand-over comes if `need`. Otherwise
+    /// the hand-over always comes, for the caller to write the file again and [`Self::store`]
+    /// the tile.
     pub(crate) fn reuse(
         &self,
         i: usize,
         tile: &PlannedTile,
         keys: &TileKeys,
+        labels: &Labels,
         need: bool,
     ) -> Option<Found> {
         let (entry, same_file) = match self.previous.get(&keys.whole) {
@@ -487,7 +644,9 @@ impl SubtreeCache {
         let file_taken = same_file && self.take_file(file, &record).is_some();
         let handover = match (need || !file_taken, &entry.handover) {
             (false, _) => None,
-            (true, Some(packed)) => Some(HandOver::Kept(decode_handover(packed).ok()?)),
+            (true, Some(packed)) => Some(HandOver::Kept(
+                labels.relabel(&decode_handover(packed).ok()?, false)?,
+            )),
             (true, None) => Some(HandOver::Remade),
         };
         let mut t = self.tally.lock().expect("tally");
@@ -530,13 +689,15 @@ impl SubtreeCache {
         }
     }
 
-    /// Records internal tile `i` (`tile`), just built as `recipe` says (or its file written
-    /// again, when `rewritten`), for the next build.
+    /// Records internal tile `i` (`tile`, whose ids are `labels`), just built as `recipe` says
+    /// (or its file written again, when `rewritten`), for the next build. Its hand-over is kept
+    /// by ranks; one that cannot be (an id not among the labels) is left to its recipe.
     pub(crate) fn store(
         &self,
         i: usize,
         tile: &PlannedTile,
         keys: &TileKeys,
+        labels: &Labels,
         (record, built, recipe): (&TileRecord, &BuiltSubtree, &Recipe),
         rewritten: bool,
     ) -> Result<()> {
@@ -554,8 +715,12 @@ impl SubtreeCache {
         head.f64(recipe.geometric_error_m);
         head.f64(recipe.coarse_to_full_m);
         head.f64(recipe.max_folding_edge_m);
-        let mut handover = W::default();
-        handover.subtree(built);
+        let ranked = labels.relabel(built, true);
+        let handover = ranked.as_ref().map(|r| {
+            let mut w = W::default();
+            w.subtree(r);
+            w
+        });
         let compressed = |w: W| {
             let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
             z.write_all(&w.0)
@@ -565,7 +730,7 @@ impl SubtreeCache {
         let entry = Entry {
             geometry: keys.geometry,
             head: compressed(head)?,
-            handover: Some(compressed(handover)?),
+            handover: handover.map(compressed).transpose()?,
         };
         self.fresh
             .lock()
@@ -779,18 +944,30 @@ mod tests {
         }
     }
 
+    /// The labels of a tile of one component, `c`, without materials.
+    fn labels(c: u32) -> Labels {
+        Labels {
+            components: vec![ComponentId(c)],
+            materials: Vec::new(),
+        }
+    }
+
     #[test]
     fn a_parent_key_follows_its_childrens_content_and_its_own_path() {
         let cache = SubtreeCache::empty(global_digest(&[b"options"]));
         let scene = Scene::default();
+        let none = Labels::default();
         let leaf_with = |path: &str, x: f32, record: &TileRecord| {
             cache
-                .leaf_keys(&scene, &planned(path), &subtree(x), record)
+                .leaf_keys(&scene, &planned(path), &none, &subtree(x), record)
                 .unwrap()
         };
         let leaf = |path: &str, x: f32| leaf_with(path, x, &TileRecord::default());
-        let parent =
-            |path: &str, kids: &[TileKeys]| cache.node_keys(&planned(path), None, kids, &[]);
+        let node = |cache: &SubtreeCache, path: &str, allowed, kids: &[TileKeys], locked| {
+            let kids: Vec<(TileKeys, &Labels)> = kids.iter().map(|&k| (k, &none)).collect();
+            cache.node_keys(&planned(path), allowed, &none, &kids, locked)
+        };
+        let parent = |path: &str, kids: &[TileKeys]| node(&cache, path, None, kids, &[]);
         let a = parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]);
         assert_eq!(a, parent("r0", &[leaf("r00", 1.0), leaf("r01", 1.0)]));
         // One child's content moved by one float step: another key.
@@ -812,11 +989,8 @@ mod tests {
         // Children order, allowed error and locked components count.
         assert_ne!(a, parent("r0", &[leaf("r01", 1.0), leaf("r00", 1.0)]));
         let kids = [leaf("r00", 1.0), leaf("r01", 1.0)];
-        assert_ne!(a, cache.node_keys(&planned("r0"), Some(0.5), &kids, &[]));
-        assert_ne!(
-            a,
-            cache.node_keys(&planned("r0"), None, &kids, &[ComponentId(0)])
-        );
+        assert_ne!(a, node(&cache, "r0", Some(0.5), &kids, &[]));
+        assert_ne!(a, node(&cache, "r0", None, &kids, &[ComponentId(0)]));
         // Other options, tool or schema: another key.
         let other = SubtreeCache::empty(global_digest(&[b"other options"]));
         let other_leaf = |path: &str| {
@@ -824,18 +998,111 @@ mod tests {
                 .leaf_keys(
                     &scene,
                     &planned(path),
+                    &none,
                     &subtree(1.0),
                     &TileRecord::default(),
                 )
                 .unwrap()
         };
-        let b = other.node_keys(
-            &planned("r0"),
+        let b = node(
+            &other,
+            "r0",
             None,
             &[other_leaf("r00"), other_leaf("r01")],
             &[],
         );
         assert_ne!(a.geometry, b.geometry);
+    }
+
+    /// A campus of one-triangle buildings, one per `colours` entry (its material's red), in
+    /// manifest order.
+    fn campus(colours: &[f32]) -> Scene {
+        use crate::scene::{Component, ElementInfo, Material, Mesh, MeshId, Primitive};
+        let mut scene = Scene::default();
+        for &red in colours {
+            let mut b = Scene::default();
+            b.materials.push(Material {
+                base_color: [red, 0.0, 0.0, 1.0],
+                ..Default::default()
+            });
+            let x = 10.0 * red;
+            b.meshes.push(Mesh {
+                name: None,
+                primitives: vec![crate::scene::Primitive {
+                    material: Some(MaterialId(0)),
+                    positions: vec![[x, 0.0, 0.0], [x + 1.0, 0.0, 0.0], [x, 1.0, 0.0]],
+                    indices: vec![0, 1, 2],
+                    ..Primitive::default()
+                }],
+                local_bounds: None,
+            });
+            let world = glam::DMat4::IDENTITY;
+            b.push_component(Component::new(MeshId(0), world), &ElementInfo::keyed("k"));
+            scene.append(b);
+        }
+        scene.finish();
+        scene
+    }
+
+    /// A leaf of the building drawn in `red`, and its labels and keys.
+    fn leaf_of(
+        cache: &SubtreeCache,
+        scene: &Scene,
+        path: &str,
+        red: f32,
+    ) -> (PlannedTile, Labels, TileKeys) {
+        let c = scene
+            .components
+            .iter()
+            .find(|c| scene.mesh(c.mesh).primitives[0].positions[0][0] == 10.0 * red)
+            .expect("the building")
+            .id;
+        let mut tile = planned(path);
+        tile.content = vec![ContentItem {
+            component: c,
+            triangles: None,
+        }];
+        let labels = Labels::of(scene, tile.content.iter());
+        let content = TileContent::gather(scene, &tile.content, Default::default());
+        let built = crate::lod::hlod::leaf_built(content, BTreeMap::new());
+        let keys = cache
+            .leaf_keys(scene, &tile, &labels, &built, &TileRecord::default())
+            .unwrap();
+        (tile, labels, keys)
+    }
+
+    /// A tile's keys follow the order of its ids, not their values: buildings renumbered by an
+    /// entry removed before them keep their keys; the same buildings in another order do not.
+    #[test]
+    fn keys_survive_a_renumbering_that_keeps_the_order() {
+        let cache = SubtreeCache::empty(global_digest(&[b"options"]));
+        let parent_keys = |scene: &Scene| {
+            let (_, la, a) = leaf_of(&cache, scene, "r00", 0.5);
+            let (_, lb, b) = leaf_of(&cache, scene, "r01", 0.75);
+            let labels = Labels::union([&la, &lb].into_iter());
+            let kids = [(a, &la), (b, &lb)];
+            (
+                a,
+                b,
+                cache.node_keys(&planned("r0"), None, &labels, &kids, &[]),
+            )
+        };
+        let (a, b, parent) = parent_keys(&campus(&[0.5, 0.75]));
+        let (a2, b2, renumbered) = parent_keys(&campus(&[0.25, 0.5, 0.75]));
+        assert_eq!((a, b, parent), (a2, b2, renumbered));
+        let (a3, b3, reordered) = parent_keys(&campus(&[0.75, 0.5]));
+        assert_eq!((a, b), (a3, b3), "each leaf alone is the same");
+        assert_ne!(parent, reordered, "merging orders features by id");
+        // A hand-over by ranks reads back as the ids of the tile it is given to.
+        let scene = campus(&[0.25, 0.5, 0.75]);
+        let (tile, labels, _) = leaf_of(&cache, &scene, "r00", 0.75);
+        let content = TileContent::gather(&scene, &tile.content, Default::default());
+        let built = crate::lod::hlod::leaf_built(content, BTreeMap::new());
+        let ranked = labels.relabel(&built, true).unwrap();
+        assert_eq!(ranked.content.features, vec![ComponentId(0)]);
+        assert_eq!(ranked.content.primitives[0].material, Some(MaterialId(0)));
+        assert_eq!(labels.relabel(&ranked, false), Some(built.clone()));
+        assert_eq!(Labels::default().relabel(&built, true), None);
     }
 
     /// What a sharded job adds to the cache reaches the merging process whole: its entries (read
@@ -862,6 +1129,7 @@ mod tests {
             2,
             &planned("r0"),
             &keys(1, 2),
+            &labels(0),
             (&record, &subtree(0.5), &recipe),
             false,
         )
@@ -948,6 +1216,7 @@ mod tests {
                 2,
                 &planned("r0"),
                 &keys(6, 7),
+                &labels(0),
                 (&record, &built, &recipe),
                 false,
             )
@@ -964,26 +1233,33 @@ mod tests {
         };
         let kept = || Some(HandOver::Kept(built.clone()));
         assert_eq!(
-            again.reuse(2, &planned("r1"), &keys(6, 7), true),
+            again.reuse(2, &planned("r1"), &keys(6, 7), &labels(0), true),
             None,
             "path"
         );
         assert_eq!(
-            again.reuse(2, &planned("r0"), &keys(5, 8), true),
+            again.reuse(2, &planned("r0"), &keys(5, 8), &labels(0), true),
             None,
             "keys"
         );
         assert_eq!(
-            again.reuse(2, &planned("r0"), &keys(6, 7), true),
+            again.reuse(2, &planned("r0"), &keys(6, 7), &labels(0), true),
             Some(found(true, kept()))
         );
         assert_eq!(
-            again.reuse(2, &planned("r0"), &keys(6, 7), false),
+            again.reuse(2, &planned("r0"), &keys(6, 7), &labels(0), false),
             Some(found(true, None))
         );
+        // The same tile after its ids were renumbered: its hand-over names today's.
+        let mut renumbered = built.clone();
+        renumbered.content.features = vec![ComponentId(5)];
+        let handover = again
+            .reuse(2, &planned("r0"), &keys(6, 7), &labels(5), true)
+            .and_then(|f| f.handover);
+        assert_eq!(handover, Some(HandOver::Kept(renumbered)));
         // The same geometry in another file: its hand-over, to write the file again.
         assert_eq!(
-            again.reuse(2, &planned("r0"), &keys(6, 8), false),
+            again.reuse(2, &planned("r0"), &keys(6, 8), &labels(0), false),
             Some(found(false, kept()))
         );
         // A hand-over over the budget (a tileset of no bytes) is not kept.
@@ -993,6 +1269,7 @@ mod tests {
             2,
             &planned("r0"),
             &keys(6, 7),
+            &labels(0),
             (&small, &built, &recipe),
             false,
         )
@@ -1006,11 +1283,11 @@ mod tests {
             handover,
         };
         assert_eq!(
-            lean.reuse(2, &planned("r0"), &keys(6, 7), true),
+            lean.reuse(2, &planned("r0"), &keys(6, 7), &labels(0), true),
             Some(found(Some(HandOver::Remade)))
         );
         assert_eq!(
-            lean.reuse(2, &planned("r0"), &keys(6, 7), false),
+            lean.reuse(2, &planned("r0"), &keys(6, 7), &labels(0), false),
             Some(found(None))
         );
         let other = SubtreeCache::open(&dir, &dir, global_digest(&[b"y"]), &Default::default());
