@@ -50,7 +50,7 @@ tools/node_modules/.installed: tools/package.json tools/package-lock.json
 	cd tools && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
-# PyPI packages for the cross-checks (usd-core, jsonschema, DracoPy, pytest), in a local venv.
+# PyPI packages for the cross-checks (usd-core, jsonschema, DracoPy, pytest, pytest-xdist), in a local venv.
 deps-python: $(VENV)/.installed
 $(VENV)/.installed: tests/python/requirements.txt
 	python3 -m venv $(VENV)
@@ -104,7 +104,7 @@ test: deps
 	BIMTILES_IFC_DUMP_DIR=$(CURDIR)/target/test-out/ifc-dump \
 	BIMTILES_TILE_DIR=$(CURDIR)/target/test-out \
 	BIMTILES_TILESET_DIRS=$$(find target/test-out -name tileset.json -printf '%h:' | sed 's/:$$//') \
-	  $(PY) -m pytest -q tests/python
+	  $(PY) -m pytest -q -n auto --dist loadfile tests/python
 	$(MAKE) --no-print-directory test-browser
 	$(MAKE) --no-print-directory test-clients
 	$(MAKE) --no-print-directory docs
