@@ -112,8 +112,9 @@ test: deps
 # Real CesiumJS in headless Chromium (software WebGL) loads each tileset the suite wrote: every
 # tile loads, none fails, no console error, no request leaves loopback, the model is drawn (one
 # KTX2 tileset among them, a textured CityGML building and a textured OBJ district, whose centre
-# must pick an element and whose faces must show their images (neighbouring pixels of one face
-# differ in colour, as they do not on an untextured model), and ladder-airport, the wide textured
+# (or a point near it: a street can lie there) must pick an element and whose faces must show
+# their images (neighbouring pixels of one face differ in colour, as they do not on an untextured
+# model), and ladder-airport, the wide textured
 # airport of tests/hlod.rs); on the
 # sample, the adaptive strategy moves the SSE within its bounds. In INLINED_SETS the root's GLB is
 # inside tileset.json as a data URI (the default for a small self-contained root): checked here,

@@ -14,7 +14,8 @@
 //   --second-load        reload the page (service-worker tile cache warm) and report that load too
 //   --timeout S          seconds to wait for all tiles (default 120)
 //   --width W --height H viewport (default 1280x720)
-//   --require-pick       fail if clicking the centre of the view picks nothing
+//   --require-pick       fail if clicking the centre of the view, or a point near it, picks
+//                        nothing (a district's centre can fall on a street between buildings)
 //   --require-texture S  fail unless at least the share S of neighbouring pixels on one face
 //                        differ in colour (texturedShare): a textured model not drawn untextured
 //   --min-drawn-pct P    the share of pixels the tileset must change (default 1; a wide, sparse
@@ -542,11 +543,25 @@ async function main() {
         await page.screenshot({ path: opts.out });
         summary.screenshot = opts.out;
       }
-      summary.pick = await page.evaluate(
-        ([x, y]) => window.bimtiles.pickAt(x, y),
-        [Math.round(opts.width / 2), Math.round(opts.height / 2)],
-      );
-      if (opts["require-pick"] && !summary.pick) failures.push("clicking the centre of the view picked nothing");
+      // The centre first, then rings around it (up to a tenth of the view's height away): the
+      // first point that picks an element, and where it is.
+      const [cx, cy] = [Math.round(opts.width / 2), Math.round(opts.height / 2)];
+      const reach = Math.round(opts.height / 10);
+      const points = [[0, 0]];
+      for (let r = Math.round(reach / 4); r <= reach; r += Math.round(reach / 4))
+        for (let k = 0; k < 8; k++) {
+          const a = (k * Math.PI) / 4;
+          points.push([Math.round(r * Math.cos(a)), Math.round(r * Math.sin(a))]);
+        }
+      for (const [dx, dy] of points) {
+        summary.pick = await page.evaluate(([x, y]) => window.bimtiles.pickAt(x, y), [cx + dx, cy + dy]);
+        if (summary.pick) {
+          summary.pickOffsetPx = [dx, dy];
+          break;
+        }
+      }
+      if (opts["require-pick"] && !summary.pick)
+        failures.push(`clicking the centre of the view, or within ${reach} px of it, picked nothing`);
       summary.textured = await texturedShare(page);
       if (opts["require-texture"] && !(summary.textured.share >= opts["require-texture"]))
         failures.push(`the model looks untextured: ${summary.textured.share} of ${summary.textured.pairs} neighbouring pixel pairs on one face differ in colour, below ${opts["require-texture"]}`);
