@@ -265,14 +265,38 @@ impl Manifest {
     }
 }
 
+/// `read` of each of `items`, in their order, run on as many plain threads as the thread pool has,
+/// each taking the next item: not on the pool itself, because a reader may block its thread on
+/// one of its own (the IFC reader reads geometry beside the georeference) whose parallel work then
+/// waits for a pool thread that would never come free.
+fn side_by_side<T: Sync, R: Send>(items: &[T], read: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let done: Vec<std::sync::Mutex<Option<R>>> = items.iter().map(|_| Default::default()).collect();
+    let threads = rayon::current_num_threads().clamp(1, items.len().max(1));
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                *done[i].lock().expect("read slot") = Some(read(item));
+            });
+        }
+    });
+    done.into_iter()
+        .map(|r| r.into_inner().expect("read slot").expect("every item read"))
+        .collect()
+}
+
 /// Reads every model of a manifest, places it, and returns one scene in the manifest origin's
 /// east-north-up frame. The scene carries the origin as its georeference (anchor at the frame's
 /// origin, no turn), so `convert` places the site there unless `--origin` moves it.
 pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene> {
     let (origin, placements) = Manifest::read(path)?;
-    let mut parts = Vec::with_capacity(placements.len());
     let ecef_to_origin = origin.enu_to_ecef().inverse();
-    for p in &placements {
+    // The models are read side by side (a campus of IFC files spends most of an update reading
+    // them), and joined in the manifest's order; the first failing entry, in that order, is the
+    // error.
+    let read_placed = |p: &Placement| -> Result<Scene> {
         let given = p.crs.as_deref().map(|crs| super::GivenCrs {
             crs,
             source: "manifest",
@@ -302,8 +326,11 @@ pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene>
         };
         s.georeference = None;
         s.apply_transform(&(transform * local));
-        parts.push(s);
-    }
+        Ok(s)
+    };
+    let mut parts: Vec<Scene> = side_by_side(&placements, read_placed)
+        .into_iter()
+        .collect::<Result<_>>()?;
     // Ids used by more than one entry get the entry's name as a prefix, in every entry.
     let mut users: BTreeMap<String, BTreeSet<usize>> = BTreeMap::new();
     for (i, s) in parts.iter().enumerate() {
@@ -366,6 +393,24 @@ pub fn read_manifest(path: &Path, opts: super::ReadOptions<'_>) -> Result<Scene>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn readers_that_wait_on_threads_of_their_own_finish_in_order() {
+        // As the IFC reader: each read waits for a thread of its own whose work is parallel.
+        use rayon::prelude::*;
+        let items: Vec<u64> = (0..4 * rayon::current_num_threads() as u64 + 3).collect();
+        let read = |&k: &u64| {
+            std::thread::scope(|s| {
+                s.spawn(|| (0..10_000u64).into_par_iter().map(|x| x * k).sum::<u64>())
+                    .join()
+                    .expect("no panic")
+            })
+        };
+        let sums = side_by_side(&items, read);
+        let expected: Vec<u64> = items.iter().map(|k| k * 49_995_000).collect();
+        assert_eq!(sums, expected);
+        assert!(side_by_side(&[] as &[u64], read).is_empty());
+    }
 
     fn check(json: &str) -> std::result::Result<Vec<Placement>, String> {
         let dir = std::env::temp_dir().join(format!("bimtiles-manifest-{}", std::process::id()));

@@ -29,7 +29,7 @@
 //! Leaves are always built (gathering and encoding them is cheap, and their keys need what they
 //! make). The cache keeps the internal tiles only: its key, then, compressed on their own, its
 //! path, the SHA-256 of its file, its record and its hand-over's recipe, and its hand-over, in
-//! the encoding of [`super::wire`]. A tile is reused only when the live file still has the bytes the cache
+//! the encoding of [`super::wire`] (the hand-over's arrays packed by meshopt's lossless codecs). A tile is reused only when the live file still has the bytes the cache
 //! recorded. A missing, corrupt or foreign cache reuses nothing: every tile is built.
 //!
 //! A hand-over is the tile's content at full precision, several times its file's size, and it is
@@ -55,7 +55,7 @@ use std::sync::Mutex;
 
 /// The tile cache, relative to the output folder (beside the update state).
 pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
-const MAGIC: &[u8; 8] = b"BIMTCAC3";
+const MAGIC: &[u8; 8] = b"BIMTCAC4";
 /// What every version of the cache file starts with.
 const MAGIC_STEM: &[u8; 7] = b"BIMTCAC";
 /// The hand-overs the cache keeps, at most, as a share of the bytes of the tileset's tiles.
@@ -718,7 +718,7 @@ impl SubtreeCache {
         let ranked = labels.relabel(built, true);
         let handover = ranked.as_ref().map(|r| {
             let mut w = W::default();
-            w.subtree(r);
+            w.packed_subtree(r);
             w
         });
         let compressed = |w: W| {
@@ -899,7 +899,7 @@ fn decode_head(
 fn decode_handover(packed: &[u8]) -> std::result::Result<BuiltSubtree, WireError> {
     let bytes = inflate(packed)?;
     let mut r = R(&bytes);
-    let built = r.subtree()?;
+    let built = r.packed_subtree()?;
     if !r.0.is_empty() {
         return Err(WireError::NoEndMark);
     }

@@ -10,6 +10,23 @@ use crate::partition::content::{ContentPrimitive, InstancedShape, ShapeInstance,
 use crate::scene::{Aabb, ComponentId, MaterialId, MeshId};
 use glam::{DMat4, DVec3};
 
+/// How a primitive's arrays are written: `Raw`, element by element (what the sharded jobs hand
+/// on, and what keys hash), or `Packed` through meshopt's lossless codecs (the vertex codec, and
+/// the index sequence codec, which keeps every triangle's corners in their order): the update's
+/// tile cache keeps several times more hand-overs in its share of the tileset's bytes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Streams {
+    Raw,
+    Packed,
+}
+
+/// meshopt's vertex codec packs an array into no less than this share of its bytes (an array of
+/// zeros packs about a thousand times; a margin of two), and a packed array carries up to
+/// [`PACKED_SLACK_BYTES`] of its own framing: counts past that are refused before anything is
+/// allocated. (The cache's zlib checksum already refuses bytes spoiled by accident.)
+const PACKED_VERTEX_RATIO: usize = 2048;
+const PACKED_SLACK_BYTES: usize = 64;
+
 /// A writer of the encoding.
 #[derive(Default)]
 pub(crate) struct W(pub(crate) Vec<u8>);
@@ -52,32 +69,53 @@ impl W {
         self.dvec3(b.min);
         self.dvec3(b.max);
     }
-    pub(crate) fn prim(&mut self, p: &ContentPrimitive) {
+    /// A primitive, its arrays as they are or [`Streams::Packed`].
+    fn prim(&mut self, p: &ContentPrimitive, streams: Streams) {
         self.opt(&p.material, |w, m| w.u32(m.0));
-        self.n(p.positions.len());
-        p.positions.iter().for_each(|v| self.f32s(v));
-        self.n(p.normals.len());
-        p.normals.iter().for_each(|v| self.f32s(v));
-        self.n(p.uvs.len());
-        p.uvs.iter().for_each(|v| self.f32s(v));
-        self.n(p.colors.len());
-        p.colors.iter().for_each(|v| self.f32s(v));
-        self.n(p.feature_ids.len());
-        p.feature_ids.iter().for_each(|&v| self.u32(v));
+        self.stream(&p.positions, streams, |w, v| w.f32s(v));
+        self.stream(&p.normals, streams, |w, v| w.f32s(v));
+        self.stream(&p.uvs, streams, |w, v| w.f32s(v));
+        self.stream(&p.colors, streams, |w, v| w.f32s(v));
+        self.stream(&p.feature_ids, streams, |w, &v| w.u32(v));
         self.n(p.indices.len());
-        p.indices.iter().for_each(|&v| self.u32(v));
+        match streams {
+            Streams::Raw => p.indices.iter().for_each(|&v| self.u32(v)),
+            Streams::Packed if p.indices.is_empty() => {}
+            Streams::Packed => {
+                let vertices = p.indices.iter().max().map_or(0, |&m| m as usize + 1);
+                let packed = meshopt::encode_index_sequence(&p.indices, vertices)
+                    .expect("an index sequence always encodes");
+                self.n(packed.len());
+                self.0.extend_from_slice(&packed);
+            }
+        }
     }
-    pub(crate) fn content(&mut self, c: &TileContent) {
+    /// A vertex array: its count, then each element by `raw`, or the array through meshopt's
+    /// lossless vertex codec (its bytes' count, then its bytes).
+    fn stream<T>(&mut self, v: &[T], streams: Streams, raw: impl Fn(&mut Self, &T)) {
+        self.n(v.len());
+        match streams {
+            Streams::Raw => v.iter().for_each(|x| raw(self, x)),
+            Streams::Packed if v.is_empty() => {}
+            Streams::Packed => {
+                let packed =
+                    meshopt::encode_vertex_buffer(v).expect("a vertex array always encodes");
+                self.n(packed.len());
+                self.0.extend_from_slice(&packed);
+            }
+        }
+    }
+    fn content_with(&mut self, c: &TileContent, streams: Streams) {
         self.dvec3(c.center);
         self.n(c.features.len());
         c.features.iter().for_each(|f| self.u32(f.0));
         self.n(c.primitives.len());
-        c.primitives.iter().for_each(|p| self.prim(p));
+        c.primitives.iter().for_each(|p| self.prim(p, streams));
         self.n(c.instanced.len());
         for s in &c.instanced {
             self.u32(s.mesh.0);
             self.n(s.primitives.len());
-            s.primitives.iter().for_each(|p| self.prim(p));
+            s.primitives.iter().for_each(|p| self.prim(p, streams));
             self.n(s.instances.len());
             for i in &s.instances {
                 self.u32(i.feature);
@@ -116,7 +154,14 @@ impl W {
         self.opt(&s.max_position_error_m, |w, &v| w.f64(v));
     }
     pub(crate) fn subtree(&mut self, r: &BuiltSubtree) {
-        self.content(&r.content);
+        self.subtree_with(r, Streams::Raw);
+    }
+    /// [`Self::subtree`] with its arrays [`Streams::Packed`].
+    pub(crate) fn packed_subtree(&mut self, r: &BuiltSubtree) {
+        self.subtree_with(r, Streams::Packed);
+    }
+    fn subtree_with(&mut self, r: &BuiltSubtree, streams: Streams) {
+        self.content_with(&r.content, streams);
         self.f64(r.geometric_error_m);
         self.f64(r.coarse_to_full_m);
         self.f64(r.max_folding_edge_m);
@@ -146,6 +191,8 @@ pub(crate) enum WireError {
     NoEndMark,
     #[error("bad option flag {0}")]
     BadFlag(u8),
+    #[error("a packed array does not decode")]
+    BadStream,
     #[error("a string is not UTF-8")]
     NotUtf8(#[from] std::string::FromUtf8Error),
 }
@@ -217,30 +264,75 @@ impl R<'_> {
         let n = self.n(min_bytes)?;
         (0..n).map(|_| f(self)).collect()
     }
-    pub(crate) fn prim(&mut self) -> Res<ContentPrimitive> {
+    fn prim(&mut self, streams: Streams) -> Res<ContentPrimitive> {
         Ok(ContentPrimitive {
             material: if self.flag()? {
                 Some(MaterialId(self.u32()?))
             } else {
                 None
             },
-            positions: self.vec(12, |r| r.f32s())?,
-            normals: self.vec(12, |r| r.f32s())?,
-            uvs: self.vec(8, |r| r.f32s())?,
-            colors: self.vec(16, |r| r.f32s())?,
-            feature_ids: self.vec(4, |r| r.u32())?,
-            indices: self.vec(4, |r| r.u32())?,
+            positions: self.stream(12, streams, |r| r.f32s())?,
+            normals: self.stream(12, streams, |r| r.f32s())?,
+            uvs: self.stream(8, streams, |r| r.f32s())?,
+            colors: self.stream(16, streams, |r| r.f32s())?,
+            feature_ids: self.stream(4, streams, |r| r.u32())?,
+            indices: match streams {
+                Streams::Raw => self.vec(4, |r| r.u32())?,
+                Streams::Packed => {
+                    // An index takes at least a byte of the sequence.
+                    let count = self.u64()? as usize;
+                    let bytes = self.packed(count, count)?;
+                    if count == 0 {
+                        Vec::new()
+                    } else {
+                        meshopt::decode_index_sequence::<u32>(bytes, count)
+                            .map_err(|_| WireError::BadStream)?
+                    }
+                }
+            },
         })
     }
-    pub(crate) fn content(&mut self) -> Res<TileContent> {
+    /// What [`W::stream`] wrote; `size_bytes` is an element's.
+    fn stream<T: Clone + Default>(
+        &mut self,
+        size_bytes: usize,
+        streams: Streams,
+        raw: impl FnMut(&mut Self) -> Res<T>,
+    ) -> Res<Vec<T>> {
+        match streams {
+            Streams::Raw => self.vec(size_bytes, raw),
+            Streams::Packed => {
+                let count = self.u64()? as usize;
+                let least = count.saturating_mul(size_bytes) / PACKED_VERTEX_RATIO;
+                let bytes = self.packed(count, least)?;
+                if count == 0 {
+                    return Ok(Vec::new());
+                }
+                meshopt::decode_vertex_buffer(bytes, count).map_err(|_| WireError::BadStream)
+            }
+        }
+    }
+    /// The bytes of a packed array of `count` elements, which take at least `min_bytes` (none for
+    /// an empty array).
+    fn packed(&mut self, count: usize, min_bytes: usize) -> Res<&[u8]> {
+        if count == 0 {
+            return Ok(&[]);
+        }
+        let n = self.n(1)?;
+        if min_bytes > n.saturating_add(PACKED_SLACK_BYTES) {
+            return Err(WireError::CountBeyondEnd);
+        }
+        self.take(n)
+    }
+    fn content_with(&mut self, streams: Streams) -> Res<TileContent> {
         Ok(TileContent {
             center: self.dvec3()?,
             features: self.vec(4, |r| Ok(ComponentId(r.u32()?)))?,
-            primitives: self.vec(1, |r| r.prim())?,
+            primitives: self.vec(1, |r| r.prim(streams))?,
             instanced: self.vec(1, |r| {
                 Ok(InstancedShape {
                     mesh: MeshId(r.u32()?),
-                    primitives: r.vec(1, |r| r.prim())?,
+                    primitives: r.vec(1, |r| r.prim(streams))?,
                     instances: r.vec(132, |r| {
                         let feature = r.u32()?;
                         let mut m = [0f64; 16];
@@ -309,7 +401,14 @@ impl R<'_> {
         })
     }
     pub(crate) fn subtree(&mut self) -> Res<BuiltSubtree> {
-        let content = self.content()?;
+        self.subtree_with(Streams::Raw)
+    }
+    /// What [`W::packed_subtree`] wrote.
+    pub(crate) fn packed_subtree(&mut self) -> Res<BuiltSubtree> {
+        self.subtree_with(Streams::Packed)
+    }
+    fn subtree_with(&mut self, streams: Streams) -> Res<BuiltSubtree> {
+        let content = self.content_with(streams)?;
         let geometric_error_m = self.f64()?;
         let coarse_to_full_m = self.f64()?;
         let max_folding_edge_m = self.f64()?;
@@ -324,5 +423,87 @@ impl R<'_> {
             max_folding_edge_m,
             cut_triangles,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    /// A hand-over with arrays of every kind: long ones of equal values (which pack far below
+    /// their size), short ones, empty ones, and bits no arithmetic makes (NaN payloads, -0).
+    fn handover() -> BuiltSubtree {
+        let n = 5000u32;
+        let big = ContentPrimitive {
+            material: Some(MaterialId(3)),
+            positions: (0..n).map(|i| [i as f32 * 0.25, -0.0, 1e-30]).collect(),
+            normals: vec![[0.0, 0.0, 1.0]; n as usize],
+            uvs: (0..n)
+                .map(|i| [f32::from_bits(0x7fc0_0001 + i), 0.5])
+                .collect(),
+            colors: Vec::new(),
+            feature_ids: vec![7; n as usize],
+            indices: (0..n - 2).flat_map(|i| [i + 2, i, i + 1]).collect(),
+        };
+        let small = ContentPrimitive {
+            material: None,
+            positions: vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.5]],
+            normals: vec![[0.0, 1.0, 0.0]; 3],
+            uvs: Vec::new(),
+            colors: vec![[1.0, 0.5, 0.25, 1.0]; 3],
+            feature_ids: vec![0, 1, 0],
+            indices: vec![2, 0, 1],
+        };
+        BuiltSubtree {
+            content: TileContent {
+                center: DVec3::new(1.5, -2.0, 1e6),
+                features: vec![ComponentId(4), ComponentId(9)],
+                primitives: vec![big, small, ContentPrimitive::default()],
+                instanced: Vec::new(),
+            },
+            geometric_error_m: 0.25,
+            coarse_to_full_m: 0.125,
+            max_folding_edge_m: 2.0,
+            cut_triangles: BTreeMap::from([(ComponentId(9), 12)]),
+        }
+    }
+
+    fn bits(b: &BuiltSubtree) -> Vec<u8> {
+        let mut w = W::default();
+        w.subtree(b);
+        w.0
+    }
+
+    #[test]
+    fn a_packed_handover_reads_back_bit_for_bit_and_smaller() {
+        let b = handover();
+        let mut w = W::default();
+        w.packed_subtree(&b);
+        let raw = bits(&b);
+        assert!(w.0.len() * 3 < raw.len(), "{} of {}", w.0.len(), raw.len());
+        let mut r = R(&w.0);
+        let back = r.packed_subtree().expect("reads back");
+        assert!(r.0.is_empty());
+        assert_eq!(bits(&back), raw);
+    }
+
+    #[test]
+    fn a_cut_or_spoiled_packed_handover_is_refused() {
+        let mut w = W::default();
+        w.packed_subtree(&handover());
+        for cut in [1, 100, w.0.len() / 2, w.0.len() - 1] {
+            let mut r = R(&w.0[..cut]);
+            assert!(r.packed_subtree().is_err(), "cut at {cut}");
+        }
+        // A vertex count far beyond what the packed bytes can hold is refused before decoding.
+        let (center, features) = (24, 8 + 2 * 4);
+        let count_at = center + features + 8 + 1 + 4;
+        let mut spoiled = w.0.clone();
+        spoiled[count_at..count_at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        assert_eq!(
+            R(&spoiled).packed_subtree().err(),
+            Some(WireError::CountBeyondEnd)
+        );
     }
 }
