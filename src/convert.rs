@@ -214,6 +214,8 @@ impl Tracked {
             tile_bytes_reused: tally.tile_bytes_reused,
             tiles_rewritten: tally.tiles_rewritten,
             tiles_remade: tally.tiles_remade,
+            leaves_reused: tally.leaves_reused,
+            leaf_bytes_reused: tally.leaf_bytes_reused,
             tile_cache_bytes: cache_bytes,
             tile_cache_note: match cache {
                 Some(_) => note,

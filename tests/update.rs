@@ -195,6 +195,8 @@ fn assert_some_tiles_reused(u: &Value) -> u64 {
     assert!(n("tiles_reused") > 0, "{u}");
     assert!(n("internal_tiles_built") < n("internal_tiles"), "{u}");
     assert!(n("tile_bytes_reused") > 0, "{u}");
+    // Unchanged leaves are taken whole too, not encoded again.
+    assert!(n("leaves_reused") > 0 && n("leaf_bytes_reused") > 0, "{u}");
     n("tiles_remade")
 }
 
@@ -269,6 +271,11 @@ fn every_update_equals_a_full_build_of_the_new_manifest() {
     // Its geometry is the same: the HLOD tiles above it are written again, none is simplified.
     assert_eq!(u["internal_tiles_built"], 0, "{u}");
     assert!(u["tiles_rewritten"].as_u64().unwrap() > 0, "{u}");
+    // The leaf that draws it is written again (its property table changed), not taken.
+    assert!(
+        u["tiles_built"].as_u64().unwrap() > u["tiles_rewritten"].as_u64().unwrap(),
+        "{u}"
+    );
 
     // One building removed, the old files kept for clients that hold the old tileset.json; the
     // next update, without --keep-stale, removes them.

@@ -38,6 +38,49 @@ pub struct PropertyTable {
     pub columns: Vec<(String, ColumnData)>,
 }
 
+impl PropertyTable {
+    /// Every part of the table as bytes, each length-prefixed (what a tile's key covers of its
+    /// metadata): equal bytes, equal tables.
+    pub fn key_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut put = |b: &[u8]| {
+            out.extend_from_slice(&(b.len() as u64).to_le_bytes());
+            out.extend_from_slice(b);
+        };
+        match &self.schema {
+            SchemaRef::Inline(s) => put(&serde_json::to_vec(s).unwrap_or_default()),
+            SchemaRef::Uri(u) => put(format!("uri {u}").as_bytes()),
+        }
+        put(self.class.as_bytes());
+        put(&(self.count as u64).to_le_bytes());
+        for (id, column) in &self.columns {
+            put(id.as_bytes());
+            match column {
+                ColumnData::Text(values) => {
+                    put(b"text");
+                    for v in values {
+                        match v {
+                            Some(t) => put(t.as_bytes()),
+                            None => put(&[0xff]),
+                        }
+                    }
+                }
+                ColumnData::Float64(values) => {
+                    put(b"float64");
+                    let bits: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+                    put(&bits);
+                }
+                ColumnData::Enum { codes, one_byte } => {
+                    put(if *one_byte { b"enum8" } else { b"enum16" });
+                    let bytes: Vec<u8> = codes.iter().flat_map(|c| c.to_le_bytes()).collect();
+                    put(&bytes);
+                }
+            }
+        }
+        out
+    }
+}
+
 /// Lays the table out with `view(bytes, alignment) -> bufferView index`; returns the root
 /// extension object and the number of bytes written.
 ///
@@ -158,6 +201,36 @@ mod tests {
             codes,
             one_byte: false,
         }
+    }
+
+    #[test]
+    fn key_bytes_tell_every_value_apart() {
+        let table = |name: &str, height: f64, code: u16| PropertyTable {
+            schema: SchemaRef::Uri("schema.json".into()),
+            class: "element".into(),
+            count: 2,
+            columns: vec![
+                (
+                    "name".into(),
+                    ColumnData::Text(vec![Some(name.into()), None]),
+                ),
+                ("height".into(), ColumnData::Float64(vec![height, 2.0])),
+                ("class".into(), enum_codes(vec![code, 2])),
+            ],
+        };
+        let a = table("Wall", 1.0, 1).key_bytes();
+        assert_eq!(a, table("Wall", 1.0, 1).key_bytes());
+        for other in [
+            table("Wall ", 1.0, 1),
+            table("Wall", 1.0 + f64::EPSILON, 1),
+            table("Wall", 1.0, 3),
+        ] {
+            assert_ne!(a, other.key_bytes());
+        }
+        // Fields cannot run into each other.
+        let mut t = table("Wall", 1.0, 1);
+        t.columns[0].1 = ColumnData::Text(vec![Some("Wa".into()), Some("ll".into())]);
+        assert_ne!(a, t.key_bytes());
     }
 
     #[test]

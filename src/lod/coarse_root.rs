@@ -102,6 +102,7 @@ pub(crate) fn coarse_root(
         provided: Mutex::new(BTreeMap::from([(1, full)])),
         allowed_m,
         cache: None,
+        leaf_file: None,
     };
     builder.build(0)?;
     drop(builder);

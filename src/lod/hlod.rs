@@ -58,6 +58,11 @@ pub(crate) struct Recipe {
 pub(crate) type WriteTile<'a> =
     dyn Fn(usize, &TileContent, TileRecord) -> Result<TileRecord> + Sync + 'a;
 
+/// What a leaf's file holds beside its content's geometry and materials (its features' metadata
+/// as written), as bytes a key can cover: an update takes the leaf's file whole when they and its
+/// geometry are what they were.
+pub(crate) type LeafFile<'a> = dyn Fn(&TileContent) -> Vec<u8> + Sync + 'a;
+
 /// Builds HLOD content bottom-up, children in parallel; each tile is written as soon as it is made
 /// and only its content travels up to its parent.
 pub(crate) struct HlodBuilder<'a> {
@@ -72,8 +77,10 @@ pub(crate) struct HlodBuilder<'a> {
     pub(crate) provided: std::sync::Mutex<BTreeMap<usize, BuiltSubtree>>,
     /// Per plan tile, the error its content is aimed at ([`allowed_errors_m`]).
     pub(crate) allowed_m: Vec<Option<f64>>,
-    /// The update's tile cache: internal tiles whose subtree did not change are taken from it.
+    /// The update's tile cache: tiles whose subtree did not change are taken from it.
     pub(crate) cache: Option<&'a SubtreeCache>,
+    /// With a cache: what leaves' files hold beside their geometry.
+    pub(crate) leaf_file: Option<&'a LeafFile<'a>>,
 }
 
 /// The error each tile of `plan` is allowed (`None` for all when `--hlod-error-fraction` is 0):
@@ -122,7 +129,7 @@ impl HlodBuilder<'_> {
 
     /// A leaf's content at full detail, as it is written, and the triangles of its cut
     /// components.
-    fn leaf_content(&self, i: usize) -> (TileContent, BTreeMap<ComponentId, usize>) {
+    pub(super) fn leaf_content(&self, i: usize) -> (TileContent, BTreeMap<ComponentId, usize>) {
         let tile = &self.plan.tiles[i];
         let content = gather(
             self.scene,

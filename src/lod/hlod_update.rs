@@ -1,8 +1,9 @@
 //! HLOD in an update (`convert --update`, book: guide/updating.md): what changed is built, the
 //! rest is taken from the tile cache ([`super::subtree_cache`]).
 //!
-//! Two passes. First every leaf is built (gathering and encoding a leaf is cheap, and its key
-//! needs what it makes) and every tile's subtree key computed, bottom-up. Then, from the root
+//! Two passes. First every leaf is gathered and keyed (its key covers its features' metadata as
+//! its file holds it), and taken from the live tileset or written, and every tile's subtree key
+//! computed, bottom-up. Then, from the root
 //! down, a tile whose key is in the cache, and whose file the live tileset still has, is taken
 //! from it with its whole subtree; any other tile is built, from its children's hand-overs. A
 //! taken tile's hand-over is needed only when its parent is built: it is read from the cache
@@ -14,8 +15,9 @@
 //! up to date and hands up each root's content and keys; `merge` keys and takes or builds the
 //! rest of the tree, with the jobs' subtree roots as given (the builder's `stop` tiles).
 
-use super::hlod::{continuing, cut_triangles, BuiltSubtree, HlodBuilder};
+use super::hlod::{continuing, cut_triangles, leaf_built, BuiltSubtree, HlodBuilder};
 use super::subtree_cache::{Found, HandOver, Labels, SubtreeCache, TileKeys};
+use crate::encode::TileRecord;
 use crate::error::{Error, Result};
 use crate::scene::ComponentId;
 use rayon::prelude::*;
@@ -88,9 +90,23 @@ impl HlodBuilder<'_> {
                 }
             }
         } else if tile.children.is_empty() {
-            let (built, record) = self.build_leaf(i)?;
             let labels = Labels::of(self.scene, tile.content.iter());
-            let key = cache.leaf_keys(self.scene, tile, &labels, &built, &record)?;
+            let (content, cut_triangles) = self.leaf_content(i);
+            let leaf_file = self
+                .leaf_file
+                .expect("a tile cache comes with what leaves' files hold");
+            let file_inputs = leaf_file(&content);
+            let built = leaf_built(content.clone(), cut_triangles);
+            let key = cache.leaf_keys(self.scene, tile, &labels, &built, &file_inputs);
+            let record = match cache.reuse_leaf(i, tile, &key) {
+                Some(record) => record,
+                None => {
+                    let record = (self.write)(i, &content, TileRecord::default())?;
+                    cache.store_leaf(i, tile, &key, &record)?;
+                    record
+                }
+            };
+            *self.slots[i].lock().expect("slot") = Some(record);
             (key, built.cut_triangles, labels)
         } else {
             type Keyed = (TileKeys, BTreeMap<ComponentId, usize>, Labels);

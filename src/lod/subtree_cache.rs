@@ -1,12 +1,13 @@
 //! The update's tile cache (`.bimtiles/tile-cache.bin`): an HLOD tile whose whole subtree is
-//! what it was at the last `--update` build is not simplified, measured and encoded again; its
-//! written file is taken from the live tileset and its record and hand-over from the cache.
+//! what it was at the last `--update` build is not simplified, measured and encoded again, and a
+//! leaf that is what it was is not encoded again; the written file is taken from the live tileset
+//! and the record (and an HLOD tile's hand-over) from the cache.
 //!
 //! Every tile gets a subtree key, a SHA-256 of everything its file and its hand-over depend on.
 //! A leaf's key covers its plan data (path, boxes), the scene data of its content (each
 //! component's placement, the raw geometry of its mesh, the materials it uses and their appearance
-//! classes, the triangles kept), the bit-exact hand-over and record it made, and the bytes of its
-//! written file (which carry its features' metadata and its materials as written). An internal
+//! classes, the triangles kept), the bit-exact hand-over it makes, and the property table its file
+//! carries (its features' metadata, as written). An internal
 //! tile's key covers its plan data, its allowed error, the components its simplification keeps
 //! locked, its children's keys in order, and where each child's ids stand among its own; so it
 //! changes whenever anything below it changes, and two equal subtrees at different places get
@@ -26,11 +27,12 @@
 //! labels; a hand-over with an id outside them is not kept (it is made again from its recipe),
 //! and a leaf whose hand-over has one is keyed by its global ids.
 //!
-//! Leaves are always built (gathering and encoding them is cheap, and their keys need what they
-//! make). The cache keeps the internal tiles only: its key, then, compressed on their own, its
-//! path, the SHA-256 of its file, its record and its hand-over's recipe, and its hand-over, in
-//! the encoding of [`super::wire`] (the hand-over's arrays packed by meshopt's lossless codecs). A tile is reused only when the live file still has the bytes the cache
-//! recorded. A missing, corrupt or foreign cache reuses nothing: every tile is built.
+//! Every leaf is gathered (its key needs its hand-over); only a changed one is encoded. The cache
+//! keeps, per tile, its key, then, compressed on their own, its path, the SHA-256 of its file, its
+//! record and, for an HLOD tile, its hand-over's recipe, and its hand-over, in the encoding of
+//! [`super::wire`] (the hand-over's arrays packed by meshopt's lossless codecs). A tile is reused
+//! only when the live file still has the bytes the cache recorded. A missing, corrupt or foreign
+//! cache reuses nothing: every tile is built.
 //!
 //! A hand-over is the tile's content at full precision, several times its file's size, and it is
 //! read only when the tile's parent is built ([`super::hlod_update`]). So the cache keeps the
@@ -55,7 +57,7 @@ use std::sync::Mutex;
 
 /// The tile cache, relative to the output folder (beside the update state).
 pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
-const MAGIC: &[u8; 8] = b"BIMTCAC4";
+const MAGIC: &[u8; 8] = b"BIMTCAC5";
 /// What every version of the cache file starts with.
 const MAGIC_STEM: &[u8; 7] = b"BIMTCAC";
 /// The hand-overs the cache keeps, at most, as a share of the bytes of the tileset's tiles.
@@ -91,6 +93,9 @@ pub struct CacheTally {
     pub tiles_rewritten: usize,
     /// Internal tiles found in the cache whose hand-over was made again from its recipe.
     pub tiles_remade: usize,
+    /// Leaves whose file was taken from the live tileset (not encoded), their files' bytes.
+    pub leaves_reused: usize,
+    pub leaf_bytes_reused: u64,
 }
 
 /// What a tile found in the cache hands its parent: kept in the cache, or to be made again from
@@ -427,6 +432,8 @@ impl SubtreeCache {
             t.tile_bytes_reused as usize,
             t.tiles_rewritten,
             t.tiles_remade,
+            t.leaves_reused,
+            t.leaf_bytes_reused as usize,
         ] {
             w.n(n);
         }
@@ -448,7 +455,7 @@ impl SubtreeCache {
             let whole = key_from(r)?;
             Ok((i, TileKeys { geometry, whole }))
         })?;
-        let mut n = [0usize; 8];
+        let mut n = [0usize; 10];
         for x in &mut n {
             *x = r.u64()? as usize;
         }
@@ -466,6 +473,8 @@ impl SubtreeCache {
         t.tile_bytes_reused += n[5] as u64;
         t.tiles_rewritten += n[6];
         t.tiles_remade += n[7];
+        t.leaves_reused += n[8];
+        t.leaf_bytes_reused += n[9] as u64;
         Ok(())
     }
 
@@ -476,16 +485,16 @@ impl SubtreeCache {
         SubtreeCache::open(none, none, global, &AppearanceClasses::default())
     }
 
-    /// The keys of leaf `tile`, whose ids are `labels`, which handed up `built` and wrote
-    /// `record` (its file in the staging folder).
+    /// The keys of leaf `tile`, whose ids are `labels`, which hands up `built` and whose file
+    /// holds, beside its geometry, `file_inputs` (its features' metadata as written).
     pub(crate) fn leaf_keys(
         &self,
         scene: &Scene,
         tile: &PlannedTile,
         labels: &Labels,
         built: &BuiltSubtree,
-        record: &TileRecord,
-    ) -> Result<TileKeys> {
+        file_inputs: &[u8],
+    ) -> TileKeys {
         let mut h = KeyHasher::new("leaf", &self.global);
         h.plan(tile);
         // Ids by their ranks among the leaf's (its meshes' too: the instanced shapes follow
@@ -499,14 +508,31 @@ impl SubtreeCache {
         meshes.dedup();
         for item in &tile.content {
             let comp = scene.component(item.component);
-            h.debug(&(
-                labels.component_rank(comp.id),
-                meshes.binary_search(&comp.mesh).ok(),
-                &comp.world,
-                &comp.world_bounds,
-                comp.alias_of.is_some(),
-            ));
-            h.debug(&item.triangles);
+            // As bits, not printed: a leaf has thousands of elements.
+            let mut fields: Vec<u64> = vec![
+                labels.component_rank(comp.id).map_or(u64::MAX, u64::from),
+                meshes
+                    .binary_search(&comp.mesh)
+                    .map_or(u64::MAX, |r| r as u64),
+                comp.alias_of.is_some() as u64,
+            ];
+            fields.extend(comp.world.to_cols_array().map(f64::to_bits));
+            let b = &comp.world_bounds;
+            fields.extend(
+                b.min
+                    .to_array()
+                    .into_iter()
+                    .chain(b.max.to_array())
+                    .map(f64::to_bits),
+            );
+            h.bytes(bytemuck::cast_slice(&fields));
+            match &item.triangles {
+                Some(t) => {
+                    let flat: Vec<u32> = t.iter().flat_map(|&(p, i)| [p, i]).collect();
+                    h.bytes(bytemuck::cast_slice(&flat))
+                }
+                None => h.bytes(b"whole"),
+            }
             let mesh = scene.mesh(comp.mesh);
             h.0.update((mesh.primitives.len() as u64).to_le_bytes());
             for p in &mesh.primitives {
@@ -545,15 +571,83 @@ impl SubtreeCache {
         h.bytes(&w.0);
         let geometry = h.finish();
         let mut h = KeyHasher::new("leaf file", &geometry);
-        let mut w = W::default();
-        w.record(record);
-        h.bytes(&w.0);
-        h.bytes(&self.file_digest(record)?.unwrap_or_default());
-        self.tally_built(record, false);
-        Ok(TileKeys {
+        h.bytes(file_inputs);
+        TileKeys {
             geometry,
             whole: h.finish(),
-        })
+        }
+    }
+
+    /// The record of leaf `i` (`tile`) as the previous build wrote it, when its whole key is in
+    /// the cache and the live tileset still holds its file as written: the file is put in the
+    /// staging folder (a hard link, or a copy), not encoded again.
+    pub(crate) fn reuse_leaf(
+        &self,
+        i: usize,
+        tile: &PlannedTile,
+        keys: &TileKeys,
+    ) -> Option<TileRecord> {
+        let entry = self.previous.get(&keys.whole)?;
+        let (path, file, record, _) = decode_head(&entry.head).ok()?;
+        if path != tile.path {
+            return None;
+        }
+        self.take_file(file, &record)?;
+        self.fresh
+            .lock()
+            .expect("fresh")
+            .insert(i, (keys.whole, path, entry.clone()));
+        let mut t = self.tally.lock().expect("tally");
+        t.leaves_reused += 1;
+        t.leaf_bytes_reused += record.content.bytes;
+        Some(record)
+    }
+
+    /// Records leaf `i` (`tile`), just written, for the next build.
+    pub(crate) fn store_leaf(
+        &self,
+        i: usize,
+        tile: &PlannedTile,
+        keys: &TileKeys,
+        record: &TileRecord,
+    ) -> Result<()> {
+        let entry = Entry {
+            geometry: keys.geometry,
+            head: self.head(tile, record, &Recipe::default())?,
+            handover: None,
+        };
+        self.fresh
+            .lock()
+            .expect("fresh")
+            .insert(i, (keys.whole, tile.path.clone(), entry));
+        self.tally_built(record, false);
+        Ok(())
+    }
+
+    /// An entry's head, compressed: what taking tile `tile` needs.
+    fn head(&self, tile: &PlannedTile, record: &TileRecord, recipe: &Recipe) -> Result<Vec<u8>> {
+        let file = self.file_digest(record)?;
+        let mut head = W::default();
+        head.str(&tile.path);
+        head.opt(&file, |w, sha| w.0.extend_from_slice(sha));
+        head.record(record);
+        head.n(recipe.steps.len());
+        for &(from_children, target) in &recipe.steps {
+            head.0.push(from_children as u8);
+            head.n(target);
+        }
+        head.opt(&recipe.flattened_grid_m, |w, &g| w.f64(g));
+        head.f64(recipe.geometric_error_m);
+        head.f64(recipe.coarse_to_full_m);
+        head.f64(recipe.max_folding_edge_m);
+        self.compressed(head)
+    }
+
+    fn compressed(&self, w: W) -> Result<Vec<u8>> {
+        let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
+        z.write_all(&w.0)
+            .and_then(|()| z.finish())
+            .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))
     }
 
     /// The keys of internal tile `tile`, whose ids are `labels`, over its children's keys and
@@ -701,36 +795,16 @@ impl SubtreeCache {
         (record, built, recipe): (&TileRecord, &BuiltSubtree, &Recipe),
         rewritten: bool,
     ) -> Result<()> {
-        let file = self.file_digest(record)?;
-        let mut head = W::default();
-        head.str(&tile.path);
-        head.opt(&file, |w, sha| w.0.extend_from_slice(sha));
-        head.record(record);
-        head.n(recipe.steps.len());
-        for &(from_children, target) in &recipe.steps {
-            head.0.push(from_children as u8);
-            head.n(target);
-        }
-        head.opt(&recipe.flattened_grid_m, |w, &g| w.f64(g));
-        head.f64(recipe.geometric_error_m);
-        head.f64(recipe.coarse_to_full_m);
-        head.f64(recipe.max_folding_edge_m);
         let ranked = labels.relabel(built, true);
         let handover = ranked.as_ref().map(|r| {
             let mut w = W::default();
             w.packed_subtree(r);
             w
         });
-        let compressed = |w: W| {
-            let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
-            z.write_all(&w.0)
-                .and_then(|()| z.finish())
-                .map_err(|e| Error::output_from(&self.staging, "cannot compress the tile cache", e))
-        };
         let entry = Entry {
             geometry: keys.geometry,
-            head: compressed(head)?,
-            handover: handover.map(compressed).transpose()?,
+            head: self.head(tile, record, recipe)?,
+            handover: handover.map(|w| self.compressed(w)).transpose()?,
         };
         self.fresh
             .lock()
@@ -759,7 +833,7 @@ impl SubtreeCache {
         let fresh = self.fresh.lock().expect("fresh");
         let tile_bytes = {
             let t = self.tally.lock().expect("tally");
-            t.tile_bytes_built + t.tile_bytes_reused
+            t.tile_bytes_built + t.tile_bytes_reused + t.leaf_bytes_reused
         };
         let kept = kept_handovers(
             fresh
@@ -957,12 +1031,10 @@ mod tests {
         let cache = SubtreeCache::empty(global_digest(&[b"options"]));
         let scene = Scene::default();
         let none = Labels::default();
-        let leaf_with = |path: &str, x: f32, record: &TileRecord| {
-            cache
-                .leaf_keys(&scene, &planned(path), &none, &subtree(x), record)
-                .unwrap()
+        let leaf_with = |path: &str, x: f32, file_inputs: &[u8]| {
+            cache.leaf_keys(&scene, &planned(path), &none, &subtree(x), file_inputs)
         };
-        let leaf = |path: &str, x: f32| leaf_with(path, x, &TileRecord::default());
+        let leaf = |path: &str, x: f32| leaf_with(path, x, b"metadata");
         let node = |cache: &SubtreeCache, path: &str, allowed, kids: &[TileKeys], locked| {
             let kids: Vec<(TileKeys, &Labels)> = kids.iter().map(|&k| (k, &none)).collect();
             cache.node_keys(&planned(path), allowed, &none, &kids, locked)
@@ -975,11 +1047,9 @@ mod tests {
         assert_ne!(a.geometry, moved.geometry);
         assert_ne!(a.whole, moved.whole);
         // One child's file changed, not its content (its elements' metadata): the same geometry.
-        let mut other_file = TileRecord::default();
-        other_file.content.metadata_bytes = 1;
         let renamed = parent(
             "r0",
-            &[leaf("r00", 1.0), leaf_with("r01", 1.0, &other_file)],
+            &[leaf("r00", 1.0), leaf_with("r01", 1.0, b"other metadata")],
         );
         assert_eq!(a.geometry, renamed.geometry);
         assert_ne!(a.whole, renamed.whole);
@@ -993,17 +1063,8 @@ mod tests {
         assert_ne!(a, node(&cache, "r0", None, &kids, &[ComponentId(0)]));
         // Other options, tool or schema: another key.
         let other = SubtreeCache::empty(global_digest(&[b"other options"]));
-        let other_leaf = |path: &str| {
-            other
-                .leaf_keys(
-                    &scene,
-                    &planned(path),
-                    &none,
-                    &subtree(1.0),
-                    &TileRecord::default(),
-                )
-                .unwrap()
-        };
+        let other_leaf =
+            |path: &str| other.leaf_keys(&scene, &planned(path), &none, &subtree(1.0), b"metadata");
         let b = node(
             &other,
             "r0",
@@ -1065,9 +1126,7 @@ mod tests {
         let labels = Labels::of(scene, tile.content.iter());
         let content = TileContent::gather(scene, &tile.content, Default::default());
         let built = crate::lod::hlod::leaf_built(content, BTreeMap::new());
-        let keys = cache
-            .leaf_keys(scene, &tile, &labels, &built, &TileRecord::default())
-            .unwrap();
+        let keys = cache.leaf_keys(scene, &tile, &labels, &built, b"metadata");
         (tile, labels, keys)
     }
 

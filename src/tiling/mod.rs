@@ -183,6 +183,20 @@ impl<'a> TileWriter<'a> {
         self.write_tile(&self.plan.tiles[i], content, record)
     }
 
+    /// What a leaf's file holds beside its geometry and materials ([`hlod::LeafFile`]): the
+    /// property table [`Self::write_tile`] gives it.
+    fn leaf_file(&self, content: &TileContent) -> Vec<u8> {
+        let merged = self.appearance.merge(self.scene, content);
+        let content = merged.as_ref().unwrap_or(content);
+        let table = self.schema.property_table(
+            self.scene,
+            &content.features,
+            &self.schema_placement,
+            TableScope::All,
+        );
+        table.key_bytes()
+    }
+
     /// Encodes `content` as the GLB of `tile` and writes it (`tiles/<path>.glb`).
     fn write_tile(
         &self,
@@ -257,6 +271,7 @@ impl<'a> TileWriter<'a> {
         };
         let write =
             |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
+        let leaf_file = |content: &TileContent| self.leaf_file(content);
         let slots: Vec<std::sync::Mutex<Option<TileRecord>>> =
             self.plan.tiles.iter().map(|_| Default::default()).collect();
         let hlod = HlodBuilder {
@@ -269,6 +284,7 @@ impl<'a> TileWriter<'a> {
             provided: Default::default(),
             allowed_m: hlod::allowed_errors_m(self.plan, self.opts),
             cache: Some(cache),
+            leaf_file: Some(&leaf_file),
         };
         match self.plan.tiles.is_empty() {
             true => Ok(Vec::new()),
@@ -287,6 +303,7 @@ impl<'a> TileWriter<'a> {
         let (scene, plan, opts) = (self.scene, self.plan, self.opts);
         let write =
             |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
+        let leaf_file = |content: &TileContent| self.leaf_file(content);
         match &opts.lod {
             LodMode::None => {
                 let mut owned = Vec::new();
@@ -329,6 +346,7 @@ impl<'a> TileWriter<'a> {
                     provided: std::sync::Mutex::new(provided),
                     allowed_m: hlod::allowed_errors_m(plan, opts),
                     cache: self.cache,
+                    leaf_file: Some(&leaf_file),
                 };
                 let built = roots
                     .par_iter()

@@ -128,6 +128,10 @@ pub struct UpdateReport {
     /// Internal tiles found in the tile cache whose hand-over (the geometry a parent built again
     /// simplifies) was made again from its recipe: simplified, not measured.
     pub tiles_remade: usize,
+    /// Leaves whose file was taken from the live tileset (their geometry and their elements'
+    /// metadata as they were: not encoded), and their files' bytes.
+    pub leaves_reused: usize,
+    pub leaf_bytes_reused: u64,
     /// Size of the tile cache file written.
     pub tile_cache_bytes: u64,
     /// Why the tile cache could not be used (absent when it was, or there was no tileset yet).
@@ -154,7 +158,7 @@ impl UpdateReport {
         }
         if self.mode == "rebuilt" {
             s += &format!(
-                "\nupdate: {} tiles written ({} bytes), of them {} of {} HLOD tiles built and {} written again from the tile cache; {} HLOD tiles reused from the tile cache ({} bytes); {} simplified again for their parents; tile cache {} bytes",
+                "\nupdate: {} tiles written ({} bytes), of them {} of {} HLOD tiles built and {} written again from the tile cache; {} HLOD tiles ({} bytes) and {} leaves ({} bytes) reused from the tile cache; {} simplified again for their parents; tile cache {} bytes",
                 self.tiles_built,
                 self.tile_bytes_built,
                 self.internal_tiles_built,
@@ -162,6 +166,8 @@ impl UpdateReport {
                 self.tiles_rewritten,
                 self.tiles_reused,
                 self.tile_bytes_reused,
+                self.leaves_reused,
+                self.leaf_bytes_reused,
                 self.tiles_remade,
                 self.tile_cache_bytes
             );
