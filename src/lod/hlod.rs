@@ -152,13 +152,12 @@ impl HlodBuilder<'_> {
         leaf_built(content, cut_triangles)
     }
 
-    /// A leaf: its content at full detail, written as it is; what it hands up and the record of
-    /// what it wrote.
-    pub(super) fn build_leaf(&self, i: usize) -> Result<(BuiltSubtree, TileRecord)> {
+    /// A leaf: its content at full detail, written as it is; what it hands up.
+    fn build_leaf(&self, i: usize) -> Result<BuiltSubtree> {
         let (content, cut_triangles) = self.leaf_content(i);
         let written = (self.write)(i, &content, TileRecord::default())?;
-        *self.slots[i].lock().expect("slot") = Some(written.clone());
-        Ok((leaf_built(content, cut_triangles), written))
+        *self.slots[i].lock().expect("slot") = Some(written);
+        Ok(leaf_built(content, cut_triangles))
     }
 
     /// The position grid (metres per axis) of a simplified tile's content, which it may thin. The
@@ -289,7 +288,7 @@ impl HlodBuilder<'_> {
             });
         }
         if tile.children.is_empty() {
-            return self.build_leaf(i).map(|(built, _)| built);
+            return self.build_leaf(i);
         }
         let kids: Vec<BuiltSubtree> = tile
             .children

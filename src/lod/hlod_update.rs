@@ -96,12 +96,16 @@ impl HlodBuilder<'_> {
                 .leaf_file
                 .expect("a tile cache comes with what leaves' files hold");
             let file_inputs = leaf_file(&content);
-            let built = leaf_built(content.clone(), cut_triangles);
+            // The hand-over is the content itself unless instances are expanded for it: only
+            // then is the content kept apart to be written.
+            let instanced = (!content.instanced.is_empty()).then(|| content.clone());
+            let built = leaf_built(content, cut_triangles);
             let key = cache.leaf_keys(self.scene, tile, &labels, &built, &file_inputs);
             let record = match cache.reuse_leaf(i, tile, &key) {
                 Some(record) => record,
                 None => {
-                    let record = (self.write)(i, &content, TileRecord::default())?;
+                    let as_written = instanced.as_ref().unwrap_or(&built.content);
+                    let record = (self.write)(i, as_written, TileRecord::default())?;
                     cache.store_leaf(i, tile, &key, &record)?;
                     record
                 }

@@ -13,7 +13,7 @@ use glam::{DMat4, DVec3};
 /// How a primitive's arrays are written: `Raw`, element by element (what the sharded jobs hand
 /// on, and what keys hash), or `Packed` through meshopt's lossless codecs (the vertex codec, and
 /// the index sequence codec, which keeps every triangle's corners in their order): the update's
-/// tile cache keeps several times more hand-overs in its share of the tileset's bytes.
+/// tile cache keeps more hand-overs in its share of the tileset's bytes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Streams {
     Raw,
