@@ -20,8 +20,8 @@ enum Streams {
     Packed,
 }
 
-/// meshopt's vertex codec packs an array into no less than this share of its bytes (an array of
-/// zeros packs about a thousand times; a margin of two), and a packed array carries up to
+/// meshopt's vertex codec packs an array into no less than this share of its bytes (twice the
+/// share an array of zeros, its best case, packs into), and a packed array carries up to
 /// [`PACKED_SLACK_BYTES`] of its own framing: counts past that are refused before anything is
 /// allocated. (The cache's zlib checksum already refuses bytes spoiled by accident.)
 const PACKED_VERTEX_RATIO: usize = 2048;
