@@ -103,6 +103,7 @@ pub(crate) fn coarse_root(
         allowed_m,
         cache: None,
         leaf_file: None,
+        retable: None,
     };
     builder.build(0)?;
     drop(builder);

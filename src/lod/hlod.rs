@@ -63,6 +63,12 @@ pub(crate) type WriteTile<'a> =
 /// geometry are what they were.
 pub(crate) type LeafFile<'a> = dyn Fn(&TileContent) -> Vec<u8> + Sync + 'a;
 
+/// Writes tile `i`'s file again from its live `file`, with the property table of `features` (its
+/// rows) in place of its own, and returns its `record` with the new file's figures; `None` when
+/// `file` is not laid out as the encoder writes one.
+pub(crate) type Retable<'a> =
+    dyn Fn(usize, &[u8], &[ComponentId], TileRecord) -> Result<Option<TileRecord>> + Sync + 'a;
+
 /// Builds HLOD content bottom-up, children in parallel; each tile is written as soon as it is made
 /// and only its content travels up to its parent.
 pub(crate) struct HlodBuilder<'a> {
@@ -81,6 +87,8 @@ pub(crate) struct HlodBuilder<'a> {
     pub(crate) cache: Option<&'a SubtreeCache>,
     /// With a cache: what leaves' files hold beside their geometry.
     pub(crate) leaf_file: Option<&'a LeafFile<'a>>,
+    /// With a cache: how a tile whose elements' metadata alone changed is written again.
+    pub(crate) retable: Option<&'a Retable<'a>>,
 }
 
 /// The error each tile of `plan` is allowed (`None` for all when `--hlod-error-fraction` is 0):

@@ -171,10 +171,26 @@ impl HlodBuilder<'_> {
                 recipe,
                 file_taken,
                 handover,
+                retable,
             } = found;
+            // Only its elements' metadata changed, and its parent needs no content: its file
+            // with another property table.
+            let retabled = match (retable, self.retable) {
+                (Some(r), Some(write)) => write(i, &r.file, &r.features, record.clone())?
+                    .map(|written| (written, r.features)),
+                _ => None,
+            };
+            if let Some((written, features)) = retabled {
+                handed(false)?;
+                cache.store_retabled(i, tile, &key, labels, (&written, &recipe, &features))?;
+                *self.slots[i].lock().expect("slot") = Some(written);
+                return Ok(None);
+            }
             // Its children are the cached ones: they are taken too, and hand it their content if
             // it is made again.
             let built = match handover {
+                // A file to write again, whose table could not be replaced.
+                None if !file_taken => Some(self.replay(i, all(handed(true)?), &recipe)?),
                 None => handed(false).map(|_| None)?,
                 Some(HandOver::Kept(built)) => handed(false).map(|_| Some(built))?,
                 Some(HandOver::Remade) => Some(self.replay(i, all(handed(true)?), &recipe)?),

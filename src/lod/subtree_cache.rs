@@ -57,7 +57,7 @@ use std::sync::Mutex;
 
 /// The tile cache, relative to the output folder (beside the update state).
 pub const TILE_CACHE_FILE: &str = ".bimtiles/tile-cache.bin";
-const MAGIC: &[u8; 8] = b"BIMTCAC5";
+const MAGIC: &[u8; 8] = b"BIMTCAC6";
 /// What every version of the cache file starts with.
 const MAGIC_STEM: &[u8; 7] = b"BIMTCAC";
 /// The hand-overs the cache keeps, at most, as a share of the bytes of the tileset's tiles.
@@ -117,6 +117,29 @@ pub(crate) struct Found {
     pub file_taken: bool,
     /// Its hand-over, when asked for or when its file is to be written again.
     pub handover: Option<HandOver>,
+    /// When its file is to be written again and its parent needs no hand-over: the live file and
+    /// the features its property table has a row for, to replace the table in the file (the
+    /// hand-over then comes only if that fails).
+    pub retable: Option<Retable>,
+}
+
+/// A live tile file whose property table is to be replaced, and the features of its rows.
+#[derive(Debug, PartialEq)]
+pub(crate) struct Retable {
+    pub file: Vec<u8>,
+    pub features: Vec<ComponentId>,
+}
+
+/// An entry's head: what taking its tile needs.
+struct Head {
+    path: String,
+    /// The SHA-256 of its file as written (`None`: no content).
+    file: Option<SubtreeKey>,
+    record: TileRecord,
+    recipe: Recipe,
+    /// Internal tiles with content: the features of its property table's rows, as ranks among
+    /// its labels' components.
+    feature_ranks: Option<Vec<u32>>,
 }
 
 /// One tile in the cache, each part compressed: what taking it needs (its path, its file's
@@ -386,7 +409,10 @@ impl SubtreeCache {
         let Some(entry) = self.previous.get(&keys.whole) else {
             return false;
         };
-        let Ok((path, file, record, _)) = decode_head(&entry.head) else {
+        let Ok(Head {
+            path, file, record, ..
+        }) = decode_head(&entry.head)
+        else {
             return false;
         };
         path == tile.path
@@ -588,7 +614,9 @@ impl SubtreeCache {
         keys: &TileKeys,
     ) -> Option<TileRecord> {
         let entry = self.previous.get(&keys.whole)?;
-        let (path, file, record, _) = decode_head(&entry.head).ok()?;
+        let Head {
+            path, file, record, ..
+        } = decode_head(&entry.head).ok()?;
         if path != tile.path {
             return None;
         }
@@ -613,7 +641,7 @@ impl SubtreeCache {
     ) -> Result<()> {
         let entry = Entry {
             geometry: keys.geometry,
-            head: self.head(tile, record, &Recipe::default())?,
+            head: self.head(tile, record, &Recipe::default(), None)?,
             handover: None,
         };
         self.fresh
@@ -625,7 +653,13 @@ impl SubtreeCache {
     }
 
     /// An entry's head, compressed: what taking tile `tile` needs.
-    fn head(&self, tile: &PlannedTile, record: &TileRecord, recipe: &Recipe) -> Result<Vec<u8>> {
+    fn head(
+        &self,
+        tile: &PlannedTile,
+        record: &TileRecord,
+        recipe: &Recipe,
+        feature_ranks: Option<&[u32]>,
+    ) -> Result<Vec<u8>> {
         let file = self.file_digest(record)?;
         let mut head = W::default();
         head.str(&tile.path);
@@ -640,6 +674,10 @@ impl SubtreeCache {
         head.f64(recipe.geometric_error_m);
         head.f64(recipe.coarse_to_full_m);
         head.f64(recipe.max_folding_edge_m);
+        head.opt(&feature_ranks, |w, ranks| {
+            w.n(ranks.len());
+            ranks.iter().for_each(|&r| w.u32(r));
+        });
         self.compressed(head)
     }
 
@@ -714,8 +752,9 @@ impl SubtreeCache {
     /// its whole key, or only its geometry key, is in the cache. With the whole key, and the live
     /// tileset still holding its file as written, the file is put in the staging folder (a hard
     /// link, or a copy) and the tile counted as reused; the hand-over comes if `need`. Otherwise
-    /// the hand-over always comes, for the caller to write the file again and [`Self::store`]
-    /// the tile.
+    /// the file is to be written again: with its live file and features to replace its property
+    /// table when its parent needs no hand-over (then [`Self::store_retabled`]), or else with its
+    /// hand-over, whose content is written again (then [`Self::store`]).
     pub(crate) fn reuse(
         &self,
         i: usize,
@@ -731,12 +770,28 @@ impl SubtreeCache {
                 false,
             ),
         };
-        let (path, file, record, recipe) = decode_head(&entry.head).ok()?;
+        let Head {
+            path,
+            file,
+            record,
+            recipe,
+            feature_ranks,
+        } = decode_head(&entry.head).ok()?;
         if path != tile.path {
             return None;
         }
         let file_taken = same_file && self.take_file(file, &record).is_some();
-        let handover = match (need || !file_taken, &entry.handover) {
+        let retable = match (file_taken || need, feature_ranks) {
+            (false, Some(ranks)) => self.live_file(file, &record).and_then(|file| {
+                let features = ranks
+                    .iter()
+                    .map(|&r| labels.components.get(r as usize).copied())
+                    .collect::<Option<_>>()?;
+                Some(Retable { file, features })
+            }),
+            _ => None,
+        };
+        let handover = match (need || (!file_taken && retable.is_none()), &entry.handover) {
             (false, _) => None,
             (true, Some(packed)) => Some(HandOver::Kept(
                 labels.relabel(&decode_handover(packed).ok()?, false)?,
@@ -759,7 +814,15 @@ impl SubtreeCache {
             recipe,
             file_taken,
             handover,
+            retable,
         })
+    }
+
+    /// The bytes of the live file `record` names, if it still has the SHA-256 `file`.
+    fn live_file(&self, file: Option<SubtreeKey>, record: &TileRecord) -> Option<Vec<u8>> {
+        let bytes = std::fs::read(self.live.join(record.uri.as_ref()?)).ok()?;
+        let sha: SubtreeKey = Sha256::digest(&bytes).into();
+        (Some(sha) == file).then_some(bytes)
     }
 
     /// Puts the live file `record` names, if it still has the SHA-256 `file`, in the staging
@@ -801,25 +864,67 @@ impl SubtreeCache {
             w.packed_subtree(r);
             w
         });
+        let feature_ranks: Option<Vec<u32>> = match record.uri {
+            Some(_) => built
+                .content
+                .features
+                .iter()
+                .map(|&c| labels.component_rank(c))
+                .collect(),
+            None => None,
+        };
         let entry = Entry {
             geometry: keys.geometry,
-            head: self.head(tile, record, recipe)?,
+            head: self.head(tile, record, recipe, feature_ranks.as_deref())?,
             handover: handover.map(|w| self.compressed(w)).transpose()?,
         };
         self.fresh
             .lock()
             .expect("fresh")
             .insert(i, (keys.whole, tile.path.clone(), entry));
-        if rewritten {
-            let mut t = self.tally.lock().expect("tally");
-            t.tiles_rewritten += 1;
-            t.tiles_built += 1;
-            t.internal_tiles += 1;
-            t.tile_bytes_built += record.content.bytes;
-        } else {
-            self.tally_built(record, true);
+        match rewritten {
+            true => self.tally_rewritten(record),
+            false => self.tally_built(record, true),
         }
         Ok(())
+    }
+
+    /// Records internal tile `i` (`tile`), whose file was written again with another property
+    /// table for the same `features` ([`Found::retable`]), for the next build: its hand-over, if
+    /// kept, is the previous build's.
+    pub(crate) fn store_retabled(
+        &self,
+        i: usize,
+        tile: &PlannedTile,
+        keys: &TileKeys,
+        labels: &Labels,
+        (record, recipe, features): (&TileRecord, &Recipe, &[ComponentId]),
+    ) -> Result<()> {
+        let feature_ranks: Option<Vec<u32>> =
+            features.iter().map(|&c| labels.component_rank(c)).collect();
+        let previous = self
+            .by_geometry
+            .get(&keys.geometry)
+            .and_then(|k| self.previous.get(k));
+        let entry = Entry {
+            geometry: keys.geometry,
+            head: self.head(tile, record, recipe, feature_ranks.as_deref())?,
+            handover: previous.and_then(|e| e.handover.clone()),
+        };
+        self.fresh
+            .lock()
+            .expect("fresh")
+            .insert(i, (keys.whole, tile.path.clone(), entry));
+        self.tally_rewritten(record);
+        Ok(())
+    }
+
+    fn tally_rewritten(&self, record: &TileRecord) {
+        let mut t = self.tally.lock().expect("tally");
+        t.tiles_rewritten += 1;
+        t.tiles_built += 1;
+        t.internal_tiles += 1;
+        t.tile_bytes_built += record.content.bytes;
     }
 
     /// What this build saved.
@@ -942,11 +1047,8 @@ fn inflate(packed: &[u8]) -> std::result::Result<Vec<u8>, WireError> {
     Ok(bytes)
 }
 
-/// An entry's head: path, file digest, record, recipe.
-#[allow(clippy::type_complexity)]
-fn decode_head(
-    packed: &[u8],
-) -> std::result::Result<(String, Option<SubtreeKey>, TileRecord, Recipe), WireError> {
+/// An entry's head.
+fn decode_head(packed: &[u8]) -> std::result::Result<Head, WireError> {
     let bytes = inflate(packed)?;
     let mut r = R(&bytes);
     let path = r.str()?;
@@ -963,10 +1065,20 @@ fn decode_head(
         coarse_to_full_m: r.f64()?,
         max_folding_edge_m: r.f64()?,
     };
+    let feature_ranks = match r.flag()? {
+        true => Some(r.vec(4, |r| r.u32())?),
+        false => None,
+    };
     if !r.0.is_empty() {
         return Err(WireError::NoEndMark);
     }
-    Ok((path, file, record, recipe))
+    Ok(Head {
+        path,
+        file,
+        record,
+        recipe,
+        feature_ranks,
+    })
 }
 
 /// An entry's hand-over.
@@ -1289,6 +1401,7 @@ mod tests {
             recipe: recipe.clone(),
             file_taken,
             handover,
+            retable: None,
         };
         let kept = || Some(HandOver::Kept(built.clone()));
         assert_eq!(
@@ -1340,6 +1453,7 @@ mod tests {
             recipe: recipe.clone(),
             file_taken: true,
             handover,
+            retable: None,
         };
         assert_eq!(
             lean.reuse(2, &planned("r0"), &keys(6, 7), &labels(0), true),
@@ -1363,6 +1477,56 @@ mod tests {
         std::fs::remove_file(dir.join(TILE_CACHE_FILE)).unwrap();
         let none = SubtreeCache::open(&dir, &dir, global, &Default::default());
         assert!(none.note.unwrap().contains("no tile cache"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    #[test]
+    fn a_file_whose_metadata_changed_is_offered_with_its_rows_when_unchanged_on_disk() {
+        let dir = std::env::temp_dir().join(format!("bimtiles-retable-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("tiles")).unwrap();
+        std::fs::write(dir.join("tiles/r0.glb"), b"the file as written").unwrap();
+        std::fs::write(dir.join("tileset.json"), b"{}").unwrap();
+        let global = global_digest(&[b"x"]);
+        let cache = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        let record = TileRecord {
+            uri: Some("tiles/r0.glb".into()),
+            ..Default::default()
+        };
+        let keys = |w: u8| TileKeys {
+            geometry: [6; 32],
+            whole: [w; 32],
+        };
+        let (built, recipe) = (subtree(0.3), Recipe::default());
+        let stored = (&record, &built, &recipe);
+        cache
+            .store(2, &planned("r0"), &keys(7), &labels(0), stored, false)
+            .unwrap();
+        cache.write_into(&dir).unwrap();
+        let again = SubtreeCache::open(&dir, &dir, global, &Default::default());
+        // Another whole key (an element's metadata changed), its ids renumbered since.
+        let found = |need| {
+            again
+                .reuse(2, &planned("r0"), &keys(8), &labels(4), need)
+                .unwrap()
+        };
+        let offered = found(false);
+        assert_eq!(
+            offered.retable,
+            Some(Retable {
+                file: b"the file as written".to_vec(),
+                features: vec![ComponentId(4)],
+            })
+        );
+        assert_eq!((offered.file_taken, offered.handover), (false, None));
+        // Its parent is built: the hand-over comes, and the content is written again.
+        let needed = found(true);
+        assert_eq!(needed.retable, None);
+        assert!(needed.handover.is_some());
+        // A live file that is not as written is not patched.
+        std::fs::write(dir.join("tiles/r0.glb"), b"the file, altered").unwrap();
+        let altered = found(false);
+        assert_eq!(altered.retable, None);
+        assert!(altered.handover.is_some());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

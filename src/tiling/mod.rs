@@ -197,6 +197,47 @@ impl<'a> TileWriter<'a> {
         table.key_bytes()
     }
 
+    /// The property table of a tile's `features` (its rows), for the tile `record` describes:
+    /// simplified tiles may carry identities alone (`--coarse-tile-properties`).
+    fn property_table(
+        &self,
+        features: &[crate::scene::ComponentId],
+        record: &TileRecord,
+    ) -> crate::encode::metadata::PropertyTable {
+        let scope = match (
+            record.simplified_from_triangles,
+            self.opts.coarse_tile_properties,
+        ) {
+            (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
+            _ => TableScope::All,
+        };
+        self.schema
+            .property_table(self.scene, features, &self.schema_placement, scope)
+    }
+
+    /// Tile `i`'s live `file` with the property table of `features` in place of its own, written
+    /// as `tiles/<path>.glb` ([`hlod::Retable`]): what encoding its content again would write.
+    fn retable(
+        &self,
+        i: usize,
+        file: &[u8],
+        features: &[crate::scene::ComponentId],
+        mut record: TileRecord,
+    ) -> Result<Option<TileRecord>> {
+        let table = self.property_table(features, &record);
+        let Some((glb, table_bytes)) = crate::encode::glb::replace_property_table(file, &table)
+        else {
+            return Ok(None);
+        };
+        let uri = format!("tiles/{}.glb", self.plan.tiles[i].path);
+        write_renamed(&self.dir.join(&uri), &glb)?;
+        self.pb.inc(1);
+        record.content.bytes = glb.len() as u64;
+        record.content.metadata_bytes = table_bytes as u64;
+        record.uri = Some(uri);
+        Ok(Some(record))
+    }
+
     /// Encodes `content` as the GLB of `tile` and writes it (`tiles/<path>.glb`).
     fn write_tile(
         &self,
@@ -223,17 +264,8 @@ impl<'a> TileWriter<'a> {
         let content = atlas.as_ref().map_or(content, |a| &a.content);
         let image = |id| textures.image_for(id, &chosen, atlas.as_ref());
         let sampled_px = atlas.as_ref().map(|a| a.texels_px()).unwrap_or_default();
-        let scope = match (
-            record.simplified_from_triangles,
-            opts.coarse_tile_properties,
-        ) {
-            (Some(_), CoarseTileProperties::Identity) => TableScope::Identity,
-            _ => TableScope::All,
-        };
-        let make_table = |features: &[crate::scene::ComponentId]| {
-            self.schema
-                .property_table(scene, features, &self.schema_placement, scope)
-        };
+        let make_table =
+            |features: &[crate::scene::ComponentId]| self.property_table(features, &record);
         let coarse_encoding;
         // Simplified content: its own position grid, its normals from the faces as drawn.
         let encoding = match record.max_position_error_m {
@@ -272,6 +304,9 @@ impl<'a> TileWriter<'a> {
         let write =
             |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
         let leaf_file = |content: &TileContent| self.leaf_file(content);
+        let retable = |i: usize, file: &[u8], features: &[crate::scene::ComponentId], record| {
+            self.retable(i, file, features, record)
+        };
         let slots: Vec<std::sync::Mutex<Option<TileRecord>>> =
             self.plan.tiles.iter().map(|_| Default::default()).collect();
         let hlod = HlodBuilder {
@@ -285,6 +320,7 @@ impl<'a> TileWriter<'a> {
             allowed_m: hlod::allowed_errors_m(self.plan, self.opts),
             cache: Some(cache),
             leaf_file: Some(&leaf_file),
+            retable: Some(&retable),
         };
         match self.plan.tiles.is_empty() {
             true => Ok(Vec::new()),
@@ -304,6 +340,9 @@ impl<'a> TileWriter<'a> {
         let write =
             |i: usize, content: &TileContent, record: TileRecord| self.write(i, content, record);
         let leaf_file = |content: &TileContent| self.leaf_file(content);
+        let retable = |i: usize, file: &[u8], features: &[crate::scene::ComponentId], record| {
+            self.retable(i, file, features, record)
+        };
         match &opts.lod {
             LodMode::None => {
                 let mut owned = Vec::new();
@@ -347,6 +386,7 @@ impl<'a> TileWriter<'a> {
                     allowed_m: hlod::allowed_errors_m(plan, opts),
                     cache: self.cache,
                     leaf_file: Some(&leaf_file),
+                    retable: Some(&retable),
                 };
                 let built = roots
                     .par_iter()

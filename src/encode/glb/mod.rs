@@ -25,11 +25,13 @@ mod builder;
 mod materials;
 mod primitives;
 mod quantization;
+mod retable;
 
 use builder::*;
 use materials::*;
 use primitives::*;
 use quantization::*;
+pub use retable::replace_property_table;
 
 /// An encoded tile: the GLB and what it holds.
 #[derive(Debug, Clone)]
