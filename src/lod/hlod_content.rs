@@ -30,7 +30,8 @@ use crate::simplify::{simplify, MeshInput, SimplifiedMesh, SimplifyError, Simpli
 use glam::DVec3;
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering::Relaxed};
+use std::sync::{Arc, OnceLock};
 
 /// What simplifying a tile's children gave.
 #[derive(Debug, Clone)]
@@ -84,6 +85,25 @@ pub struct ErrorReference<'a> {
     kids: Vec<(MeshBvh, f64)>,
     leaves: &'a [&'a [ContentItem]],
     min_leaf_samples: usize,
+    /// The leaves' geometry gathered by a measurement, for the next ones (every try of a tile
+    /// measures against the same leaves), and its size.
+    kept_leaves: Vec<OnceLock<Arc<Soup>>>,
+    kept_bytes: AtomicUsize,
+}
+
+/// Positions and triangles of one mesh.
+type Soup = (Vec<[f32; 3]>, Vec<u32>);
+
+/// At most this many bytes of a tile's full-detail leaves are kept between its measurements
+/// (under `--memory-budget`, at most an eighth of it): every try of a tile measures against the
+/// same leaves, and gathering them from the scene again for each was a large share of the
+/// measurements (docs/benchmarks.md).
+const LEAF_SOUPS_KEPT_BYTES: usize = 256 << 20;
+
+fn leaf_soups_kept_bytes() -> usize {
+    crate::scene::memory_budget().map_or(LEAF_SOUPS_KEPT_BYTES, |b| {
+        LEAF_SOUPS_KEPT_BYTES.min((b.bytes / 8) as usize)
+    })
 }
 
 impl<'a> ErrorReference<'a> {
@@ -112,6 +132,8 @@ impl<'a> ErrorReference<'a> {
             scene,
             center,
             kids,
+            kept_leaves: leaves.iter().map(|_| OnceLock::new()).collect(),
+            kept_bytes: AtomicUsize::new(0),
             leaves,
             min_leaf_samples,
         }
@@ -209,20 +231,42 @@ impl<'a> ErrorReference<'a> {
 }
 
 impl ErrorReference<'_> {
+    /// Full-detail leaf `k`'s geometry: kept from an earlier measurement of this tile, or
+    /// gathered from the scene (and kept while the kept leaves stay within
+    /// [`LEAF_SOUPS_KEPT_BYTES`]).
+    fn leaf_soup(&self, k: usize) -> Arc<Soup> {
+        if let Some(kept) = self.kept_leaves[k].get() {
+            return kept.clone();
+        }
+        let leaf = Arc::new(TileContent::gather_soup(
+            self.scene,
+            self.leaves[k],
+            self.center,
+        ));
+        let bytes = leaf.0.len() * 12 + leaf.1.len() * 4;
+        let cap = leaf_soups_kept_bytes();
+        let kept = self.kept_bytes.fetch_add(bytes, Relaxed) + bytes <= cap
+            && self.kept_leaves[k].set(leaf.clone()).is_ok();
+        if !kept {
+            self.kept_bytes.fetch_sub(bytes, Relaxed);
+        }
+        leaf
+    }
+
     /// The largest distance from a dense sample of the full detail to the content (`p_bvh`), or
     /// some value over `f2c_limit` as soon as one shows it. Samples go a triangle at a time: every
     /// sample on a triangle whose corners lie nearer than the maximum to one triangle of the
     /// content is nearer too (convexity), and needs no query.
     fn full_to_coarse_sampled(&self, p_bvh: &MeshBvh, f2c_limit: f64) -> f64 {
         let run = AtomicU64::new(0);
-        self.leaves.par_iter().for_each(|items| {
+        (0..self.leaves.len()).into_par_iter().for_each(|k| {
             if f64::from_bits(run.load(Relaxed)) > f2c_limit {
                 return;
             }
-            let leaf = TileContent::gather(self.scene, items, self.center);
-            let (lp, li) = soup(&leaf);
+            let leaf = self.leaf_soup(k);
+            let (lp, li) = (&leaf.0, &leaf.1);
             let samples = DenseSamples::new(
-                TriMesh::new(&lp, &li),
+                TriMesh::new(lp, li),
                 (li.len() / 3).max(self.min_leaf_samples),
             );
             let sample = |hint: &mut u32, x: DVec3| {
@@ -458,9 +502,9 @@ impl ErrorReference<'_> {
                 stack.push((m, splits + 1));
             }
         };
-        for items in self.leaves.iter() {
-            let leaf = TileContent::gather(self.scene, items, self.center);
-            let (lp, li) = soup(&leaf);
+        for k in 0..self.leaves.len() {
+            let leaf = self.leaf_soup(k);
+            let (lp, li) = (&leaf.0, &leaf.1);
             let point = |i: u32| {
                 let v = lp[i as usize];
                 DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)

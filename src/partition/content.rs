@@ -423,36 +423,8 @@ impl TileContent {
     /// Merges `content` of `scene` (whole components or parts of cut ones) around `center`.
     /// Features are numbered in content order (parts of one component share one).
     pub fn gather(scene: &Scene, content: &[ContentItem], center: DVec3) -> TileContent {
-        let mut features: Vec<ComponentId> = Vec::new();
-        // The content's meshes, each read once and held while the parts borrow them.
-        let mut held: BTreeMap<MeshId, Arc<Mesh>> = BTreeMap::new();
-        for item in content {
-            let mesh = scene.component(item.component).mesh;
-            held.entry(mesh).or_insert_with(|| scene.mesh(mesh));
-        }
-        type Part<'a> = (u32, &'a Component, &'a Primitive, Option<Vec<u32>>);
-        let mut groups: BTreeMap<u32, Vec<Part>> = BTreeMap::new();
-        for item in content {
-            if features.last() != Some(&item.component) {
-                features.push(item.component);
-            }
-            let fid = (features.len() - 1) as u32;
-            let comp = scene.component(item.component);
-            for (pi, prim) in held[&comp.mesh].primitives.iter().enumerate() {
-                let subset: Option<Vec<u32>> = item.triangles.as_ref().map(|tris| {
-                    let lo = tris.partition_point(|t| t.0 < pi as u32);
-                    let hi = tris.partition_point(|t| t.0 <= pi as u32);
-                    tris[lo..hi].iter().map(|t| t.1).collect()
-                });
-                if subset.as_ref().is_some_and(|s| s.is_empty()) {
-                    continue;
-                }
-                groups
-                    .entry(material_key(prim.material))
-                    .or_default()
-                    .push((fid, comp, prim, subset));
-            }
-        }
+        let held = held_meshes(scene, content);
+        let (features, groups) = grouped_parts(scene, content, &held);
         let mut primitives = Vec::new();
         for (key, parts) in &groups {
             let material = (*key != u32::MAX).then_some(MaterialId(*key));
@@ -487,6 +459,33 @@ impl TileContent {
             primitives,
             instanced: Vec::new(),
         }
+    }
+
+    /// The positions and triangles of [`gather`](Self::gather)'s content as one soup, its
+    /// primitives one after the other: what distance queries need of full detail, without the
+    /// normals, texture coordinates, colours and feature ids.
+    pub fn gather_soup(
+        scene: &Scene,
+        content: &[ContentItem],
+        center: DVec3,
+    ) -> (Vec<[f32; 3]>, Vec<u32>) {
+        let held = held_meshes(scene, content);
+        let (_, groups) = grouped_parts(scene, content, &held);
+        let (mut positions, mut indices) = (Vec::new(), Vec::new());
+        for parts in groups.values() {
+            let (p0, i0) = (positions.len(), indices.len());
+            for (_, comp, prim, subset) in parts {
+                let (verts, tris) = part_of(prim, subset.as_deref());
+                let base = positions.len() as u32;
+                append_geometry(&mut positions, comp, prim, &verts, center);
+                append_triangles(&mut indices, comp, &tris, base);
+            }
+            // A primitive without triangles is not gathered.
+            if indices.len() == i0 {
+                positions.truncate(p0);
+            }
+        }
+        (positions, indices)
     }
 
     /// Concatenates several contents (e.g. the children of an HLOD tile) around a new `center`:
@@ -611,21 +610,57 @@ fn transformed(p: &ContentPrimitive, m: &DMat4) -> ContentPrimitive {
     }
 }
 
-/// Appends a primitive (or, for a part of a cut mesh, only the triangles `subset`, re-indexed
-/// compactly over the vertices they use) to a merged stream, transformed to the tile's frame.
-#[allow(clippy::too_many_arguments)]
-fn append_primitive(
-    out: &mut ContentPrimitive,
-    comp: &Component,
-    prim: &Primitive,
-    subset: Option<&[u32]>,
-    feature_id: u32,
-    center: DVec3,
-    with_uv: bool,
-    with_color: bool,
-) {
-    // `verts`: source vertex of each new vertex; `tris`: triangles in new indices.
-    let (verts, tris): (Vec<u32>, Vec<u32>) = match subset {
+/// The meshes `content` draws, each read once and held while its parts borrow them.
+fn held_meshes(scene: &Scene, content: &[ContentItem]) -> BTreeMap<MeshId, Arc<Mesh>> {
+    let mut held: BTreeMap<MeshId, Arc<Mesh>> = BTreeMap::new();
+    for item in content {
+        let mesh = scene.component(item.component).mesh;
+        held.entry(mesh).or_insert_with(|| scene.mesh(mesh));
+    }
+    held
+}
+
+/// One part of a tile's content: its feature number, component, primitive and the triangles it
+/// keeps of it (`None`: all).
+type Part<'a> = (u32, &'a Component, &'a Primitive, Option<Vec<u32>>);
+
+/// The features of `content` (a component once, in item order) and its parts grouped by
+/// material key, in that key's order.
+fn grouped_parts<'a>(
+    scene: &'a Scene,
+    content: &[ContentItem],
+    held: &'a BTreeMap<MeshId, Arc<Mesh>>,
+) -> (Vec<ComponentId>, BTreeMap<u32, Vec<Part<'a>>>) {
+    let mut features: Vec<ComponentId> = Vec::new();
+    let mut groups: BTreeMap<u32, Vec<Part>> = BTreeMap::new();
+    for item in content {
+        if features.last() != Some(&item.component) {
+            features.push(item.component);
+        }
+        let fid = (features.len() - 1) as u32;
+        let comp = scene.component(item.component);
+        for (pi, prim) in held[&comp.mesh].primitives.iter().enumerate() {
+            let subset: Option<Vec<u32>> = item.triangles.as_ref().map(|tris| {
+                let lo = tris.partition_point(|t| t.0 < pi as u32);
+                let hi = tris.partition_point(|t| t.0 <= pi as u32);
+                tris[lo..hi].iter().map(|t| t.1).collect()
+            });
+            if subset.as_ref().is_some_and(|s| s.is_empty()) {
+                continue;
+            }
+            groups
+                .entry(material_key(prim.material))
+                .or_default()
+                .push((fid, comp, prim, subset));
+        }
+    }
+    (features, groups)
+}
+
+/// The vertices (the source vertex of each) and triangles (in the new indices) a part takes of
+/// `prim`: all of it, or the triangles `subset`, re-indexed compactly over the vertices they use.
+fn part_of(prim: &Primitive, subset: Option<&[u32]>) -> (Vec<u32>, Vec<u32>) {
+    match subset {
         None => (
             (0..prim.positions.len() as u32).collect(),
             prim.indices.clone(),
@@ -645,24 +680,61 @@ fn append_primitive(
                 .collect();
             (used, tris)
         }
-    };
-    let base = out.positions.len() as u32;
+    }
+}
+
+/// Appends the positions of vertices `verts` of `prim`, placed by `comp`, in the tile's frame.
+fn append_geometry(
+    positions: &mut Vec<[f32; 3]>,
+    comp: &Component,
+    prim: &Primitive,
+    verts: &[u32],
+    center: DVec3,
+) {
     let m = comp.world;
-    let normal_matrix = comp.normal_matrix();
-    let mirrored = comp.mirrors();
-    for &v in &verts {
+    positions.extend(verts.iter().map(|&v| {
         let p = prim.positions[v as usize];
         let l = m.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)) - center;
-        out.positions.push([l.x as f32, l.y as f32, l.z as f32]);
+        [l.x as f32, l.y as f32, l.z as f32]
+    }));
+}
+
+/// A triangle of a part with the winding the viewer needs (a mirroring transform flips it).
+fn oriented(t: &[u32], mirrored: bool) -> [u32; 3] {
+    if mirrored {
+        [t[0], t[2], t[1]]
+    } else {
+        [t[0], t[1], t[2]]
     }
-    // Triangles with the winding the viewer needs (a mirroring transform flips it).
-    let oriented = |t: &[u32]| {
-        if mirrored {
-            [t[0], t[2], t[1]]
-        } else {
-            [t[0], t[1], t[2]]
-        }
-    };
+}
+
+/// Appends a part's triangles `tris`, oriented, its vertices starting at `base`.
+fn append_triangles(indices: &mut Vec<u32>, comp: &Component, tris: &[u32], base: u32) {
+    let mirrored = comp.mirrors();
+    for t in tris.chunks_exact(3) {
+        indices.extend(oriented(t, mirrored).iter().map(|&i| base + i));
+    }
+}
+
+/// Appends a primitive (or, for a part of a cut mesh, only the triangles `subset`) to a merged
+/// stream, transformed to the tile's frame.
+#[allow(clippy::too_many_arguments)]
+fn append_primitive(
+    out: &mut ContentPrimitive,
+    comp: &Component,
+    prim: &Primitive,
+    subset: Option<&[u32]>,
+    feature_id: u32,
+    center: DVec3,
+    with_uv: bool,
+    with_color: bool,
+) {
+    // `verts`: source vertex of each new vertex; `tris`: triangles in new indices.
+    let (verts, tris) = part_of(prim, subset);
+    let base = out.positions.len() as u32;
+    let normal_matrix = comp.normal_matrix();
+    let mirrored = comp.mirrors();
+    append_geometry(&mut out.positions, comp, prim, &verts, center);
     match &prim.normals {
         Some(ns) => {
             for &v in &verts {
@@ -676,7 +748,7 @@ fn append_primitive(
             // Area-weighted vertex normals from the output triangles.
             let mut acc = vec![DVec3::ZERO; verts.len()];
             for t in tris.chunks_exact(3) {
-                let t = oriented(t);
+                let t = oriented(t, mirrored);
                 let v = |i: u32| {
                     let q = out.positions[(base + i) as usize];
                     DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64)
@@ -705,9 +777,7 @@ fn append_primitive(
         }
     }
     out.feature_ids.resize(out.positions.len(), feature_id);
-    for t in tris.chunks_exact(3) {
-        out.indices.extend(oriented(t).iter().map(|&i| base + i));
-    }
+    append_triangles(&mut out.indices, comp, &tris, base);
 }
 
 #[cfg(test)]
@@ -757,6 +827,83 @@ mod tests {
         // b came first: its vertices carry feature 1 (component 1) after renumbering.
         assert_eq!(m.primitives[0].feature_ids[0], 1);
         assert_eq!(m.primitives[0].feature_ids[3], 0);
+    }
+
+    #[test]
+    fn a_gathered_soup_is_the_gathered_contents_geometry() {
+        use crate::scene::Material;
+        // Two meshes on two materials, one of them mirrored, one cut to part of its triangles,
+        // one primitive left with none.
+        let mut s = Scene {
+            materials: vec![Material::default(); 2],
+            ..Default::default()
+        };
+        s.meshes.push(Mesh {
+            name: None,
+            primitives: vec![Primitive {
+                material: Some(MaterialId(1)),
+                positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                indices: vec![0, 1, 2],
+                ..Default::default()
+            }],
+            local_bounds: None,
+        });
+        s.meshes.push(Mesh {
+            name: None,
+            primitives: vec![
+                Primitive {
+                    material: Some(MaterialId(0)),
+                    positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 1.0]],
+                    indices: vec![0, 1, 2, 1, 3, 2],
+                    ..Default::default()
+                },
+                Primitive {
+                    positions: vec![[0.0; 3], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]],
+                    indices: vec![0, 1, 2],
+                    ..Default::default()
+                },
+            ],
+            local_bounds: None,
+        });
+        for (i, x) in [0.0, 10.0].into_iter().enumerate() {
+            s.push_component(
+                Component::new(MeshId(0), DMat4::from_translation(DVec3::new(x, 0.0, 0.0))),
+                &ElementInfo::keyed(format!("t{i}")),
+            );
+        }
+        let mirrored = DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0));
+        s.push_component(
+            Component::new(MeshId(1), mirrored),
+            &ElementInfo::keyed("m"),
+        );
+        s.finish();
+        let items = [
+            ContentItem {
+                component: ComponentId(2),
+                triangles: Some(Arc::new(vec![(0, 1)])),
+            },
+            ContentItem {
+                component: ComponentId(0),
+                triangles: None,
+            },
+            ContentItem {
+                component: ComponentId(1),
+                triangles: None,
+            },
+        ];
+        let center = DVec3::new(3.0, 0.5, 0.25);
+        let gathered = TileContent::gather(&s, &items, center);
+        let (mut positions, mut indices) = (Vec::new(), Vec::new());
+        for p in &gathered.primitives {
+            let base = positions.len() as u32;
+            positions.extend_from_slice(&p.positions);
+            indices.extend(p.indices.iter().map(|&i| base + i));
+        }
+        assert_eq!(gathered.primitives.len(), 2);
+        assert_eq!(
+            TileContent::gather_soup(&s, &items, center),
+            (positions, indices)
+        );
     }
 
     #[test]
