@@ -9,7 +9,9 @@
 //! taken tile's hand-over is needed only when its parent is built: it is read from the cache
 //! (upper levels), or made again from its recipe, from its own children's hand-overs, down to
 //! tiles whose hand-over is kept, or leaves. A tile whose geometry key alone is in the cache (an
-//! element's metadata changed below it) gets its content the same way and is only written again.
+//! element's metadata changed below it) is written again: its live file with the new property
+//! table in place of the old (the encoder writes the table last), or, when its parent is built
+//! or that file is not as written, from its content made the same way.
 //!
 //! A sharded update (`crate::shard`) runs the same passes in pieces: a job brings its subtrees
 //! up to date and hands up each root's content and keys; `merge` keys and takes or builds the

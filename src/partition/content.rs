@@ -787,10 +787,17 @@ mod tests {
     use glam::DMat4;
 
     fn one_triangle_scene() -> Scene {
-        let mut s = Scene::default();
+        let mut s = two_triangles_in(Scene::default(), None);
+        s.finish();
+        s
+    }
+
+    /// `s` with a one-triangle mesh of `material` (mesh 0), placed twice 10 m apart.
+    fn two_triangles_in(mut s: Scene, material: Option<MaterialId>) -> Scene {
         s.meshes.push(Mesh {
             name: None,
             primitives: vec![Primitive {
+                material,
                 positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
                 indices: vec![0, 1, 2],
                 ..Default::default()
@@ -803,7 +810,6 @@ mod tests {
                 &ElementInfo::keyed(format!("t{i}")),
             );
         }
-        s.finish();
         s
     }
 
@@ -832,22 +838,13 @@ mod tests {
     #[test]
     fn a_gathered_soup_is_the_gathered_contents_geometry() {
         use crate::scene::Material;
-        // Two meshes on two materials, one of them mirrored, one cut to part of its triangles,
-        // one primitive left with none.
-        let mut s = Scene {
+        // Two meshes on two materials, the second mirrored and cut: one triangle kept of its
+        // first primitive, none of its second.
+        let plain = Scene {
             materials: vec![Material::default(); 2],
             ..Default::default()
         };
-        s.meshes.push(Mesh {
-            name: None,
-            primitives: vec![Primitive {
-                material: Some(MaterialId(1)),
-                positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-                indices: vec![0, 1, 2],
-                ..Default::default()
-            }],
-            local_bounds: None,
-        });
+        let mut s = two_triangles_in(plain, Some(MaterialId(1)));
         s.meshes.push(Mesh {
             name: None,
             primitives: vec![
@@ -865,12 +862,6 @@ mod tests {
             ],
             local_bounds: None,
         });
-        for (i, x) in [0.0, 10.0].into_iter().enumerate() {
-            s.push_component(
-                Component::new(MeshId(0), DMat4::from_translation(DVec3::new(x, 0.0, 0.0))),
-                &ElementInfo::keyed(format!("t{i}")),
-            );
-        }
         let mirrored = DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0));
         s.push_component(
             Component::new(MeshId(1), mirrored),
