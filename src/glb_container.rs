@@ -1,7 +1,7 @@
 //! The GLB container (glTF 2.0 §4.4, "Binary glTF Layout"): a 12-byte header, a JSON chunk
 //! padded with spaces and a BIN chunk padded with zeros, each 4-byte aligned. Written by the
-//! encoder; read back (JSON chunk only) by the measurements of a written tileset. Below every
-//! stage.
+//! encoder; read back by the measurements of a written tileset (JSON chunk) and by an update that
+//! replaces a tile's property table (both chunks). Below every stage.
 
 use byteorder::{WriteBytesExt, LE};
 use serde_json::Value;
@@ -40,6 +40,32 @@ pub fn glb_container(json: &[u8], bin: &[u8]) -> Vec<u8> {
     out
 }
 
+/// The JSON chunk (without its padding) and the BIN chunk (empty when there is none) of a GLB
+/// whose header and chunk lengths agree with its size.
+pub fn chunks(glb: &[u8]) -> Option<(&[u8], &[u8])> {
+    let u32_at = |at: usize| -> Option<usize> {
+        Some(u32::from_le_bytes(glb.get(at..at + 4)?.try_into().ok()?) as usize)
+    };
+    if glb.get(0..4)? != b"glTF" || u32_at(4)? != 2 || u32_at(8)? != glb.len() {
+        return None;
+    }
+    let json_len = u32_at(12)?;
+    if glb.get(16..20)? != b"JSON" {
+        return None;
+    }
+    let json = glb.get(20..20 + json_len)?;
+    let json = &json[..json.len() - json.iter().rev().take_while(|&&c| c == b' ').count()];
+    let rest = 20 + json_len;
+    if rest == glb.len() {
+        return Some((json, &[]));
+    }
+    let bin_len = u32_at(rest)?;
+    if glb.get(rest + 4..rest + 8)? != b"BIN\0" || rest + 8 + bin_len != glb.len() {
+        return None;
+    }
+    Some((json, &glb[rest + 8..]))
+}
+
 /// The JSON chunk of a GLB, parsed.
 pub fn json_chunk(glb: &[u8]) -> Result<Value, GlbError> {
     if glb.len() < 20 || &glb[0..4] != b"glTF" {
@@ -67,6 +93,16 @@ pub fn external_uris(json: &Value) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn chunks_read_back_what_the_container_holds() {
+        let g = glb_container(br#"{"a":1}"#, &[1, 2, 3]);
+        assert_eq!(chunks(&g), Some((&br#"{"a":1}"#[..], &[1, 2, 3, 0][..])));
+        let bare = glb_container(b"{}", &[]);
+        assert_eq!(chunks(&bare), Some((&b"{}"[..], &[][..])));
+        assert_eq!(chunks(&g[..g.len() - 4]), None);
+        assert_eq!(chunks(b"glTF"), None);
+    }
 
     #[test]
     fn container_is_aligned() {

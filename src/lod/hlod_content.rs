@@ -89,6 +89,8 @@ pub struct ErrorReference<'a> {
     /// measures against the same leaves), and its size.
     kept_leaves: Vec<OnceLock<Arc<Soup>>>,
     kept_bytes: AtomicUsize,
+    /// At most this many bytes of them are kept ([`LEAF_SOUPS_KEPT_BYTES`]).
+    kept_cap_bytes: usize,
 }
 
 /// Positions and triangles of one mesh.
@@ -134,6 +136,7 @@ impl<'a> ErrorReference<'a> {
             kids,
             kept_leaves: leaves.iter().map(|_| OnceLock::new()).collect(),
             kept_bytes: AtomicUsize::new(0),
+            kept_cap_bytes: leaf_soups_kept_bytes(),
             leaves,
             min_leaf_samples,
         }
@@ -232,8 +235,7 @@ impl<'a> ErrorReference<'a> {
 
 impl ErrorReference<'_> {
     /// Full-detail leaf `k`'s geometry: kept from an earlier measurement of this tile, or
-    /// gathered from the scene (and kept while the kept leaves stay within
-    /// [`LEAF_SOUPS_KEPT_BYTES`]).
+    /// gathered from the scene (and kept while the kept leaves stay within their cap).
     fn leaf_soup(&self, k: usize) -> Arc<Soup> {
         if let Some(kept) = self.kept_leaves[k].get() {
             return kept.clone();
@@ -243,9 +245,8 @@ impl ErrorReference<'_> {
             self.leaves[k],
             self.center,
         ));
-        let bytes = leaf.0.len() * 12 + leaf.1.len() * 4;
-        let cap = leaf_soups_kept_bytes();
-        let kept = self.kept_bytes.fetch_add(bytes, Relaxed) + bytes <= cap
+        let bytes = std::mem::size_of_val(&leaf.0[..]) + std::mem::size_of_val(&leaf.1[..]);
+        let kept = self.kept_bytes.fetch_add(bytes, Relaxed) + bytes <= self.kept_cap_bytes
             && self.kept_leaves[k].set(leaf.clone()).is_ok();
         if !kept {
             self.kept_bytes.fetch_sub(bytes, Relaxed);

@@ -225,6 +225,11 @@ impl Labels {
         }
     }
 
+    /// The ranks of `components` among the labels' (`None` if one is not there).
+    fn ranks(&self, components: &[ComponentId]) -> Option<Vec<u32>> {
+        components.iter().map(|&c| self.component_rank(c)).collect()
+    }
+
     fn component_rank(&self, c: ComponentId) -> Option<u32> {
         self.components.binary_search(&c).ok().map(|r| r as u32)
     }
@@ -864,13 +869,8 @@ impl SubtreeCache {
             w.packed_subtree(r);
             w
         });
-        let feature_ranks: Option<Vec<u32>> = match record.uri {
-            Some(_) => built
-                .content
-                .features
-                .iter()
-                .map(|&c| labels.component_rank(c))
-                .collect(),
+        let feature_ranks = match record.uri {
+            Some(_) => labels.ranks(&built.content.features),
             None => None,
         };
         let entry = Entry {
@@ -900,8 +900,7 @@ impl SubtreeCache {
         labels: &Labels,
         (record, recipe, features): (&TileRecord, &Recipe, &[ComponentId]),
     ) -> Result<()> {
-        let feature_ranks: Option<Vec<u32>> =
-            features.iter().map(|&c| labels.component_rank(c)).collect();
+        let feature_ranks = labels.ranks(features);
         let previous = self
             .by_geometry
             .get(&keys.geometry)

@@ -49,6 +49,11 @@ pub const SCHEMA_FILE: &str = "schema.json";
 const SCHEMA_URI: &str = "../schema.json";
 
 /// Tiles of the plan that may get content: those holding items without LOD; every tile with
+/// Where tile `tile`'s file goes, relative to tileset.json.
+fn tile_uri(tile: &PlannedTile) -> String {
+    format!("tiles/{}.glb", tile.path)
+}
+
 /// HLOD or chains (a parent holds its children's simplified content).
 fn content_tiles_at_most(prep: &Prepared, opts: &Settings) -> usize {
     match opts.lod {
@@ -186,15 +191,9 @@ impl<'a> TileWriter<'a> {
     /// What a leaf's file holds beside its geometry and materials ([`hlod::LeafFile`]): the
     /// property table [`Self::write_tile`] gives it.
     fn leaf_file(&self, content: &TileContent) -> Vec<u8> {
-        let merged = self.appearance.merge(self.scene, content);
-        let content = merged.as_ref().unwrap_or(content);
-        let table = self.schema.property_table(
-            self.scene,
-            &content.features,
-            &self.schema_placement,
-            TableScope::All,
-        );
-        table.key_bytes()
+        // Merging primitives by appearance, as writing does, keeps the features and their order.
+        self.property_table(&content.features, &TileRecord::default())
+            .key_bytes()
     }
 
     /// The property table of a tile's `features` (its rows), for the tile `record` describes:
@@ -229,7 +228,7 @@ impl<'a> TileWriter<'a> {
         else {
             return Ok(None);
         };
-        let uri = format!("tiles/{}.glb", self.plan.tiles[i].path);
+        let uri = tile_uri(&self.plan.tiles[i]);
         write_renamed(&self.dir.join(&uri), &glb)?;
         self.pb.inc(1);
         record.content.bytes = glb.len() as u64;
@@ -246,7 +245,7 @@ impl<'a> TileWriter<'a> {
         mut record: TileRecord,
     ) -> Result<TileRecord> {
         let (scene, opts, textures) = (self.scene, self.opts, self.textures);
-        let uri = format!("tiles/{}.glb", tile.path);
+        let uri = tile_uri(tile);
         let path = self.dir.join(&uri);
         // The texture level matched to the tile's error (REPLACE content; ADD content is full).
         let texture_error = if opts.lod != LodMode::None {

@@ -6,7 +6,7 @@
 
 use super::builder::GltfBuilder;
 use crate::encode::metadata::{write_property_table, PropertyTable};
-use crate::glb_container::glb_container;
+use crate::glb_container::{chunks, glb_container};
 use serde_json::Value;
 
 /// `glb` (as this encoder wrote it) with `table` as its property table, and the table's bytes;
@@ -64,32 +64,6 @@ fn bin_range(v: &Value) -> Option<Option<usize>> {
     }
     let (at, n) = (stored["byteOffset"].as_u64(), stored["byteLength"].as_u64());
     Some(at.zip(n).map(|(at, n)| (at + n) as usize))
-}
-
-/// The JSON chunk (without its padding) and the BIN chunk (empty when there is none) of a GLB
-/// whose header and chunk lengths agree with its size.
-fn chunks(glb: &[u8]) -> Option<(&[u8], &[u8])> {
-    let u32_at = |at: usize| -> Option<usize> {
-        Some(u32::from_le_bytes(glb.get(at..at + 4)?.try_into().ok()?) as usize)
-    };
-    if glb.get(0..4)? != b"glTF" || u32_at(4)? != 2 || u32_at(8)? != glb.len() {
-        return None;
-    }
-    let json_len = u32_at(12)?;
-    if glb.get(16..20)? != b"JSON" {
-        return None;
-    }
-    let json = glb.get(20..20 + json_len)?;
-    let json = &json[..json.len() - json.iter().rev().take_while(|&&c| c == b' ').count()];
-    let rest = 20 + json_len;
-    if rest == glb.len() {
-        return Some((json, &[]));
-    }
-    let bin_len = u32_at(rest)?;
-    if glb.get(rest + 4..rest + 8)? != b"BIN\0" || rest + 8 + bin_len != glb.len() {
-        return None;
-    }
-    Some((json, &glb[rest + 8..]))
 }
 
 /// The first of the views `ext` (the root `EXT_structural_metadata`) lays its property tables in,
