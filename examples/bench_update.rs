@@ -2,8 +2,9 @@
 //! IFC and GLB models, each building its own file), against a full build: wall time, and files
 //! and bytes written again, for an unchanged manifest, one building's file replaced by another
 //! model, one building moved 50 m, one property value renamed in an IFC file, and one building
-//! removed. Each update starts from the tileset the previous one left. Also writes
-//! `target/bench/update.json`.
+//! removed. Each update starts from the tileset the previous one left. Then the same campus built
+//! and updated sharded (`plan --update --jobs 4`, each job's `build-job` one after another, `merge`):
+//! the jobs an update runs, and the time of each step. Also writes `target/bench/update.json`.
 //!
 //! Usage: cargo run --release --example bench_update -- [DATA_DIR] [--buildings N]
 
@@ -60,22 +61,14 @@ fn copy(from: &Path, to: &Path) {
 
 /// Runs `bimtiles convert --manifest` with `extra`; the wall time and the report.
 fn convert(bin: &Path, manifest: &Path, out: &Path, extra: &[&str]) -> (f64, Value) {
-    let t = Instant::now();
-    let o = Command::new(bin)
-        .args(["convert", "--manifest"])
-        .arg(manifest)
-        .arg("--out")
-        .arg(out)
-        .arg("--quiet")
-        .args(extra)
-        .output()
-        .expect("run bimtiles");
-    let seconds = t.elapsed().as_secs_f64();
-    assert!(
-        o.status.success(),
-        "convert: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let (seconds, _) = run(bin, |c| {
+        c.args(["convert", "--manifest"])
+            .arg(manifest)
+            .arg("--out")
+            .arg(out)
+            .arg("--quiet")
+            .args(extra);
+    });
     let report = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     (seconds, report)
 }
@@ -247,16 +240,119 @@ fn main() {
             u["tiles_rewritten"],
             u["tiles_reused"],
             u["tiles_remade"],
-            u["full_build_reason"].as_str().unwrap_or("-"),
+            // Input files named from the campus folder.
+            u["full_build_reason"]
+                .as_str()
+                .map_or("-".into(), |r| r.replace(&format!("{}/", campus.dir.display()), "")),
         );
         rows.push(row);
     }
-    let json = json!({"buildings": buildings, "full_build_s": full_s, "files": files, "tiles": tiles, "updates": rows});
+    let sharded = sharded_updates(&bin, &mut campus, &root.join("tiles-sharded"), middle);
+    let json = json!({"buildings": buildings, "full_build_s": full_s, "files": files, "tiles": tiles, "updates": rows, "sharded": sharded});
     std::fs::write(
         repo.join("target/bench/update.json"),
         serde_json::to_vec_pretty(&json).unwrap(),
     )
     .unwrap();
+}
+
+/// Jobs of a sharded update.
+const SHARDED_JOBS: usize = 4;
+
+/// The campus as it is built sharded into `out`, then updated sharded after one building moved
+/// 50 m and with nothing changed: a table row and a JSON record each.
+fn sharded_updates(bin: &Path, campus: &mut Campus, out: &Path, moved: usize) -> Vec<Value> {
+    println!("\nSharded (`plan --update --jobs {SHARDED_JOBS}`, the jobs one after another, `merge`), from a fresh output folder:\n");
+    println!("| change | plan (s) | jobs run | jobs (s, each) | merge (s) | in all (s) | of the sharded full build | files written |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut rows: Vec<Value> = Vec::new();
+    let steps: [Change; 3] = [
+        ("full build", Box::new(|_| {})),
+        (
+            "one building moved 50 m",
+            Box::new(move |c: &mut Campus| {
+                let east = c.models[moved]["east_m"].as_f64().unwrap();
+                c.models[moved]["east_m"] = json!(east + 50.0);
+            }),
+        ),
+        ("unchanged manifest", Box::new(|_| {})),
+    ];
+    for (name, change) in steps.iter() {
+        change(campus);
+        let manifest = campus.write();
+        let jobs = SHARDED_JOBS.to_string();
+        let (plan_s, _) = run(bin, |c| {
+            c.arg("plan")
+                .arg("--manifest")
+                .arg(&manifest)
+                .arg("--out")
+                .arg(out)
+                .args(["--update", "--jobs", &jobs, "--quiet"]);
+        });
+        let state = out.join(bimtiles::shard::UPDATE_DIR);
+        let plan: Value =
+            serde_json::from_slice(&std::fs::read(state.join("plan.json")).unwrap()).unwrap();
+        let changed: Vec<u64> = plan["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|j| j["changed"] == true)
+            .map(|j| j["job"].as_u64().unwrap())
+            .collect();
+        let job_s: Vec<f64> = changed
+            .iter()
+            .map(|k| {
+                run(bin, |c| {
+                    c.arg("build-job")
+                        .arg(out)
+                        .args(["--job", &k.to_string(), "--quiet"]);
+                })
+                .0
+            })
+            .collect();
+        let (merge_s, _) = run(bin, |c| {
+            c.arg("merge").arg(out).arg("--quiet");
+        });
+        let report: Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        let total_s = plan_s + job_s.iter().sum::<f64>() + merge_s;
+        let full_s = rows
+            .first()
+            .map_or(total_s, |r| r["seconds"].as_f64().unwrap());
+        let written = report["update"]["files_written"].as_u64().unwrap_or(0);
+        println!(
+            "| {name} | {plan_s:.2} | {} of {SHARDED_JOBS} | {} | {merge_s:.2} | {total_s:.2} | {:.1} % | {written} |",
+            changed.len(),
+            job_s.iter().map(|s| format!("{s:.2}")).collect::<Vec<_>>().join(" + "),
+            100.0 * total_s / full_s,
+        );
+        rows.push(json!({
+            "change": name,
+            "plan_s": plan_s,
+            "jobs_run": changed,
+            "job_s": job_s,
+            "merge_s": merge_s,
+            "seconds": total_s,
+            "of_full_build": total_s / full_s,
+            "files_written": written,
+        }));
+    }
+    rows
+}
+
+/// Runs the bimtiles command `args` sets; its wall time and output. Panics if it fails.
+fn run(bin: &Path, args: impl FnOnce(&mut Command)) -> (f64, std::process::Output) {
+    let mut c = Command::new(bin);
+    args(&mut c);
+    let t = Instant::now();
+    let o = c.output().expect("run bimtiles");
+    let seconds = t.elapsed().as_secs_f64();
+    assert!(
+        o.status.success(),
+        "{c:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    (seconds, o)
 }
 
 /// The bytes of the files below `dir`.
