@@ -61,7 +61,7 @@ fn copy(from: &Path, to: &Path) {
 
 /// Runs `bimtiles convert --manifest` with `extra`; the wall time and the report.
 fn convert(bin: &Path, manifest: &Path, out: &Path, extra: &[&str]) -> (f64, Value) {
-    let (seconds, _) = run(bin, |c| {
+    let seconds = run(bin, |c| {
         c.args(["convert", "--manifest"])
             .arg(manifest)
             .arg("--out")
@@ -281,7 +281,7 @@ fn sharded_updates(bin: &Path, campus: &mut Campus, out: &Path, moved: usize) ->
         change(campus);
         let manifest = campus.write();
         let jobs = SHARDED_JOBS.to_string();
-        let (plan_s, _) = run(bin, |c| {
+        let plan_s = run(bin, |c| {
             c.arg("plan")
                 .arg("--manifest")
                 .arg(&manifest)
@@ -307,10 +307,9 @@ fn sharded_updates(bin: &Path, campus: &mut Campus, out: &Path, moved: usize) ->
                         .arg(out)
                         .args(["--job", &k.to_string(), "--quiet"]);
                 })
-                .0
             })
             .collect();
-        let (merge_s, _) = run(bin, |c| {
+        let merge_s = run(bin, |c| {
             c.arg("merge").arg(out).arg("--quiet");
         });
         let report: Value =
@@ -340,8 +339,8 @@ fn sharded_updates(bin: &Path, campus: &mut Campus, out: &Path, moved: usize) ->
     rows
 }
 
-/// Runs the bimtiles command `args` sets; its wall time and output. Panics if it fails.
-fn run(bin: &Path, args: impl FnOnce(&mut Command)) -> (f64, std::process::Output) {
+/// Runs the bimtiles command `args` sets; its wall time. Panics if it fails.
+fn run(bin: &Path, args: impl FnOnce(&mut Command)) -> f64 {
     let mut c = Command::new(bin);
     args(&mut c);
     let t = Instant::now();
@@ -352,7 +351,7 @@ fn run(bin: &Path, args: impl FnOnce(&mut Command)) -> (f64, std::process::Outpu
         "{c:?}: {}",
         String::from_utf8_lossy(&o.stderr)
     );
-    (seconds, o)
+    seconds
 }
 
 /// The bytes of the files below `dir`.

@@ -48,12 +48,12 @@ pub(crate) fn progress_bar(show: bool, len: usize, what: &'static str) -> indica
 pub const SCHEMA_FILE: &str = "schema.json";
 const SCHEMA_URI: &str = "../schema.json";
 
-/// Tiles of the plan that may get content: those holding items without LOD; every tile with
 /// Where tile `tile`'s file goes, relative to tileset.json.
 fn tile_uri(tile: &PlannedTile) -> String {
     format!("tiles/{}.glb", tile.path)
 }
 
+/// Tiles of the plan that may get content: those holding items without LOD; every tile with
 /// HLOD or chains (a parent holds its children's simplified content).
 fn content_tiles_at_most(prep: &Prepared, opts: &Settings) -> usize {
     match opts.lod {
