@@ -417,7 +417,8 @@ impl ErrorReference<'_> {
     /// distance of the samples (every vertex among them). Per full-detail triangle, two bounds of
     /// the distance anywhere on it: the distance is 1-Lipschitz (at most the largest corner's
     /// distance plus the longest edge over √3), and the distance to one coarse triangle is convex
-    /// (at most the largest corner's distance to that triangle). A triangle whose bound is over
+    /// (at most the largest corner's distance to that triangle), as it is on each side of a plane
+    /// through the edge two coarse triangles share ([`two_piece_bound`]). A triangle whose bound is over
     /// the certified distance ([`FULL_TO_COARSE_SAFETY`] times `sampled_m`) is split in four at its
     /// edge midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times),
     /// so the declared error covers every face, edge and open border. Samples alone missed peaks
@@ -445,7 +446,7 @@ impl ErrorReference<'_> {
                 && c.iter()
                     .all(|&v| surely_below(coarse.distance_to_triangle(v, t), certified_m))
         };
-        let bound = |c: &[Corner; 3]| {
+        let certified = |c: &[Corner; 3]| {
             let far = c.iter().map(|k| k.1).fold(0.0, f64::max);
             let longest = (0..3)
                 .map(|k| (c[k].0 - c[(k + 1) % 3].0).length())
@@ -466,7 +467,19 @@ impl ErrorReference<'_> {
                         .fold(0.0, f64::max)
                 })
                 .fold(f64::INFINITY, f64::min);
-            lipschitz.min(convex)
+            if lipschitz.min(convex) <= certified_m {
+                return true;
+            }
+            // Corners nearest to two coarse triangles that share an edge: a face of full detail
+            // across an edge of the coarse content, often of one flat face.
+            [(0, 1), (0, 2), (1, 2)].iter().any(|&(i, j)| {
+                let (ka, kb) = (c[i].2, c[j].2);
+                ka != u32::MAX
+                    && kb != u32::MAX
+                    && ka != kb
+                    && two_piece_bound(coarse, c.map(|k| k.0), ka, kb)
+                        .is_some_and(|b| surely_below(b, certified_m))
+            })
         };
         // Triangles this small are within the bound whatever their corners (<= sampled).
         let small_m = (certified_m - sampled_m) * 3f64.sqrt();
@@ -476,7 +489,7 @@ impl ErrorReference<'_> {
                 return;
             }
             // A corner's nearest triangle often holds the whole triangle within the certified
-            // distance (`bound` would then certify it by convexity): the corners after it need
+            // distance (`certified` would then certify it by convexity): the corners after it need
             // no search.
             let mut corners = [(DVec3::ZERO, f64::INFINITY, u32::MAX); 3];
             for (corner, &v) in corners.iter_mut().zip(&p) {
@@ -485,10 +498,10 @@ impl ErrorReference<'_> {
                     return;
                 }
             }
-            // The corners' own nearest triangles are tried by `bound` (convexity).
+            // The corners' own nearest triangles are tried by `certified` (convexity, then in pairs).
             stack.push((corners, 0));
             while let Some((c, splits)) = stack.pop() {
-                if splits >= FACE_SPLITS || bound(&c) <= certified_m {
+                if splits >= FACE_SPLITS || certified(&c) {
                     continue;
                 }
                 let m = [0, 1, 2].map(|k| exact((c[k].0 + c[(k + 1) % 3].0) * 0.5, hint));
@@ -533,6 +546,45 @@ impl ErrorReference<'_> {
         }
         f64::from_bits(run.load(Relaxed))
     }
+}
+
+/// An upper bound of the distance from every point of triangle `t` to the union of coarse
+/// triangles `ka` and `kb`, when they share an edge (`None` otherwise). The plane through the
+/// shared edge, across `ka`, cuts `t` into two convex pieces (or leaves it whole); the distance to
+/// one triangle is convex, so each piece lies within its corners' largest distance of the coarse
+/// triangle on its side. Any plane would give a bound; this one fits two triangles of one flat
+/// face, which a full-detail face crossing their edge lies over.
+fn two_piece_bound(coarse: &MeshBvh, t: [DVec3; 3], ka: u32, kb: u32) -> Option<f64> {
+    let (a, b) = (coarse.triangle(ka), coarse.triangle(kb));
+    let mut shared = a.iter().filter(|p| b.contains(p));
+    let (o, q) = (*shared.next()?, *shared.next()?);
+    let apex = *a.iter().find(|p| !b.contains(p))?;
+    let normal = (a[1] - a[0]).cross(a[2] - a[0]);
+    let mut across = (q - o).cross(normal);
+    if across.dot(apex - o) < 0.0 {
+        across = -across;
+    }
+    if across.length_squared() == 0.0 {
+        return None;
+    }
+    let side = t.map(|p| across.dot(p - o));
+    let mut far_a = 0.0f64;
+    let mut far_b = 0.0f64;
+    for k in 0..3 {
+        if side[k] >= 0.0 {
+            far_a = far_a.max(coarse.distance_to_triangle(t[k], ka));
+        }
+        if side[k] <= 0.0 {
+            far_b = far_b.max(coarse.distance_to_triangle(t[k], kb));
+        }
+        let n = (k + 1) % 3;
+        if (side[k] > 0.0 && side[n] < 0.0) || (side[k] < 0.0 && side[n] > 0.0) {
+            let x = t[k] + (t[n] - t[k]) * (side[k] / (side[k] - side[n]));
+            far_a = far_a.max(coarse.distance_to_triangle(x, ka));
+            far_b = far_b.max(coarse.distance_to_triangle(x, kb));
+        }
+    }
+    Some(far_a.max(far_b))
 }
 
 /// Triangles a run of which is first tried as one ball ([`Ball`]) by the measurements: a tile
@@ -876,6 +928,76 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_face_across_two_coarse_triangles_lies_within_their_two_piece_bound() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // Two coarse triangles sharing the edge from (0, 0, 0) to (1, 1, 0): flat, then folded.
+        for fold in [0.0f32, 0.3, -0.8] {
+            let pos = [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, fold],
+            ];
+            let coarse = MeshBvh::new(TriMesh::new(&pos, &[0, 1, 2, 0, 2, 3]));
+            let to_both = |x: DVec3| {
+                coarse
+                    .distance_to_triangle(x, 0)
+                    .min(coarse.distance_to_triangle(x, 1))
+            };
+            for _ in 0..200 {
+                let t = [0; 3].map(|_| {
+                    DVec3::new(next() * 1.4 - 0.2, next() * 1.4 - 0.2, next() * 0.4 - 0.2)
+                });
+                let bound = two_piece_bound(&coarse, t, 0, 1).expect("they share an edge");
+                for i in 0..=20 {
+                    for j in 0..=20 - i {
+                        let (a, b) = (i as f64 / 20.0, j as f64 / 20.0);
+                        let x = t[0] * (1.0 - a - b) + t[1] * a + t[2] * b;
+                        assert!(to_both(x) <= bound + 1e-12, "{t:?} at {x}: over {bound}");
+                    }
+                }
+            }
+        }
+        // A face of the flat square across the diagonal: on it, though neither triangle holds it.
+        let pos = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        let coarse = MeshBvh::new(TriMesh::new(&pos, &[0, 1, 2, 0, 2, 3]));
+        let face = [
+            DVec3::new(0.2, 0.1, 0.0),
+            DVec3::new(0.9, 0.3, 0.0),
+            DVec3::new(0.3, 0.8, 0.0),
+        ];
+        assert!(two_piece_bound(&coarse, face, 0, 1).unwrap() < 1e-12);
+        let alone = |k| {
+            face.iter()
+                .map(|&v| coarse.distance_to_triangle(v, k))
+                .fold(0.0, f64::max)
+        };
+        assert!(alone(0) > 0.1 && alone(1) > 0.1);
+        // Triangles that share no edge give no bound.
+        let pos = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [3.0, 0.0, 0.0],
+            [4.0, 0.0, 0.0],
+            [3.0, 1.0, 0.0],
+        ];
+        let apart = MeshBvh::new(TriMesh::new(&pos, &[0, 1, 2, 3, 4, 5]));
+        assert!(two_piece_bound(&apart, face, 0, 1).is_none());
     }
 
     #[test]

@@ -401,6 +401,12 @@ impl MeshBvh {
         self.corners.len()
     }
 
+    /// The corners of triangle `i` of this mesh.
+    pub fn triangle(&self, i: u32) -> [DVec3; 3] {
+        let t = &self.corners[self.slot[i as usize] as usize];
+        [t.a, t.b, t.c]
+    }
+
     /// Distance from `p` to triangle `i` of this mesh.
     pub fn distance_to_triangle(&self, p: DVec3, i: u32) -> f64 {
         let t = &self.corners[self.slot[i as usize] as usize];
