@@ -891,16 +891,21 @@ fn lock_continuing_borders(
 mod tests {
     use super::*;
 
-    #[test]
-    fn no_point_of_a_run_lies_beyond_its_balls_reach_from_a_triangle() {
-        // A run of triangles scattered over a few metres, and triangles near and far.
-        let mut seed = 7u64;
-        let mut next = || {
+    /// Numbers in [0, 1) from `seed`, the same on every run.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
             seed = seed
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 4.0 - 2.0
-        };
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn no_point_of_a_run_lies_beyond_its_balls_reach_from_a_triangle() {
+        // A run of triangles scattered over a few metres, and triangles near and far.
+        let mut uniform = uniform(7);
+        let mut next = || uniform() * 4.0 - 2.0;
         for _ in 0..50 {
             let run: Vec<[DVec3; 3]> = (0..COVER_RUN)
                 .map(|_| [0; 3].map(|_| DVec3::new(next(), next(), next() * 0.1)))
@@ -932,13 +937,7 @@ mod tests {
 
     #[test]
     fn a_face_across_two_coarse_triangles_lies_within_their_two_piece_bound() {
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(11);
         // Two coarse triangles sharing the edge from (0, 0, 0) to (1, 1, 0): flat, then folded.
         for fold in [0.0f32, 0.3, -0.8] {
             let pos = [
