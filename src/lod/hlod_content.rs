@@ -418,10 +418,10 @@ impl ErrorReference<'_> {
     /// the distance anywhere on it: the distance is 1-Lipschitz (at most the largest corner's
     /// distance plus the longest edge over √3), and the distance to one coarse triangle is convex
     /// (at most the largest corner's distance to that triangle), as it is on each side of a plane
-    /// through the edge two coarse triangles share ([`two_piece_bound`]). A triangle whose bound is over
-    /// the certified distance ([`FULL_TO_COARSE_SAFETY`] times `sampled_m`) is split in four at its
-    /// edge midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`] times),
-    /// so the declared error covers every face, edge and open border. Samples alone missed peaks
+    /// through the edge two coarse triangles share ([`two_piece_bound`]). A triangle whose bound is
+    /// over the certified distance ([`FULL_TO_COARSE_SAFETY`] times `sampled_m`) is split in four
+    /// at its edge midpoints, measured there, and its parts checked again (at most [`FACE_SPLITS`]
+    /// times), so the declared error covers every face, edge and open border. Samples alone missed peaks
     /// between corners, declaring less than the real distance.
     ///
     /// Most triangles lie within the certified distance of the coarse triangle the last one was
@@ -471,12 +471,14 @@ impl ErrorReference<'_> {
                 return true;
             }
             // Corners nearest to two coarse triangles that share an edge: a face of full detail
-            // across an edge of the coarse content, often of one flat face.
-            [(0, 1), (0, 2), (1, 2)].iter().any(|&(i, j)| {
-                let (ka, kb) = (c[i].2, c[j].2);
+            // across an edge of the coarse content, often of one flat face. Each pair once.
+            let pairs = [(c[0].2, c[1].2), (c[0].2, c[2].2), (c[1].2, c[2].2)];
+            pairs.iter().enumerate().any(|(n, &(ka, kb))| {
                 ka != u32::MAX
                     && kb != u32::MAX
                     && ka != kb
+                    && !pairs[..n].contains(&(ka, kb))
+                    && !pairs[..n].contains(&(kb, ka))
                     && two_piece_bound(coarse, c.map(|k| k.0), ka, kb)
                         .is_some_and(|b| surely_below(b, certified_m))
             })
@@ -498,7 +500,7 @@ impl ErrorReference<'_> {
                     return;
                 }
             }
-            // The corners' own nearest triangles are tried by `certified` (convexity, then in pairs).
+            // The corners' own nearest triangles are tried by `certified` (convexity, then pairs).
             stack.push((corners, 0));
             while let Some((c, splits)) = stack.pop() {
                 if splits >= FACE_SPLITS || certified(&c) {
