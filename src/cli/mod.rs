@@ -736,7 +736,9 @@ fn run_plan(a: PlanArgs) -> Result<()> {
                 "{}: up to date, no job to run (merge rewrites report.json)\n",
                 a.convert.out.display()
             ))?;
-        } else if run == p.jobs.len() {
+        } else if run == p.jobs.len() || u.tile_cache_note.is_some() {
+            // (A cache with a note gives nothing: every job with an HLOD tile runs, and jobs of
+            // leaves alone have nothing to run.)
             eprintln!(
                 "note: update: full build: {reason}{}",
                 note.unwrap_or_default()

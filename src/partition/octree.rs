@@ -30,7 +30,10 @@
 //! of twice the smallest power of two that spans the content ([`grid_root_cell`]). So the cells do not move when the content's bounds do: a building
 //! removed, moved or replaced changes the cells it was or is in and their ancestors, and the
 //! rest of the tree, cells and content, stays as it was (`convert --update`). Only content that
-//! reaches past the root's cube, or shrinks to half of it, changes the root. A single model's
+//! reaches past the root's cube, or shrinks to half of it, changes the root. A cell that holds
+//! nearly all of its parent's content (a campus across a line of the grid) is no level of its own:
+//! it is spliced out, and the cells in its place grouped by octant ([`without_repeated_levels`]);
+//! the grid's cells below keep their places. A single model's
 //! root is the cube around its bounds (cells that fit it tightly: a grid anchored at the origin
 //! would cut a model centred there along its middle planes first).
 //!
@@ -201,6 +204,18 @@ struct Item {
 /// Plans the octree for every drawn component of `scene` that has geometry (aliases of exact
 /// duplicates are left out: their geometry is the kept component's).
 pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
+    let plan = plan_cells(scene, opts);
+    match scene.stable_layout {
+        true => TilePlan {
+            tiles: without_repeated_levels(plan.tiles),
+        },
+        false => plan,
+    }
+}
+
+/// The octree of [`plan_octree`], every non-empty cell a tile but those with one child and no
+/// content of their own.
+fn plan_cells(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
     let items: Vec<Item> = scene
         .drawn_components()
         .filter(|c| !c.world_bounds.is_empty())
@@ -231,6 +246,108 @@ pub fn plan_octree(scene: &Scene, opts: &OctreeOptions) -> TilePlan {
         flatten(root, &mut plan.tiles);
     }
     plan
+}
+
+/// A child whose box's largest side is over this share of its parent's halves nothing (see
+/// [`without_repeated_levels`]).
+const REPEATED_LEVEL_SIDE_RATIO: f64 = 0.75;
+
+/// The plan with every tile that repeats its parent's level spliced out, and the tiles that
+/// splicing leaves with more than eight children grouped by octant.
+///
+/// On the anchored grid, content that straddles a line of a large cell leaves one child holding
+/// nearly all of it beside slivers: the ladder (`lod::hlod`) would still halve each such level's
+/// error, holding every level below to more detail than its size asks, and each would be one more
+/// simplification and measurement of nearly all the content. A tile with no content of its own
+/// whose box's largest side is over [`REPEATED_LEVEL_SIDE_RATIO`] of its parent's is replaced by
+/// its children (again if they repeat it too). The cells that then take its place are smaller
+/// than half their new parent, and can be many: they are grouped by the octant of the parent's box
+/// their centre is in, each group of two or more a tile of its own (`<parent>g<octant>`, no
+/// content), so that the first levels below a tile halve it, as a plain octree's do. Grid tiles keep
+/// their paths and cells (an update's tiles keep their names); only the tree above them changes.
+fn without_repeated_levels(tiles: Vec<PlannedTile>) -> Vec<PlannedTile> {
+    fn side_m(b: &Aabb) -> f64 {
+        b.size().max_element()
+    }
+    /// A tile to write: one of the plan's, or a group of some of its tiles.
+    enum Next {
+        Tile(usize),
+        Group(Box<PlannedTile>, Vec<usize>),
+    }
+    fn visit(old: &[PlannedTile], next: Next, depth: u32, out: &mut Vec<PlannedTile>) {
+        let (tile, children) = match next {
+            Next::Tile(i) => (old[i].clone(), old[i].children.clone()),
+            Next::Group(tile, children) => (*tile, children),
+        };
+        let limit_m = REPEATED_LEVEL_SIDE_RATIO * side_m(&tile.bounds);
+        // In order: a spliced child's children take its place.
+        let mut kids = Vec::new();
+        let mut pending: Vec<usize> = children.iter().rev().copied().collect();
+        while let Some(c) = pending.pop() {
+            let t = &old[c];
+            if t.content.is_empty() && !t.children.is_empty() && side_m(&t.bounds) > limit_m {
+                pending.extend(t.children.iter().rev());
+            } else {
+                kids.push(c);
+            }
+        }
+        let mut octants: [Vec<usize>; 8] = Default::default();
+        for &k in &kids {
+            octants[octant_of(old[k].bounds.center(), tile.bounds.center())].push(k);
+        }
+        let grouped = kids.len() > 8 && octants.iter().all(|o| o.len() < kids.len());
+        let me = out.len();
+        out.push(PlannedTile {
+            depth,
+            children: Vec::new(),
+            ..tile
+        });
+        let nexts: Vec<Next> = match grouped {
+            false => kids.into_iter().map(Next::Tile).collect(),
+            true => octants
+                .into_iter()
+                .enumerate()
+                .filter(|(_, o)| !o.is_empty())
+                .map(|(o, group)| match group[..] {
+                    [only] => Next::Tile(only),
+                    _ => {
+                        let bounds = group
+                            .iter()
+                            .fold(Aabb::EMPTY, |b, &k| b.union(&old[k].bounds));
+                        let half = DVec3::splat(side_m(&bounds) * 0.5);
+                        let parent = &out[me];
+                        let tile = PlannedTile {
+                            path: format!("{}g{o}", parent.path),
+                            depth: depth + 1,
+                            cell: Aabb {
+                                min: bounds.center() - half,
+                                max: bounds.center() + half,
+                            },
+                            content: Vec::new(),
+                            children: Vec::new(),
+                            content_bounds: Aabb::EMPTY,
+                            bounds,
+                            content_triangles: 0,
+                            // The parent's: no smaller than what its descendants in the group
+                            // hold.
+                            omitted_size_m: parent.omitted_size_m,
+                        };
+                        Next::Group(Box::new(tile), group)
+                    }
+                })
+                .collect(),
+        };
+        for next in nexts {
+            let at = out.len();
+            out[me].children.push(at);
+            visit(old, next, depth + 1, out);
+        }
+    }
+    let mut out = Vec::with_capacity(tiles.len());
+    if !tiles.is_empty() {
+        visit(&tiles, Next::Tile(0), 0, &mut out);
+    }
+    out
 }
 
 /// The root cell of a single model: the cube around its bounds' centre whose side is their
@@ -709,6 +826,59 @@ mod tests {
             .filter(|l| !kept_before.contains(l))
             .count();
         assert!(moved > 0, "a single model's grid is not anchored");
+    }
+
+    #[test]
+    fn a_campus_across_the_grid_lines_has_no_level_that_repeats_its_parent() {
+        // Ten rows of ten boxes 60 m apart, from 20 m west and south of the origin: the grid's
+        // lines through the origin leave one cell of each large level holding nearly all of them,
+        // beside slivers.
+        let specs: Vec<(DVec3, f64)> = (0..100)
+            .map(|i| {
+                let (x, y) = ((i % 10) as f64, (i / 10) as f64);
+                (DVec3::new(x * 60.0 - 20.0, y * 60.0 - 20.0, 4.0), 8.0)
+            })
+            .collect();
+        let mut s = boxes(&specs);
+        s.stable_layout = true;
+        let opts = OctreeOptions {
+            max_tile_triangles: 48,
+            ..Default::default()
+        };
+        let side_m = |t: &PlannedTile| t.bounds.size().max_element();
+        let repeats = |p: &TilePlan| {
+            p.tiles.iter().any(|t| {
+                t.children.iter().any(|&c| {
+                    let child = &p.tiles[c];
+                    child.content.is_empty()
+                        && !child.children.is_empty()
+                        && side_m(child) > REPEATED_LEVEL_SIDE_RATIO * side_m(t)
+                })
+            })
+        };
+        let cells = plan_cells(&s, &opts);
+        assert!(repeats(&cells), "the grid's own tree repeats a level");
+        let plan = plan_octree(&s, &opts);
+        check_invariants(&s, &plan, &opts);
+        assert!(!repeats(&plan));
+        // The cells that took a spliced level's place are grouped, eight groups at most.
+        assert!(plan.tiles.iter().any(|t| t.path.contains('g')));
+        assert!(plan.tiles.iter().all(|t| t.children.len() <= 8));
+        for t in plan.tiles.iter().filter(|t| t.path.contains('g')) {
+            assert!(t.content.is_empty() && t.children.len() >= 2, "{}", t.path);
+        }
+        // The same leaves, under the same names.
+        let leaves = |p: &TilePlan| -> Vec<(String, Vec<ContentItem>)> {
+            let mut l: Vec<_> = p
+                .tiles
+                .iter()
+                .filter(|t| t.children.is_empty())
+                .map(|t| (t.path.clone(), t.content.clone()))
+                .collect();
+            l.sort_by(|a, b| a.0.cmp(&b.0));
+            l
+        };
+        assert_eq!(leaves(&plan), leaves(&cells));
     }
 
     #[test]

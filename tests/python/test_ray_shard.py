@@ -119,8 +119,9 @@ def test_ray_update_runs_only_changed_jobs_and_equals_a_full_build(tmp_path):
     # Untextured models: a textured tileset takes no tile from the tile cache.
     for name, model in [("a.glb", "duplex.glb"), ("b.glb", "AC20-FZK-Haus.glb")]:
         shutil.copyfile(shared_model(model), tmp_path / name)
-    models = [{"name": f"b{i}", "path": ["a.glb", "b.glb"][i % 2], "east_m": 120.0 * (i % 3),
-               "north_m": 120.0 * (i // 3)} for i in range(6)]
+    # 200 m apart: a building moved changes the jobs of its own cells and the top, not all of them.
+    models = [{"name": f"b{i}", "path": ["a.glb", "b.glb"][i % 2], "east_m": 200.0 * (i % 3),
+               "north_m": 200.0 * (i // 3)} for i in range(6)]
     manifest = tmp_path / "campus.json"
     manifest.write_text(json.dumps({"models": models}))
     out = tmp_path / "out"
