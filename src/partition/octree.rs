@@ -270,13 +270,13 @@ fn without_repeated_levels(tiles: Vec<PlannedTile>) -> Vec<PlannedTile> {
         b.size().max_element()
     }
     /// A tile to write: one of the plan's, or a group of some of its tiles.
-    enum Next {
+    enum Next<'a> {
         Tile(usize),
-        Group(Box<PlannedTile>, Vec<usize>),
+        Group(Box<PlannedTile>, &'a [usize]),
     }
     fn visit(old: &[PlannedTile], next: Next, depth: u32, out: &mut Vec<PlannedTile>) {
         let (tile, children) = match next {
-            Next::Tile(i) => (old[i].clone(), old[i].children.clone()),
+            Next::Tile(i) => (old[i].clone(), &old[i].children[..]),
             Next::Group(tile, children) => (*tile, children),
         };
         let limit_m = REPEATED_LEVEL_SIDE_RATIO * side_m(&tile.bounds);
@@ -305,7 +305,7 @@ fn without_repeated_levels(tiles: Vec<PlannedTile>) -> Vec<PlannedTile> {
         let nexts: Vec<Next> = match grouped {
             false => kids.into_iter().map(Next::Tile).collect(),
             true => octants
-                .into_iter()
+                .iter()
                 .enumerate()
                 .filter(|(_, o)| !o.is_empty())
                 .map(|(o, group)| match group[..] {
@@ -314,15 +314,11 @@ fn without_repeated_levels(tiles: Vec<PlannedTile>) -> Vec<PlannedTile> {
                         let bounds = group
                             .iter()
                             .fold(Aabb::EMPTY, |b, &k| b.union(&old[k].bounds));
-                        let half = DVec3::splat(side_m(&bounds) * 0.5);
                         let parent = &out[me];
                         let tile = PlannedTile {
                             path: format!("{}g{o}", parent.path),
                             depth: depth + 1,
-                            cell: Aabb {
-                                min: bounds.center() - half,
-                                max: bounds.center() + half,
-                            },
+                            cell: bounds_root_cell(&bounds),
                             content: Vec::new(),
                             children: Vec::new(),
                             content_bounds: Aabb::EMPTY,
