@@ -209,26 +209,26 @@ impl HlodBuilder<'_> {
         from: &[&TileContent],
         target: usize,
         continuing: &[ComponentId],
+        aim_m: Option<f64>,
     ) -> Result<HlodContent> {
         let tile = &self.plan.tiles[i];
         let input: usize = from.iter().map(|c| c.triangle_count()).sum();
-        // Finer tries may keep more than the simplifier's default share of the input.
-        let finer_opts;
-        let simplify_opts = if 2 * target > input {
-            finer_opts = crate::simplify::SimplifyOptions {
-                target_ratio: 1.0,
-                ..self.opts.simplify.clone()
-            };
-            &finer_opts
-        } else {
-            &self.opts.simplify
+        let simplify_opts = crate::simplify::SimplifyOptions {
+            // Finer tries may keep more than the simplifier's default share of the input.
+            target_ratio: match 2 * target > input {
+                true => 1.0,
+                false => self.opts.simplify.target_ratio,
+            },
+            // A part standing farther apart than the tile's aim would miss it alone.
+            keep_parts_apart_m: aim_m,
+            ..self.opts.simplify.clone()
         };
         simplify_children(
             from,
             tile.bounds.center(),
             continuing,
             target,
-            simplify_opts,
+            &simplify_opts,
         )
         .map_err(|e| Error::simplify(format!("tiles/{}.glb", tile.path), e))
     }
@@ -244,13 +244,14 @@ impl HlodBuilder<'_> {
         let cut_triangles = cut_triangles(kids.iter().map(|k| &k.cut_triangles));
         let continuing = continuing(self.scene, &cut_triangles);
         let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
+        let aim_m = self.aim_m(i, &kids);
         let mut made: Option<TileContent> = None;
         for &(from_children, target) in &recipe.steps {
             let r = match &made {
                 Some(last) if !from_children => {
-                    self.simplify_to(i, &[last], target, &continuing)?
+                    self.simplify_to(i, &[last], target, &continuing, aim_m)?
                 }
-                _ => self.simplify_to(i, &contents, target, &continuing)?,
+                _ => self.simplify_to(i, &contents, target, &continuing, aim_m)?,
             };
             made = Some(r.content);
         }
@@ -267,6 +268,15 @@ impl HlodBuilder<'_> {
             max_folding_edge_m: recipe.max_folding_edge_m,
             cut_triangles,
         })
+    }
+
+    /// The error internal tile `i` aims at (`None`: the budget alone): its allowed error
+    /// ([`allowed_errors_m`]), and at least twice its children's (the ladder: finer content buys
+    /// nothing but bytes in the first view).
+    fn aim_m(&self, i: usize, kids: &[BuiltSubtree]) -> Option<f64> {
+        let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
+        let allowed = self.allowed_m.get(i).copied().flatten()?;
+        Some(allowed.max(children_max / LADDER_CHILD_RATIO))
     }
 
     /// Builds the subtree of tile `i`; what it hands up (`None`: with a tile cache, when
@@ -325,12 +335,12 @@ impl HlodBuilder<'_> {
                 .map(|k| (&k.content, k.coarse_to_full_m))
                 .collect();
             let leaves = self.leaves_below(i);
-            // How coarse the tile may get (`None`: the budget alone): see [`allowed_errors_m`].
-            let allowed_m = self.allowed_m.get(i).copied().flatten();
+            // How coarse the tile may get (`None`: the budget alone).
+            let aim_m = self.aim_m(i, &kids);
             let reference =
                 ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
             let simplify_at = |from: &[&TileContent], target: usize| {
-                self.simplify_to(i, from, target, continuing)
+                self.simplify_to(i, from, target, continuing, aim_m)
             };
             // The children simplified to the first finer try's count, made before the first try
             // (see below) and taken by the finer try if it comes.
@@ -357,7 +367,7 @@ impl HlodBuilder<'_> {
             // Most tiles need the first finer try (twice the triangles) too: the children are
             // simplified once, to that count, and the first try is simplified from it (a quarter
             // of the children or less to simplify, not all of them again).
-            let mut tried = if allowed_m.is_some() && 2 * target <= most {
+            let mut tried = if aim_m.is_some() && 2 * target <= most {
                 let (first, finer) = first_through_finer(&simplify_at, &contents, target)?;
                 *prepared.lock().expect("prepared") = Some((2 * target, finer));
                 let err = reference
@@ -369,10 +379,7 @@ impl HlodBuilder<'_> {
                 (r, err, vec![(true, target)])
             };
             let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
-            if let Some(allowed) = allowed_m {
-                // The tile declares at least twice its children's error (the ladder), so content
-                // finer than that buys nothing but bytes in the first view.
-                let aim_m = allowed.max(children_max / LADDER_CHILD_RATIO);
+            if let Some(aim_m) = aim_m {
                 tried = refine(&build_at, &contents, most, aim_m, tried)?;
                 drop(prepared.lock().expect("prepared").take());
                 tried = coarsen(&build_at, aim_m, tried)?;

@@ -125,6 +125,13 @@ pub struct SimplifyOptions {
     /// Flipped faces are always rejected (values >= 90 only keep that check).
     /// Default 60.
     pub max_normal_angle_deg: f32,
+    /// Parts whose bounding boxes lie within this distance (metres) of each other form islands;
+    /// the largest part of each island is never removed whole: an island's points are farther
+    /// than this from any other island's, so removing it whole would leave at least that error.
+    /// An HLOD tile passes the error it aims at, so that a small group of parts standing apart
+    /// (a marker, a kiosk across a square) stays rather than raise the tile's error, and every
+    /// level's above it, to its distance. `None`: parts may go whatever their gap (default).
+    pub keep_parts_apart_m: Option<f64>,
     /// Maximum folding edge length (paper III.C (3), Table I): edges longer
     /// than this (metres) are never collapsed. `None`: no limit (default).
     pub max_edge_length_m: Option<f32>,
@@ -166,6 +173,7 @@ impl Default for SimplifyOptions {
             curvature_weight: 4.0,
             max_normal_angle_deg: 60.0,
             max_edge_length_m: None,
+            keep_parts_apart_m: None,
             weld_tolerance_m: 1e-4,
             lock_borders: false,
             border_weight: 1.0,
@@ -496,6 +504,7 @@ fn qem_params(mesh: &MeshInput, opts: &SimplifyOptions, input_triangles: usize) 
         lock_borders: opts.lock_borders,
         boundary_weight: opts.border_weight as f64,
         strict_wedges: mesh.uvs.is_some() || mesh.colors.is_some(),
+        keep_apart_m: opts.keep_parts_apart_m.unwrap_or(f64::INFINITY),
     }
 }
 

@@ -505,6 +505,7 @@ mod tests {
             lock_borders: false,
             boundary_weight: 1.0,
             strict_wedges: false,
+            keep_apart_m: f64::INFINITY,
         }
     }
 

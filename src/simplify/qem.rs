@@ -69,7 +69,11 @@
 //! Small closed parts (door handles, bolts) often cannot be collapsed at all
 //! (link condition); without this they kept hundreds of triangles and forced
 //! far worse collapses elsewhere. Parts with a locked vertex or larger than
-//! `max_edge_length_m` are never removed.
+//! `max_edge_length_m` are never removed, nor the largest part of each island
+//! standing farther than `keep_parts_apart_m` from the rest (`island_keepers`):
+//! the removal cost counts the gap only up to the radius, so a small group of
+//! parts far from everything else would otherwise go early and leave an error
+//! of its whole distance.
 //!
 //! Placement rules (they keep attribute seams, open borders and non-manifold
 //! edges intact — together called *constraint edges*):
@@ -115,6 +119,8 @@ pub(crate) struct QemParams {
     pub boundary_weight: f64,
     /// Attributes other than normals present: see [`State::valid`].
     pub strict_wedges: bool,
+    /// Parts standing farther apart than this are not all removed ([`island_keepers`]).
+    pub keep_apart_m: f64,
 }
 
 impl QemParams {
@@ -318,6 +324,8 @@ struct State<'a> {
     comp_r2: Vec<f64>,
     /// Squared cost of removing each component whole ([`removal_costs2`]).
     comp_removal2: Vec<f64>,
+    /// Per component: never removed whole ([`island_keepers`]).
+    comp_kept_whole: Vec<bool>,
     gen: u32,
     live: usize,
     p: &'a QemParams,
@@ -1170,21 +1178,79 @@ pub(crate) fn components(
 /// apart go first, leaving an error as large as their gap; counting the whole gap keeps widely
 /// scattered parts so long that coarse levels get worse (both measured: docs/benchmarks.md).
 /// With no other component the mesh's diagonal stands for the gap.
-fn removal_costs2(pos: &[DVec3], comp: &[u32], ncomp: usize) -> Vec<f64> {
-    let mut lo = vec![DVec3::splat(f64::INFINITY); ncomp];
-    let mut hi = vec![DVec3::splat(f64::NEG_INFINITY); ncomp];
-    for (x, &c) in pos.iter().zip(comp) {
-        lo[c as usize] = lo[c as usize].min(*x);
-        hi[c as usize] = hi[c as usize].max(*x);
-    }
-    let gaps = crate::geometry::box_gaps(&lo, &hi);
-    (0..ncomp)
+fn removal_costs2(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
+    let gaps = crate::geometry::box_gaps(lo, hi);
+    (0..lo.len())
         .map(|c| {
             let r = 0.5 * (hi[c] - lo[c]).length();
             let g = gaps[c].min(r);
             (r + g) * (r + g)
         })
         .collect()
+}
+
+/// Each component's bounding box (corners).
+fn component_boxes(pos: &[DVec3], comp: &[u32], ncomp: usize) -> (Vec<DVec3>, Vec<DVec3>) {
+    let mut lo = vec![DVec3::splat(f64::INFINITY); ncomp];
+    let mut hi = vec![DVec3::splat(f64::NEG_INFINITY); ncomp];
+    for (x, &c) in pos.iter().zip(comp) {
+        lo[c as usize] = lo[c as usize].min(*x);
+        hi[c as usize] = hi[c as usize].max(*x);
+    }
+    (lo, hi)
+}
+
+/// The components never to remove whole, given `keep_apart_m`: components whose boxes lie within
+/// it of each other form islands (linked in chains), and every point of an island is farther than
+/// it from any other island's. An island removed whole would leave at least that error, so each
+/// keeps its largest component (the others may go: that one stays near them). None with an
+/// infinite distance.
+fn island_keepers(lo: &[DVec3], hi: &[DVec3], keep_apart_m: f64) -> Vec<bool> {
+    let n = lo.len();
+    let mut keep = vec![false; n];
+    if !keep_apart_m.is_finite() || n == 0 {
+        return keep;
+    }
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    // Sweep along x: only boxes whose x ranges come within the distance can be linked.
+    let mut by_x: Vec<u32> = (0..n as u32).collect();
+    by_x.sort_unstable_by(|&a, &b| lo[a as usize].x.total_cmp(&lo[b as usize].x));
+    for (k, &a) in by_x.iter().enumerate() {
+        let (la, ha) = (lo[a as usize], hi[a as usize]);
+        for &b in &by_x[k + 1..] {
+            let (lb, hb) = (lo[b as usize], hi[b as usize]);
+            if lb.x - ha.x > keep_apart_m {
+                break;
+            }
+            let gap = (lb - ha).max(la - hb).max(DVec3::ZERO).length();
+            if gap <= keep_apart_m {
+                let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
+                if ra != rb {
+                    parent[ra.max(rb) as usize] = ra.min(rb);
+                }
+            }
+        }
+    }
+    // Per island, its largest component (by box diagonal; ties: the first).
+    let mut largest = vec![(f64::NEG_INFINITY, u32::MAX); n];
+    for c in 0..n as u32 {
+        let size = (hi[c as usize] - lo[c as usize]).length_squared();
+        let island = &mut largest[find(&mut parent, c) as usize];
+        if size > island.0 {
+            *island = (size, c);
+        }
+    }
+    for &(_, c) in largest.iter().filter(|l| l.1 != u32::MAX) {
+        keep[c as usize] = true;
+    }
+    keep
 }
 
 /// Face quadrics of the position vertices: each triangle's plane, weighted
@@ -1315,7 +1381,9 @@ fn setup(input: QemInput, params: &QemParams) -> State<'_> {
     let carried = quadrics.is_some();
     let quad = quadrics.unwrap_or_else(|| face_quadrics(&pos, &wedge_pos, &tris));
     let (comp, comp_r2) = components(&pos, &wedge_pos, &tris);
-    let comp_removal2 = removal_costs2(&pos, &comp, comp_r2.len());
+    let (comp_lo, comp_hi) = component_boxes(&pos, &comp, comp_r2.len());
+    let comp_removal2 = removal_costs2(&comp_lo, &comp_hi);
+    let comp_kept_whole = island_keepers(&comp_lo, &comp_hi, params.keep_apart_m);
     let mut st = State {
         pos,
         quad,
@@ -1335,6 +1403,7 @@ fn setup(input: QemInput, params: &QemParams) -> State<'_> {
         comp,
         comp_r2,
         comp_removal2,
+        comp_kept_whole,
         gen: 0,
         live: nt,
         p: params,
@@ -1440,7 +1509,8 @@ impl Passes {
         let mut prunable: Vec<bool> = st
             .comp_r2
             .iter()
-            .map(|&r2| 4.0 * r2 <= st.p.max_edge_len2)
+            .zip(&st.comp_kept_whole)
+            .map(|(&r2, &kept)| 4.0 * r2 <= st.p.max_edge_len2 && !kept)
             .collect();
         for (x, &l) in st.locked.iter().enumerate() {
             if l {
@@ -1974,5 +2044,35 @@ impl Passes {
             quad: st.quad,
             curv: st.curv,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_island_standing_apart_keeps_its_largest_part() {
+        // A 10 m building; 10 m east, two small parts 2 cm apart (one island); 40 m north, a
+        // lone marker.
+        let boxes = [
+            (DVec3::ZERO, DVec3::splat(10.0)),
+            (DVec3::new(20.0, 0.0, 0.0), DVec3::new(20.1, 0.1, 0.1)),
+            (DVec3::new(20.12, 0.0, 0.0), DVec3::new(20.32, 0.2, 0.2)),
+            (DVec3::new(0.0, 50.0, 0.0), DVec3::new(0.05, 50.05, 0.05)),
+        ];
+        let (lo, hi): (Vec<DVec3>, Vec<DVec3>) = boxes.into_iter().unzip();
+        assert_eq!(
+            island_keepers(&lo, &hi, 1.0),
+            [true, false, true, true],
+            "three islands, each keeps its largest"
+        );
+        assert_eq!(
+            island_keepers(&lo, &hi, 15.0),
+            [true, false, false, true],
+            "the pair joins the building's island"
+        );
+        assert_eq!(island_keepers(&lo, &hi, 45.0), [true, false, false, false]);
+        assert_eq!(island_keepers(&lo, &hi, f64::INFINITY), [false; 4]);
     }
 }
