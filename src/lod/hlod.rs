@@ -209,7 +209,7 @@ impl HlodBuilder<'_> {
         from: &[&TileContent],
         target: usize,
         continuing: &[ComponentId],
-        aim_m: Option<f64>,
+        keep_apart_m: Option<f64>,
     ) -> Result<HlodContent> {
         let tile = &self.plan.tiles[i];
         let input: usize = from.iter().map(|c| c.triangle_count()).sum();
@@ -219,8 +219,8 @@ impl HlodBuilder<'_> {
                 true => 1.0,
                 false => self.opts.simplify.target_ratio,
             },
-            // A part standing farther apart than the tile's aim would miss it alone.
-            keep_parts_apart_m: aim_m,
+            // A group of parts standing farther apart than the tile's aim would miss it alone.
+            keep_parts_apart_m: keep_apart_m,
             ..self.opts.simplify.clone()
         };
         simplify_children(
@@ -244,14 +244,14 @@ impl HlodBuilder<'_> {
         let cut_triangles = cut_triangles(kids.iter().map(|k| &k.cut_triangles));
         let continuing = continuing(self.scene, &cut_triangles);
         let contents: Vec<&TileContent> = kids.iter().map(|k| &k.content).collect();
-        let aim_m = self.aim_m(i, &kids);
+        let keep_m = self.keep_apart_m(&kids, self.aim_m(i, &kids));
         let mut made: Option<TileContent> = None;
         for &(from_children, target) in &recipe.steps {
             let r = match &made {
                 Some(last) if !from_children => {
-                    self.simplify_to(i, &[last], target, &continuing, aim_m)?
+                    self.simplify_to(i, &[last], target, &continuing, keep_m)?
                 }
-                _ => self.simplify_to(i, &contents, target, &continuing, aim_m)?,
+                _ => self.simplify_to(i, &contents, target, &continuing, keep_m)?,
             };
             made = Some(r.content);
         }
@@ -277,6 +277,18 @@ impl HlodBuilder<'_> {
         let children_max = kids.iter().map(|k| k.geometric_error_m).fold(0.0, f64::max);
         let allowed = self.allowed_m.get(i).copied().flatten()?;
         Some(allowed.max(children_max / LADDER_CHILD_RATIO))
+    }
+
+    /// The distance beyond which the simplifier keeps a group of parts standing apart
+    /// ([`crate::simplify::SimplifyOptions::keep_parts_apart_m`]): the tile's aim, when its first
+    /// try is under the triangle budget. A tile at its budget has its error set by the budget, far
+    /// above its aim: there the aim tells nothing of which parts matter, and parts kept there cost
+    /// the budget other content needs.
+    fn keep_apart_m(&self, kids: &[BuiltSubtree], aim_m: Option<f64>) -> Option<f64> {
+        let input: usize = kids.iter().map(|k| k.content.triangle_count()).sum();
+        let under_budget =
+            input.div_ceil(HLOD_CHILDREN_DIVISOR) < self.opts.octree.max_tile_triangles;
+        aim_m.filter(|_| under_budget)
     }
 
     /// Builds the subtree of tile `i`; what it hands up (`None`: with a tile cache, when
@@ -337,10 +349,11 @@ impl HlodBuilder<'_> {
             let leaves = self.leaves_below(i);
             // How coarse the tile may get (`None`: the budget alone).
             let aim_m = self.aim_m(i, &kids);
+            let keep_m = self.keep_apart_m(&kids, aim_m);
             let reference =
                 ErrorReference::new(self.scene, tile.bounds.center(), &children, &leaves, 0);
             let simplify_at = |from: &[&TileContent], target: usize| {
-                self.simplify_to(i, from, target, continuing, aim_m)
+                self.simplify_to(i, from, target, continuing, keep_m)
             };
             // The children simplified to the first finer try's count, made before the first try
             // (see below) and taken by the finer try if it comes.

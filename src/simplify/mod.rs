@@ -128,9 +128,10 @@ pub struct SimplifyOptions {
     /// Parts whose bounding boxes lie within this distance (metres) of each other form islands;
     /// the largest part of each island is never removed whole: an island's points are farther
     /// than this from any other island's, so removing it whole would leave at least that error.
-    /// An HLOD tile passes the error it aims at, so that a small group of parts standing apart
-    /// (a marker, a kiosk across a square) stays rather than raise the tile's error, and every
-    /// level's above it, to its distance. `None`: parts may go whatever their gap (default).
+    /// An HLOD tile under its budget passes the error it aims at, so that a small group of parts
+    /// standing apart (a marker, a kiosk across a square) stays rather than raise the tile's
+    /// error, and every level's above it, to its distance. `None`: parts may go whatever their
+    /// gap (default).
     pub keep_parts_apart_m: Option<f64>,
     /// Maximum folding edge length (paper III.C (3), Table I): edges longer
     /// than this (metres) are never collapsed. `None`: no limit (default).
