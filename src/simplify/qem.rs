@@ -1130,22 +1130,47 @@ pub(crate) fn components(
     wedge_pos: &[u32],
     tris: &[[u32; 3]],
 ) -> (Vec<u32>, Vec<f64>) {
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
+    let (comp, lo, hi) = component_boxes(pos, wedge_pos, tris);
+    (comp, radii2(&lo, &hi))
+}
+
+/// Squared radius (half the box diagonal) of each component.
+fn radii2(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
+    lo.iter()
+        .zip(hi)
+        .map(|(l, h)| 0.25 * (*h - *l).length_squared())
+        .collect()
+}
+
+/// The root of `x`'s set in a union-find forest (path halving).
+fn find_root(p: &mut [u32], mut x: u32) -> u32 {
+    while p[x as usize] != x {
+        p[x as usize] = p[p[x as usize] as usize];
+        x = p[x as usize];
     }
+    x
+}
+
+/// Joins the sets of `a` and `b` (the smaller root stays).
+fn join(p: &mut [u32], a: u32, b: u32) {
+    let (a, b) = (find_root(p, a), find_root(p, b));
+    if a != b {
+        p[a.max(b) as usize] = a.min(b);
+    }
+}
+
+/// Connected components of the position vertices (per vertex) and each one's bounding box.
+fn component_boxes(
+    pos: &[DVec3],
+    wedge_pos: &[u32],
+    tris: &[[u32; 3]],
+) -> (Vec<u32>, Vec<DVec3>, Vec<DVec3>) {
     let nv = pos.len();
     let mut parent: Vec<u32> = (0..nv as u32).collect();
     for t in tris {
         let v = t.map(|w| wedge_pos[w as usize]);
         for k in 1..3 {
-            let (a, b) = (find(&mut parent, v[0]), find(&mut parent, v[k]));
-            if a != b {
-                parent[a.max(b) as usize] = a.min(b);
-            }
+            join(&mut parent, v[0], v[k]);
         }
     }
     let mut comp = vec![0u32; nv];
@@ -1153,7 +1178,7 @@ pub(crate) fn components(
     let mut lo: Vec<DVec3> = Vec::new();
     let mut hi: Vec<DVec3> = Vec::new();
     for x in 0..nv {
-        let r = find(&mut parent, x as u32) as usize;
+        let r = find_root(&mut parent, x as u32) as usize;
         if id[r] == u32::MAX {
             id[r] = lo.len() as u32;
             lo.push(pos[x]);
@@ -1164,12 +1189,7 @@ pub(crate) fn components(
         lo[c as usize] = lo[c as usize].min(pos[x]);
         hi[c as usize] = hi[c as usize].max(pos[x]);
     }
-    let r2 = lo
-        .iter()
-        .zip(&hi)
-        .map(|(l, h)| 0.25 * (*h - *l).length_squared())
-        .collect();
-    (comp, r2)
+    (comp, lo, hi)
 }
 
 /// Squared cost of removing each component whole: its radius plus its gap, the distance from its
@@ -1189,17 +1209,6 @@ fn removal_costs2(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
         .collect()
 }
 
-/// Each component's bounding box (corners).
-fn component_boxes(pos: &[DVec3], comp: &[u32], ncomp: usize) -> (Vec<DVec3>, Vec<DVec3>) {
-    let mut lo = vec![DVec3::splat(f64::INFINITY); ncomp];
-    let mut hi = vec![DVec3::splat(f64::NEG_INFINITY); ncomp];
-    for (x, &c) in pos.iter().zip(comp) {
-        lo[c as usize] = lo[c as usize].min(*x);
-        hi[c as usize] = hi[c as usize].max(*x);
-    }
-    (lo, hi)
-}
-
 /// The components never to remove whole, given `keep_apart_m`: components whose boxes lie within
 /// it of each other form islands (linked in chains), and every point of an island is farther than
 /// it from any other island's. An island removed whole would leave at least that error, so each
@@ -1210,13 +1219,6 @@ fn island_keepers(lo: &[DVec3], hi: &[DVec3], keep_apart_m: f64) -> Vec<bool> {
     let mut keep = vec![false; n];
     if !keep_apart_m.is_finite() || n == 0 {
         return keep;
-    }
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
     }
     let mut parent: Vec<u32> = (0..n as u32).collect();
     // Sweep along x: only boxes whose x ranges come within the distance can be linked.
@@ -1231,10 +1233,7 @@ fn island_keepers(lo: &[DVec3], hi: &[DVec3], keep_apart_m: f64) -> Vec<bool> {
             }
             let gap = (lb - ha).max(la - hb).max(DVec3::ZERO).length();
             if gap <= keep_apart_m {
-                let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-                if ra != rb {
-                    parent[ra.max(rb) as usize] = ra.min(rb);
-                }
+                join(&mut parent, a, b);
             }
         }
     }
@@ -1242,7 +1241,7 @@ fn island_keepers(lo: &[DVec3], hi: &[DVec3], keep_apart_m: f64) -> Vec<bool> {
     let mut largest = vec![(f64::NEG_INFINITY, u32::MAX); n];
     for c in 0..n as u32 {
         let size = (hi[c as usize] - lo[c as usize]).length_squared();
-        let island = &mut largest[find(&mut parent, c) as usize];
+        let island = &mut largest[find_root(&mut parent, c) as usize];
         if size > island.0 {
             *island = (size, c);
         }
@@ -1380,8 +1379,8 @@ fn setup(input: QemInput, params: &QemParams) -> State<'_> {
     let nt = tris.len();
     let carried = quadrics.is_some();
     let quad = quadrics.unwrap_or_else(|| face_quadrics(&pos, &wedge_pos, &tris));
-    let (comp, comp_r2) = components(&pos, &wedge_pos, &tris);
-    let (comp_lo, comp_hi) = component_boxes(&pos, &comp, comp_r2.len());
+    let (comp, comp_lo, comp_hi) = component_boxes(&pos, &wedge_pos, &tris);
+    let comp_r2 = radii2(&comp_lo, &comp_hi);
     let comp_removal2 = removal_costs2(&comp_lo, &comp_hi);
     let comp_kept_whole = island_keepers(&comp_lo, &comp_hi, params.keep_apart_m);
     let mut st = State {
