@@ -90,6 +90,11 @@ pub fn set_normals(faces: &[DVec3], indices: &[u32], normals: &mut [[f32; 3]]) {
     }
 }
 
+/// The distance between box `a` and box `b` (0 when they touch or overlap).
+pub(crate) fn box_gap(lo_a: DVec3, hi_a: DVec3, lo_b: DVec3, hi_b: DVec3) -> f64 {
+    (lo_b - hi_a).max(lo_a - hi_b).max(DVec3::ZERO).length()
+}
+
 /// For each box, the distance to the nearest other box (0 when they touch or overlap), capped at
 /// the diagonal of all boxes. Boxes go into a uniform grid (about one box per cell); each box
 /// searches rings of cells outwards until a ring cannot hold a nearer box. Boxes spanning many
@@ -105,10 +110,7 @@ pub(crate) fn box_gaps(lo: &[DVec3], hi: &[DVec3]) -> Vec<f64> {
     if n < 2 || diag.is_nan() || diag <= 0.0 {
         return vec![diag.max(0.0); n];
     }
-    let box_dist = |i: usize, j: usize| -> f64 {
-        let d = (lo[j] - hi[i]).max(lo[i] - hi[j]).max(DVec3::ZERO);
-        d.length()
-    };
+    let box_dist = |i: usize, j: usize| box_gap(lo[i], hi[i], lo[j], hi[j]);
     const MAX_CELLS_PER_AXIS: f64 = 64.0;
     const MAX_CELLS_PER_BOX: usize = 64;
     let ext = (all_hi - all_lo).max(DVec3::splat(diag * 1e-9));

@@ -1221,18 +1221,23 @@ fn island_keepers(lo: &[DVec3], hi: &[DVec3], keep_apart_m: f64) -> Vec<bool> {
         return keep;
     }
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    // Sweep along x: only boxes whose x ranges come within the distance can be linked.
-    let mut by_x: Vec<u32> = (0..n as u32).collect();
-    by_x.sort_unstable_by(|&a, &b| lo[a as usize].x.total_cmp(&lo[b as usize].x));
-    for (k, &a) in by_x.iter().enumerate() {
+    // Sweep along the axis the boxes spread widest (a tower's parts share their x range): only
+    // boxes whose ranges on it come within the distance can be linked.
+    let (first, last) = lo.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), l| (a.min(*l), b.max(*l)),
+    );
+    let axis = (last - first).max_position();
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_unstable_by(|&a, &b| lo[a as usize][axis].total_cmp(&lo[b as usize][axis]));
+    for (k, &a) in order.iter().enumerate() {
         let (la, ha) = (lo[a as usize], hi[a as usize]);
-        for &b in &by_x[k + 1..] {
+        for &b in &order[k + 1..] {
             let (lb, hb) = (lo[b as usize], hi[b as usize]);
-            if lb.x - ha.x > keep_apart_m {
+            if lb[axis] - ha[axis] > keep_apart_m {
                 break;
             }
-            let gap = (lb - ha).max(la - hb).max(DVec3::ZERO).length();
-            if gap <= keep_apart_m {
+            if crate::geometry::box_gap(la, ha, lb, hb) <= keep_apart_m {
                 join(&mut parent, a, b);
             }
         }
@@ -2073,5 +2078,23 @@ mod tests {
         );
         assert_eq!(island_keepers(&lo, &hi, 45.0), [true, false, false, false]);
         assert_eq!(island_keepers(&lo, &hi, f64::INFINITY), [false; 4]);
+    }
+
+    #[test]
+    fn parts_sharing_their_x_range_are_kept_apart_by_height() {
+        // A tower: three floors of one footprint, 4 m apart in height, the top one smallest.
+        let floors = [0.0, 4.0, 8.0].map(|z| (DVec3::new(0.0, 0.0, z), DVec3::new(10.0, 10.0, z)));
+        let (lo, mut hi): (Vec<DVec3>, Vec<DVec3>) = floors.into_iter().unzip();
+        hi[2].x = 5.0;
+        assert_eq!(
+            island_keepers(&lo, &hi, 1.0),
+            [true; 3],
+            "each floor its own island"
+        );
+        assert_eq!(
+            island_keepers(&lo, &hi, 4.0),
+            [true, false, false],
+            "one island"
+        );
     }
 }
