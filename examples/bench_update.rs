@@ -2,7 +2,8 @@
 //! IFC and GLB models, each building its own file), against a full build: wall time, and files
 //! and bytes written again, for an unchanged manifest, one building's file replaced by another
 //! model, one building moved 50 m, one property value renamed in an IFC file, and one building
-//! removed. Each update starts from the tileset the previous one left. Then the same campus built
+//! removed. Each update starts from the tileset the previous one left, and where its time went
+//! (reading the models, dedup, the tiles) is printed after. Then the same campus built
 //! and updated sharded (`plan --update --jobs 4`, each job's `build-job` one after another, `merge`):
 //! the jobs an update runs, and the time of each step. Also writes `target/bench/update.json`.
 //!
@@ -231,6 +232,9 @@ fn main() {
             "tiles_reused": u["tiles_reused"],
             "tiles_remade": u["tiles_remade"],
             "reason": u["full_build_reason"],
+            "mode": u["mode"],
+            "timings_s": report["timings_s"],
+            "hlod_timings_s": report["hlod_timings_s"],
         });
         println!(
             "| {name} | {seconds:.2} | {:.1} % | {written} | {:.1} % | {} of {} | {} | {} | {} | {} of {} / {} / {} ({}) | {} |",
@@ -253,6 +257,7 @@ fn main() {
         );
         rows.push(row);
     }
+    print_phases(&rows);
     let sharded = sharded_updates(&bin, &mut campus, &root.join("tiles-sharded"), middle);
     let json = json!({"buildings": buildings, "full_build_s": full_s, "files": files, "tiles": tiles, "updates": rows, "sharded": sharded});
     std::fs::write(
@@ -260,6 +265,45 @@ fn main() {
         serde_json::to_vec_pretty(&json).unwrap(),
     )
     .unwrap();
+}
+
+/// Where each update's time went, from its report's `timings_s` and `hlod_timings_s`: reading
+/// the models (every entry is read while any input changed), dedup, and the tiles (leaves keyed,
+/// taken or written; HLOD tiles taken, written again or built, with the CPU seconds their
+/// simplifications and measurements took on all threads).
+fn print_phases(rows: &[Value]) {
+    println!(
+        "\nWhere each update's time goes (`timings_s` and `hlod_timings_s` of its report.json):\n"
+    );
+    println!("| change | in all (s) | reading the models (s) | dedup (s) | tiles (s) | simplifying (CPU s) | measuring (CPU s) | measurements |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for row in rows {
+        if row["mode"] == "unchanged" {
+            // Nothing was built: report.json keeps the last build's timings.
+            println!(
+                "| {} | {:.2} | no model read | | | | | 0 |",
+                row["change"].as_str().unwrap_or("?"),
+                row["seconds"].as_f64().unwrap_or(0.0)
+            );
+            continue;
+        }
+        let t = &row["timings_s"];
+        let h = &row["hlod_timings_s"];
+        let s = |v: &Value| v.as_f64().unwrap_or(0.0);
+        let measuring = s(&h["measure_full_to_coarse"])
+            + s(&h["measure_faces"])
+            + s(&h["measure_coarse_to_full"]);
+        println!(
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {measuring:.2} | {} |",
+            row["change"].as_str().unwrap_or("?"),
+            s(&row["seconds"]),
+            s(&t["ingest"]),
+            s(&t["dedup"]),
+            s(&t["encode_write"]),
+            s(&h["simplify"]),
+            h["measurements"].as_u64().unwrap_or(0),
+        );
+    }
 }
 
 /// Jobs of a sharded update.

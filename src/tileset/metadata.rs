@@ -470,6 +470,7 @@ impl MetadataSchema {
         let mut properties = fixed_properties();
         let text_values = distinct_text_values(scene, &kinds);
         let pset_keys = add_pset_properties(kinds, &text_values, &mut properties, &mut enums);
+        debug_assert!(pset_keys.windows(2).all(|w| w[0] < w[1]));
         MetadataSchema {
             properties,
             pset_keys,
@@ -523,24 +524,51 @@ impl MetadataSchema {
                     .iter()
                     .find(|q| *q.set == **set && *q.name == **name)?
                     .value;
-                match (&self.properties[p].value_type, v) {
-                    (ValueType::Float64, PropertyValue::Number(x)) => Some(MetaValue::Number(*x)),
-                    (ValueType::Float64, PropertyValue::Integer(i)) => {
-                        Some(MetaValue::Number(*i as f64))
-                    }
-                    (ValueType::Enum(_), PropertyValue::Bool(b)) => {
-                        self.code("boolean", Some(if *b { "true" } else { "false" }))
-                    }
-                    (ValueType::Enum(e), PropertyValue::Text(s)) => {
-                        self.code(e, Some(s.as_str()).filter(|s| !s.is_empty()))
-                    }
-                    (_, PropertyValue::Text(s)) => text(Some(s.clone())),
-                    (_, PropertyValue::Number(x)) => Some(MetaValue::Text(x.to_string())),
-                    (_, PropertyValue::Integer(i)) => Some(MetaValue::Text(i.to_string())),
-                    (_, PropertyValue::Bool(b)) => Some(MetaValue::Text(b.to_string())),
-                }
+                self.pset_value(p, v)
             }
         }
+    }
+
+    /// The value of property-set property `p` for an element whose entry holds `v`.
+    fn pset_value(&self, p: usize, v: &PropertyValue) -> Option<MetaValue> {
+        match (&self.properties[p].value_type, v) {
+            (ValueType::Float64, PropertyValue::Number(x)) => Some(MetaValue::Number(*x)),
+            (ValueType::Float64, PropertyValue::Integer(i)) => Some(MetaValue::Number(*i as f64)),
+            (ValueType::Enum(_), PropertyValue::Bool(b)) => {
+                self.code("boolean", Some(if *b { "true" } else { "false" }))
+            }
+            (ValueType::Enum(e), PropertyValue::Text(s)) => {
+                self.code(e, Some(s.as_str()).filter(|s| !s.is_empty()))
+            }
+            (_, PropertyValue::Text(s)) if s.is_empty() => None,
+            (_, PropertyValue::Text(s)) => Some(MetaValue::Text(s.clone())),
+            (_, PropertyValue::Number(x)) => Some(MetaValue::Text(x.to_string())),
+            (_, PropertyValue::Integer(i)) => Some(MetaValue::Text(i.to_string())),
+            (_, PropertyValue::Bool(b)) => Some(MetaValue::Text(b.to_string())),
+        }
+    }
+
+    /// An element's property-set entries by their column (`Column::Pset`), sorted, the first of
+    /// a repeated entry kept (as [`Self::value`] finds it): a table looks each up in place of
+    /// scanning the element's entries once per column.
+    fn pset_entries<'e>(&self, info: &'e ElementInfo) -> Vec<(usize, &'e PropertyValue)> {
+        let mut entries: Vec<(usize, &PropertyValue)> = info
+            .properties
+            .iter()
+            .filter_map(|q| {
+                // `pset_keys` is sorted: the schema makes it from an ordered map.
+                let k = self
+                    .pset_keys
+                    .binary_search_by(|(set, name)| {
+                        (set.as_str(), name.as_str()).cmp(&(&*q.set, &*q.name))
+                    })
+                    .ok()?;
+                Some((k, &q.value))
+            })
+            .collect();
+        entries.sort_by_key(|&(k, _)| k);
+        entries.dedup_by_key(|&mut (k, _)| k);
+        entries
     }
 
     /// The property table of one tile's features: the properties some feature has a value for;
@@ -562,6 +590,10 @@ impl MetadataSchema {
             .iter()
             .map(|&c| (scene.component(c), scene.element(c)))
             .collect();
+        let entries: Vec<Vec<(usize, &PropertyValue)>> = elements
+            .iter()
+            .map(|(_, info)| self.pset_entries(info))
+            .collect();
         let mut columns = Vec::new();
         let mut present = Vec::new();
         for (p, def) in self.properties.iter().enumerate() {
@@ -573,9 +605,14 @@ impl MetadataSchema {
             }
             let values: Vec<Option<MetaValue>> = elements
                 .iter()
-                .map(|(comp, info)| match def.column {
+                .zip(&entries)
+                .map(|((comp, info), entries)| match def.column {
                     _ if left_out => None,
                     Column::Name if identity && id_is_node_path(scene, comp, info) => None,
+                    Column::Pset(k) => entries
+                        .binary_search_by_key(&k, |&(j, _)| j)
+                        .ok()
+                        .and_then(|at| self.pset_value(p, entries[at].1)),
                     _ => self.value(scene, comp, info, p),
                 })
                 .collect();
