@@ -771,6 +771,47 @@ mod tests {
     }
 
     #[test]
+    fn table_columns_read_each_entry_as_value_finds_it() {
+        let s = scene_with(vec![
+            ElementInfo {
+                properties: vec![
+                    prop("B", "z", PropertyValue::Text("first".into())),
+                    prop("A", "y", PropertyValue::Number(2.5)),
+                    // A repeated entry: the first one is the element's value.
+                    prop("B", "z", PropertyValue::Text("second".into())),
+                    prop("A", "empty", PropertyValue::Text(String::new())),
+                ],
+                ..Default::default()
+            },
+            ElementInfo {
+                properties: vec![prop("A", "y", PropertyValue::Integer(4))],
+                ..Default::default()
+            },
+            ElementInfo::default(),
+        ]);
+        let m = MetadataSchema::from_scene(&s);
+        let ids = [ComponentId(0), ComponentId(1), ComponentId(2)];
+        let table = m.property_table(&s, &ids, &SchemaPlacement::Inline, TableScope::All);
+        let column = |id: &str| {
+            let p = m.properties.iter().position(|p| p.id == id).unwrap();
+            let values: Vec<_> = ids.iter().map(|&c| value_of(&m, &s, c, p)).collect();
+            let col = table.columns.iter().find(|c| c.0 == id).map(|c| &c.1);
+            (values, col.cloned())
+        };
+        let (values, col) = column("B_z");
+        assert_eq!(values[0], Some(MetaValue::Text("first".into())));
+        assert_eq!(
+            col,
+            Some(ColumnData::Text(vec![Some("first".into()), None, None]))
+        );
+        let (values, col) = column("A_y");
+        assert_eq!(values[1], Some(MetaValue::Number(4.0)));
+        assert_eq!(col, Some(ColumnData::Float64(vec![2.5, 4.0, NO_NUMBER])));
+        // An empty text is no value: no feature has one, so the table leaves the column out.
+        assert_eq!(column("A_empty"), (vec![None, None, None], None));
+    }
+
+    #[test]
     fn enums_types_and_values() {
         let s = scene_with(vec![
             ElementInfo {
