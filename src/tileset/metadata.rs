@@ -517,21 +517,20 @@ impl MetadataSchema {
             Column::Site => self.code("site", info.site.as_deref()),
             Column::Material => self.code("material", info.material.as_deref()),
             Column::Aliases => text(self.aliases.get(&comp.id).cloned()),
-            Column::Pset(k) => {
-                let (set, name) = &self.pset_keys[k];
-                let v = &info
-                    .properties
-                    .iter()
-                    .find(|q| *q.set == **set && *q.name == **name)?
-                    .value;
-                self.pset_value(p, v)
-            }
+            Column::Pset(k) => self.pset_value(&self.pset_entries(info), p, k),
         }
     }
 
-    /// The value of property-set property `p` for an element whose entry holds `v`.
-    fn pset_value(&self, p: usize, v: &PropertyValue) -> Option<MetaValue> {
-        match (&self.properties[p].value_type, v) {
+    /// The value of property-set property `p` (column `k`) for an element whose entries are
+    /// `entries` ([`Self::pset_entries`]).
+    fn pset_value(
+        &self,
+        entries: &[(usize, &PropertyValue)],
+        p: usize,
+        k: usize,
+    ) -> Option<MetaValue> {
+        let at = entries.binary_search_by_key(&k, |&(j, _)| j).ok()?;
+        match (&self.properties[p].value_type, entries[at].1) {
             (ValueType::Float64, PropertyValue::Number(x)) => Some(MetaValue::Number(*x)),
             (ValueType::Float64, PropertyValue::Integer(i)) => Some(MetaValue::Number(*i as f64)),
             (ValueType::Enum(_), PropertyValue::Bool(b)) => {
@@ -549,8 +548,8 @@ impl MetadataSchema {
     }
 
     /// An element's property-set entries by their column (`Column::Pset`), sorted, the first of
-    /// a repeated entry kept (as [`Self::value`] finds it): a table looks each up in place of
-    /// scanning the element's entries once per column.
+    /// a repeated entry kept: a table indexes each element once instead of scanning its entries
+    /// for every column.
     fn pset_entries<'e>(&self, info: &'e ElementInfo) -> Vec<(usize, &'e PropertyValue)> {
         let mut entries: Vec<(usize, &PropertyValue)> = info
             .properties
@@ -590,9 +589,13 @@ impl MetadataSchema {
             .iter()
             .map(|&c| (scene.component(c), scene.element(c)))
             .collect();
+        // An identity table leaves the property sets out: nothing to index.
         let entries: Vec<Vec<(usize, &PropertyValue)>> = elements
             .iter()
-            .map(|(_, info)| self.pset_entries(info))
+            .map(|(_, info)| match scope {
+                TableScope::All => self.pset_entries(info),
+                TableScope::Identity => Vec::new(),
+            })
             .collect();
         let mut columns = Vec::new();
         let mut present = Vec::new();
@@ -609,10 +612,7 @@ impl MetadataSchema {
                 .map(|((comp, info), entries)| match def.column {
                     _ if left_out => None,
                     Column::Name if identity && id_is_node_path(scene, comp, info) => None,
-                    Column::Pset(k) => entries
-                        .binary_search_by_key(&k, |&(j, _)| j)
-                        .ok()
-                        .and_then(|at| self.pset_value(p, entries[at].1)),
+                    Column::Pset(k) => self.pset_value(entries, p, k),
                     _ => self.value(scene, comp, info, p),
                 })
                 .collect();
